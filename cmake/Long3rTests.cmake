@@ -1,0 +1,45 @@
+# Unit tests of the core (gtest), golden parity runs, and (with ROS) rostests.
+# Everything registers with ctest; scripts/run_tests.sh runs ctest.
+enable_testing()
+find_package(GTest REQUIRED)
+include(GoogleTest)
+
+# test/core/test_*.cpp: one gtest binary for the core. Each gtest case becomes
+# its own ctest entry, so ctest's summary counts individual tests.
+file(GLOB LONG3R_CORE_TEST_SRCS CONFIGURE_DEPENDS test/core/test_*.cpp)
+if(LONG3R_CORE_TEST_SRCS)
+  add_executable(long3r_core_tests ${LONG3R_CORE_TEST_SRCS})
+  target_link_libraries(long3r_core_tests PRIVATE long3r_model GTest::gtest GTest::gtest_main)
+  target_include_directories(long3r_core_tests PRIVATE ${PROJECT_SOURCE_DIR}/src ${PROJECT_SOURCE_DIR}/test)
+  target_compile_options(long3r_core_tests PRIVATE ${LONG3R_WARNINGS})
+  target_compile_definitions(long3r_core_tests PRIVATE
+    LONG3R_SHARED_DIR="${LONG3R_SHARED_DIR}"
+    LONG3R_SOURCE_DIR="${PROJECT_SOURCE_DIR}"
+    LONG3R_BINARY_DIR="${PROJECT_BINARY_DIR}")
+  gtest_discover_tests(long3r_core_tests
+    WORKING_DIRECTORY ${PROJECT_BINARY_DIR}
+    DISCOVERY_TIMEOUT 60
+    PROPERTIES ENVIRONMENT "OMP_NUM_THREADS=2;OPENBLAS_NUM_THREADS=1")
+endif()
+
+# Extra test registrations owned by each area (golden parity, fuzz corpus, ...).
+file(GLOB LONG3R_TEST_CMAKE CONFIGURE_DEPENDS test/core/*.cmake)
+foreach(f ${LONG3R_TEST_CMAKE})
+  include(${f})
+endforeach()
+
+if(LONG3R_WITH_ROS)
+  find_package(rostest REQUIRED)
+  file(GLOB LONG3R_ROSTESTS CONFIGURE_DEPENDS test/ros/*.test)
+  foreach(t ${LONG3R_ROSTESTS})
+    add_rostest(${t})
+  endforeach()
+  file(GLOB LONG3R_ROS_GTEST_SRCS CONFIGURE_DEPENDS test/ros/test_*.cpp)
+  foreach(src ${LONG3R_ROS_GTEST_SRCS})
+    get_filename_component(name ${src} NAME_WE)
+    add_executable(${name} ${src})
+    target_link_libraries(${name} PRIVATE long3r_nodelet GTest::gtest)
+    target_compile_options(${name} PRIVATE ${LONG3R_WARNINGS})
+    add_dependencies(tests ${name})
+  endforeach()
+endif()

@@ -1,0 +1,18 @@
+// CPU thread settings for inference.
+//
+// libtorch on Debian starts with one intra-op thread, and OpenBLAS (used by
+// torch's CPU matmuls) reads its own thread count, not torch's. Call this once
+// in the thread that runs the model.
+#pragma once
+
+namespace long3r {
+
+struct ThreadConfig {
+  int torch_threads = 0;     // intra-op threads; 0 = all hardware threads
+  int openblas_threads = 0;  // 0 = leave OpenBLAS as the environment set it
+};
+
+// Applies the config; returns the intra-op thread count now in effect.
+int apply_thread_config(const ThreadConfig& config);
+
+}  // namespace long3r

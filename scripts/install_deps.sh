@@ -1,0 +1,59 @@
+#!/usr/bin/env bash
+# Installs every Debian package long3r_ros needs. Idempotent: when everything is
+# already present it only checks and returns within a second or two.
+# Works as root, or through sudo otherwise.
+set -euo pipefail
+
+PACKAGES=(
+  # toolchain
+  build-essential cmake pkg-config git clang-format
+  # ROS 1 from Debian (installed under /usr; no setup.bash needed)
+  ros-base-dev catkin libroscpp-dev libnodelet-dev python3-nodelet
+  libpcl-ros-dev libcv-bridge-dev libimage-transport-dev libtf2-ros-dev
+  libtf2-geometry-msgs-dev libdiagnostic-updater-dev
+  libsensor-msgs-dev libgeometry-msgs-dev libnav-msgs-dev libstd-srvs-dev
+  ros-message-generation ros-message-runtime
+  python3-rosbag python3-rostest python3-rosnode python3-rostopic python3-roslaunch
+  python3-genmsg python3-gencpp python3-genpy python3-catkin-pkg python3-empy python3-nose
+  image-transport-tools rviz
+  # core libraries
+  libtorch-dev libopenblas0-pthread libopencv-dev libpcl-dev libeigen3-dev
+  nlohmann-json3-dev googletest libgtest-dev libgmock-dev
+  # python side (checkpoint converter)
+  python3-torch python3-numpy
+)
+
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then
+  if command -v sudo >/dev/null 2>&1; then SUDO="sudo"; else
+    echo "install_deps.sh: not root and no sudo; install these packages yourself:" >&2
+    echo "  ${PACKAGES[*]}" >&2
+    exit 1
+  fi
+fi
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  # dpkg-query's status is "install ok installed" only for a fully installed package.
+  if [ "$(dpkg-query -W -f='${Status}' "$p" 2>/dev/null)" != "install ok installed" ]; then
+    missing+=("$p")
+  fi
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "install_deps.sh: all ${#PACKAGES[@]} packages already installed"
+else
+  echo "install_deps.sh: installing ${#missing[@]} missing package(s): ${missing[*]}"
+  export DEBIAN_FRONTEND=noninteractive
+  $SUDO apt-get update -qq
+  $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+fi
+
+# Debian's default reference BLAS makes torch's CPU matmuls ~40x slower; make
+# sure the OpenBLAS pthread variant is the active alternative.
+for alt in libblas.so.3-x86_64-linux-gnu liblapack.so.3-x86_64-linux-gnu; do
+  cand=$(update-alternatives --list "$alt" 2>/dev/null | grep -m1 openblas-pthread || true)
+  if [ -n "$cand" ] && [ "$(readlink -f /etc/alternatives/$alt 2>/dev/null)" != "$(readlink -f "$cand")" ]; then
+    $SUDO update-alternatives --set "$alt" "$cand" >/dev/null
+  fi
+done
