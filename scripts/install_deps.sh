@@ -13,9 +13,9 @@ PACKAGES=(
   libtf2-geometry-msgs-dev libdiagnostic-updater-dev
   libsensor-msgs-dev libgeometry-msgs-dev libnav-msgs-dev libstd-srvs-dev
   ros-message-generation ros-message-runtime
-  python3-rosbag python3-rostest python3-rosnode python3-rostopic python3-roslaunch
+  python3-rosbag python3-rospy python3-rosservice python3-rostest python3-rosnode python3-rostopic python3-roslaunch
   python3-genmsg python3-gencpp python3-genpy python3-catkin-pkg python3-empy python3-nose
-  image-transport-tools rviz
+  image-transport-tools rviz libnodeletlib-tools rosbash rosout ros-core
   # core libraries
   libtorch-dev libopenblas0-pthread libopencv-dev libpcl-dev libeigen3-dev
   nlohmann-json3-dev googletest libgtest-dev libgmock-dev
