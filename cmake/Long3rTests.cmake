@@ -22,8 +22,25 @@ if(LONG3R_CORE_TEST_SRCS)
     PROPERTIES ENVIRONMENT "OMP_NUM_THREADS=2;OPENBLAS_NUM_THREADS=1")
 endif()
 
+# test/pipeline/test_*.cpp: gtests of the OpenCV/PCL side of the core.
+file(GLOB LONG3R_PIPELINE_TEST_SRCS CONFIGURE_DEPENDS test/pipeline/test_*.cpp)
+if(LONG3R_HAVE_CORE_CV AND LONG3R_PIPELINE_TEST_SRCS)
+  add_executable(long3r_pipeline_tests ${LONG3R_PIPELINE_TEST_SRCS})
+  target_link_libraries(long3r_pipeline_tests PRIVATE long3r_core GTest::gtest GTest::gtest_main)
+  target_include_directories(long3r_pipeline_tests PRIVATE ${PROJECT_SOURCE_DIR}/src ${PROJECT_SOURCE_DIR}/test)
+  target_compile_options(long3r_pipeline_tests PRIVATE ${LONG3R_WARNINGS})
+  target_compile_definitions(long3r_pipeline_tests PRIVATE
+    LONG3R_SHARED_DIR="${LONG3R_SHARED_DIR}"
+    LONG3R_SOURCE_DIR="${PROJECT_SOURCE_DIR}"
+    LONG3R_BINARY_DIR="${PROJECT_BINARY_DIR}")
+  gtest_discover_tests(long3r_pipeline_tests
+    WORKING_DIRECTORY ${PROJECT_BINARY_DIR}
+    DISCOVERY_TIMEOUT 60
+    PROPERTIES ENVIRONMENT "OMP_NUM_THREADS=2;OPENBLAS_NUM_THREADS=1")
+endif()
+
 # Extra test registrations owned by each area (golden parity, fuzz corpus, ...).
-file(GLOB LONG3R_TEST_CMAKE CONFIGURE_DEPENDS test/core/*.cmake)
+file(GLOB LONG3R_TEST_CMAKE CONFIGURE_DEPENDS test/core/*.cmake test/pipeline/*.cmake)
 foreach(f ${LONG3R_TEST_CMAKE})
   include(${f})
 endforeach()

@@ -22,15 +22,15 @@ class ParamError : public std::runtime_error {
 
 // ROS-side settings: frames, topics, queueing, timers.
 struct NodeletConfig {
-  std::string model_path;            // safetensors checkpoint; empty = package default
-  std::string world_frame = "map";   // fixed frame of the map and of T_W_C
-  std::string camera_frame;          // empty = the image header's frame_id
-  bool publish_tf = true;            // broadcast world_frame -> camera frame
-  bool use_camera_info = true;       // use camera_info intrinsics when published
+  std::string model_path;               // safetensors checkpoint; empty = package default
+  std::string world_frame = "map";      // fixed frame of the map and of T_W_C
+  std::string camera_frame;             // empty = the image header's frame_id
+  bool publish_tf = true;               // broadcast world_frame -> camera frame
+  bool use_camera_info = true;          // use camera_info intrinsics when published
   std::string image_transport = "raw";  // raw, compressed, ...
-  int queue_size = 1;                // bounded input queue; newest frame wins
-  double flush_after_s = 1.0;        // emit the pending last frame after this silence
-  double map_publish_period_s = 1.0; // republish the map (if changed) this often
+  int queue_size = 1;                   // bounded input queue; newest frame wins
+  double flush_after_s = 1.0;           // emit the pending last frame after this silence
+  double map_publish_period_s = 1.0;    // republish the map (if changed) this often
 };
 
 NodeletConfig readNodeletConfig(const ros::NodeHandle& pnh);

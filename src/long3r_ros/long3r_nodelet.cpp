@@ -1,8 +1,8 @@
 #include "long3r_ros/long3r_nodelet.hpp"
 
 #include <cv_bridge/cv_bridge.h>
-#include <pluginlib/class_list_macros.hpp>
 #include <sensor_msgs/image_encodings.h>
+#include <pluginlib/class_list_macros.hpp>
 
 #include <chrono>
 
@@ -36,9 +36,9 @@ void Long3rNodelet::onInit() {
   worker_ = std::thread(&Long3rNodelet::workerLoop, this);
 
   it_ = std::make_unique<image_transport::ImageTransport>(nh);
-  image_sub_ = it_->subscribe("image", 5, &Long3rNodelet::imageCallback, this,
-                              image_transport::TransportHints(config_.image_transport,
-                                                              ros::TransportHints(), pnh));
+  image_sub_ = it_->subscribe(
+      "image", 5, &Long3rNodelet::imageCallback, this,
+      image_transport::TransportHints(config_.image_transport, ros::TransportHints(), pnh));
   NODELET_INFO("subscribed to %s (transport %s)", image_sub_.getTopic().c_str(),
                config_.image_transport.c_str());
 }

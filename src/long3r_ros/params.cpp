@@ -28,7 +28,8 @@ void read(const ros::NodeHandle& pnh, const std::string& name, double& value) {
   throw ParamError("parameter " + pnh.resolveName(name) + " must be a number");
 }
 
-void require(bool ok, const ros::NodeHandle& pnh, const std::string& name, const std::string& what) {
+void require(bool ok, const ros::NodeHandle& pnh, const std::string& name,
+             const std::string& what) {
   if (!ok) throw ParamError("parameter " + pnh.resolveName(name) + " " + what);
 }
 
