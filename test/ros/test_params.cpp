@@ -1,0 +1,102 @@
+// Parameter reading of the nodelet: defaults, valid values, and every kind of
+// bad value must be rejected with a message naming the parameter.
+#include <gtest/gtest.h>
+#include <ros/ros.h>
+
+#include "long3r_ros/params.hpp"
+
+using long3r_ros::ParamError;
+using long3r_ros::readNodeletConfig;
+using long3r_ros::readThreadConfig;
+
+namespace {
+
+// Each test gets a fresh private namespace so parameters don't leak.
+class ParamsTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    static int counter = 0;
+    pnh_ = ros::NodeHandle("~case" + std::to_string(counter++));
+  }
+  void expectError(const std::string& name) {
+    try {
+      readNodeletConfig(pnh_);
+      readThreadConfig(pnh_);
+      FAIL() << "no error for bad " << name;
+    } catch (const ParamError& e) {
+      EXPECT_NE(std::string(e.what()).find(name), std::string::npos) << e.what();
+    }
+  }
+  ros::NodeHandle pnh_;
+};
+
+}  // namespace
+
+TEST_F(ParamsTest, DefaultsWhenUnset) {
+  auto c = readNodeletConfig(pnh_);
+  EXPECT_EQ(c.world_frame, "map");
+  EXPECT_EQ(c.queue_size, 1);
+  EXPECT_TRUE(c.publish_tf);
+  EXPECT_EQ(readThreadConfig(pnh_).torch_threads, 0);
+}
+
+TEST_F(ParamsTest, ReadsValidValues) {
+  pnh_.setParam("world_frame", "odom");
+  pnh_.setParam("queue_size", 5);
+  pnh_.setParam("flush_after_s", 2);  // an int where a double is expected is fine
+  pnh_.setParam("publish_tf", false);
+  pnh_.setParam("torch_threads", 2);
+  auto c = readNodeletConfig(pnh_);
+  EXPECT_EQ(c.world_frame, "odom");
+  EXPECT_EQ(c.queue_size, 5);
+  EXPECT_DOUBLE_EQ(c.flush_after_s, 2.0);
+  EXPECT_FALSE(c.publish_tf);
+  EXPECT_EQ(readThreadConfig(pnh_).torch_threads, 2);
+}
+
+TEST_F(ParamsTest, RejectsZeroQueue) {
+  pnh_.setParam("queue_size", 0);
+  expectError("queue_size");
+}
+
+TEST_F(ParamsTest, RejectsQueueOfWrongType) {
+  pnh_.setParam("queue_size", "three");
+  expectError("queue_size");
+}
+
+TEST_F(ParamsTest, RejectsNegativePeriod) {
+  pnh_.setParam("map_publish_period_s", -1.0);
+  expectError("map_publish_period_s");
+}
+
+TEST_F(ParamsTest, RejectsNonNumericFlush) {
+  pnh_.setParam("flush_after_s", "soon");
+  expectError("flush_after_s");
+}
+
+TEST_F(ParamsTest, RejectsEmptyWorldFrame) {
+  pnh_.setParam("world_frame", "");
+  expectError("world_frame");
+}
+
+TEST_F(ParamsTest, RejectsCameraFrameEqualToWorld) {
+  pnh_.setParam("camera_frame", "map");
+  expectError("camera_frame");
+}
+
+TEST_F(ParamsTest, RejectsBoolAsString) {
+  pnh_.setParam("publish_tf", "yes");
+  expectError("publish_tf");
+}
+
+TEST_F(ParamsTest, RejectsNegativeThreads) {
+  pnh_.setParam("torch_threads", -2);
+  expectError("torch_threads");
+}
+
+int main(int argc, char** argv) {
+  testing::InitGoogleTest(&argc, argv);
+  ros::init(argc, argv, "test_params");
+  ros::NodeHandle nh;
+  return RUN_ALL_TESTS();
+}
