@@ -1,0 +1,62 @@
+// The streaming interface shared by every model variant (Spann3R, LONG3R).
+//
+// Frames are pushed one at a time. Step t runs when frame t+1 arrives and
+// returns the result for frame t (one frame of latency, as both models
+// define it); flush() returns the last frame from the coarse head when the
+// stream ends; reset() clears every piece of state (memory, cached features).
+// Pointmaps are in the coordinate frame of camera 0 of the current stream.
+#pragma once
+
+#include <ATen/core/Tensor.h>
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+
+namespace long3r {
+
+// Per-step statistics of the memory, for logs, CSVs and diagnostics.
+struct StepStats {
+  int64_t mem_short_tokens = 0;    // short-term / working memory tokens
+  int64_t mem_long_tokens = 0;     // long-term memory tokens
+  int64_t relevant_tokens = -1;    // after memory gating; -1 = the variant has no gating
+  double voxel_size = 0.0;         // LONG3R v_scene (pointmap units); 0 = not applicable
+  bool memory_write_skipped = false;  // Spann3R similarity skip
+  double encode_ms = 0.0;
+  double decode_ms = 0.0;          // memory read + decoder + heads
+  double memory_ms = 0.0;          // memory write and pruning
+};
+
+struct StreamOutput {
+  int64_t frame_index = 0;  // 0-based index of the frame these outputs belong to
+  at::Tensor pts3d;         // [B, H, W, 3] float32, camera-0 frame
+  at::Tensor conf;          // [B, H, W] float32, >= 1
+  bool from_coarse_head = false;  // true for the frame returned by flush()
+  StepStats stats;
+};
+
+class StreamingModel {
+ public:
+  virtual ~StreamingModel() = default;
+
+  // image: [B, 3, H, W] float32, values (rgb - 0.5) / 0.5, on any device.
+  // Returns the result of the previous frame; empty for the first frame.
+  // All frames of a stream must have the same size.
+  virtual std::optional<StreamOutput> push(const at::Tensor& image) = 0;
+
+  // Returns the last pushed frame's result (coarse head) and ends the stream;
+  // empty if no frame is pending. The next push starts a new stream.
+  virtual std::optional<StreamOutput> flush() = 0;
+
+  // Drops all state; the next push starts a new stream.
+  virtual void reset() = 0;
+
+  // Number of frames pushed in the current stream.
+  virtual int64_t frames_pushed() const = 0;
+
+  // "spann3r" or "long3r".
+  virtual std::string variant() const = 0;
+};
+
+}  // namespace long3r
