@@ -1,0 +1,430 @@
+// 3D spatio-temporal memory; see include/long3r/spatio_temporal_memory.hpp.
+#include "long3r/spatio_temporal_memory.hpp"
+
+#include <ATen/ATen.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace long3r {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+// Keeps floor(position / voxel) inside int64 for any finite input.
+constexpr double kVoxelIndexLimit = 4.0e18;
+
+at::Tensor maybe_detach(const at::Tensor& t, bool keep_graph) {
+  return keep_graph ? t : t.detach();
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------
+// Free functions.
+// ---------------------------------------------------------------------------
+
+at::Tensor token_positions(const at::Tensor& pointmap, const at::Tensor& conf, int64_t patch) {
+  TORCH_CHECK(pointmap.dim() == 4 && pointmap.size(3) == 3,
+              "token_positions: pointmap must be [B,H,W,3]");
+  TORCH_CHECK(conf.dim() == 3 && conf.size(0) == pointmap.size(0) &&
+                  conf.size(1) == pointmap.size(1) && conf.size(2) == pointmap.size(2),
+              "token_positions: conf must be [B,H,W] matching the pointmap");
+  TORCH_CHECK(patch > 0, "token_positions: patch must be positive");
+  const int64_t batch = pointmap.size(0);
+  const int64_t height = pointmap.size(1);
+  const int64_t width = pointmap.size(2);
+  TORCH_CHECK(height % patch == 0 && width % patch == 0,
+              "token_positions: H and W must be multiples of the patch size");
+  const int64_t hp = height / patch;
+  const int64_t wp = width / patch;
+  const int64_t tokens = hp * wp;
+  const int64_t area = patch * patch;
+
+  const at::Tensor pts = pointmap.reshape({batch, hp, patch, wp, patch, 3})
+                             .permute({0, 1, 3, 2, 4, 5})
+                             .reshape({batch, tokens, area, 3});
+  const at::Tensor w = conf.to(pointmap.scalar_type())
+                           .reshape({batch, hp, patch, wp, patch})
+                           .permute({0, 1, 3, 2, 4})
+                           .reshape({batch, tokens, area, 1});
+  const at::Tensor num = (pts * w).sum(2);
+  const at::Tensor den = w.sum(2);
+  const at::Tensor ok = den > 0;
+  // Divide by a safe denominator so that the unused branch has no NaN gradient.
+  const at::Tensor weighted = num / at::where(ok, den, at::ones_like(den));
+  return at::where(ok, weighted, pts.mean(2));
+}
+
+at::Tensor neighbour_distances(const at::Tensor& positions, at::IntArrayRef grid_hw) {
+  TORCH_CHECK(positions.dim() == 3 && positions.size(2) == 3,
+              "neighbour_distances: positions must be [B,P,3]");
+  TORCH_CHECK(grid_hw.size() == 2, "neighbour_distances: grid_hw must be {H, W}");
+  const int64_t batch = positions.size(0);
+  const int64_t height = grid_hw[0];
+  const int64_t width = grid_hw[1];
+  TORCH_CHECK(height > 0 && width > 0 && height * width == positions.size(1),
+              "neighbour_distances: grid H*W must equal the token count");
+  TORCH_CHECK(height * width >= 2, "neighbour_distances: a token needs a neighbour");
+
+  const at::Tensor pos = positions.detach().to(at::kDouble).reshape({batch, height, width, 3});
+  at::Tensor sum = at::zeros({batch, height, width}, pos.options());
+  at::Tensor count = at::zeros({height, width}, pos.options());
+  for (int64_t dy = -1; dy <= 1; ++dy) {
+    for (int64_t dx = -1; dx <= 1; ++dx) {
+      if (dy == 0 && dx == 0) continue;
+      // Tokens (y, x) whose neighbour (y + dy, x + dx) exists.
+      const int64_t y0 = std::max<int64_t>(0, -dy);
+      const int64_t x0 = std::max<int64_t>(0, -dx);
+      const int64_t h = height - std::abs(dy);
+      const int64_t w = width - std::abs(dx);
+      if (h <= 0 || w <= 0) continue;
+      const at::Tensor self = pos.narrow(1, y0, h).narrow(2, x0, w);
+      const at::Tensor other = pos.narrow(1, y0 + dy, h).narrow(2, x0 + dx, w);
+      sum.narrow(1, y0, h).narrow(2, x0, w).add_((self - other).pow(2).sum(-1).sqrt());
+      count.narrow(0, y0, h).narrow(1, x0, w).add_(1.0);
+    }
+  }
+  return (sum / count).reshape({batch, height * width});
+}
+
+std::vector<double> image_voxel_size(const at::Tensor& positions, at::IntArrayRef grid_hw,
+                                     VoxelStatistic statistic, double percentile) {
+  TORCH_CHECK(percentile >= 0.0 && percentile <= 100.0,
+              "image_voxel_size: percentile must be in [0, 100]");
+  const at::Tensor d = neighbour_distances(positions, grid_hw).cpu();
+  std::vector<double> out;
+  out.reserve(static_cast<size_t>(d.size(0)));
+  for (int64_t b = 0; b < d.size(0); ++b) {
+    const at::Tensor row = d[b].masked_select(d[b].isfinite());
+    if (row.numel() == 0) {
+      out.push_back(kNaN);
+    } else if (statistic == VoxelStatistic::kMin) {
+      out.push_back(row.min().item<double>());
+    } else {
+      out.push_back(at::quantile(row, percentile / 100.0).item<double>());
+    }
+  }
+  return out;
+}
+
+at::Tensor select_long_term_tokens(const at::Tensor& positions, const at::Tensor& attention,
+                                   const at::Tensor& frame_index, const at::Tensor& order,
+                                   double voxel_size, int64_t capacity) {
+  TORCH_CHECK(positions.dim() == 2 && positions.size(1) == 3,
+              "select_long_term_tokens: positions must be [N,3]");
+  const int64_t n = positions.size(0);
+  TORCH_CHECK(attention.dim() == 1 && attention.size(0) == n && frame_index.dim() == 1 &&
+                  frame_index.size(0) == n && order.dim() == 1 && order.size(0) == n,
+              "select_long_term_tokens: attention, frame_index, order must be [N]");
+  TORCH_CHECK(capacity >= 0, "select_long_term_tokens: capacity must be >= 0");
+  const at::Device device = positions.device();
+  const at::TensorOptions long_opts = at::TensorOptions().dtype(at::kLong).device(device);
+  if (n == 0) return at::empty({0}, long_opts);
+
+  // Rank of every token in the total order (attention, frame, order), built by
+  // stable sorts from the least to the most significant key.
+  const at::Tensor att = attention.detach().to(device, at::kDouble);
+  const at::Tensor frame = frame_index.detach().to(device, at::kLong);
+  const at::Tensor ord = order.detach().to(device, at::kLong);
+  at::Tensor perm = std::get<1>(at::sort(ord, /*stable=*/true, 0, false));
+  perm = perm.index_select(
+      0, std::get<1>(at::sort(frame.index_select(0, perm), /*stable=*/true, 0, false)));
+  perm = perm.index_select(
+      0, std::get<1>(at::sort(att.index_select(0, perm), /*stable=*/true, 0, false)));
+  at::Tensor rank = at::empty({n}, long_opts);
+  rank.index_put_({perm}, at::arange(n, long_opts));
+
+  // Voxel group of each token; by default every token is its own group.
+  at::Tensor group = at::arange(n, long_opts);
+  int64_t num_groups = n;
+  if (std::isfinite(voxel_size) && voxel_size > 0.0) {
+    const at::Tensor scaled = positions.detach().to(at::kDouble) / voxel_size;
+    const at::Tensor finite = scaled.isfinite().all(1);
+    const at::Tensor finite_idx = finite.nonzero().squeeze(1);
+    if (finite_idx.numel() > 0) {
+      const at::Tensor voxel = scaled.index_select(0, finite_idx)
+                                   .floor()
+                                   .clamp(-kVoxelIndexLimit, kVoxelIndexLimit)
+                                   .to(at::kLong);
+      const auto unique = at::unique_dim(voxel, 0, /*sorted=*/true, /*return_inverse=*/true);
+      // Voxels take ids [0, G); non-finite tokens keep their own id, shifted past G.
+      const int64_t voxels = std::get<0>(unique).size(0);
+      group = group + voxels;
+      group.index_put_({finite_idx}, std::get<1>(unique));
+      num_groups = voxels + n;
+    }
+  }
+  // Sorting (group, rank) puts each group's greatest token last in its run.
+  TORCH_CHECK(num_groups <= std::numeric_limits<int64_t>::max() / n,
+              "select_long_term_tokens: too many tokens");
+  const at::Tensor sorted = std::get<0>(at::sort(group * n + rank));
+  const at::Tensor sorted_group = at::div(sorted, n, "floor");
+  const at::Tensor last =
+      at::cat({sorted_group.narrow(0, 1, n - 1) != sorted_group.narrow(0, 0, n - 1),
+               at::ones({1}, long_opts.dtype(at::kBool))});
+  at::Tensor winners = sorted.masked_select(last).remainder(n);  // ranks of the kept tokens
+  if (winners.size(0) > capacity) winners = std::get<0>(winners.topk(capacity));
+  return std::get<0>(at::sort(perm.index_select(0, winners)));
+}
+
+// ---------------------------------------------------------------------------
+// SpatioTemporalMemory.
+// ---------------------------------------------------------------------------
+
+SpatioTemporalMemory::SpatioTemporalMemory(SpatioTemporalMemoryConfig config) : config_(config) {
+  TORCH_CHECK(config_.short_term_frames >= 0, "SpatioTemporalMemory: K must be >= 0");
+  TORCH_CHECK(config_.long_term_capacity >= 0, "SpatioTemporalMemory: L must be >= 0");
+  TORCH_CHECK(config_.tau >= 0.0, "SpatioTemporalMemory: tau must be >= 0");
+  TORCH_CHECK(config_.voxel_percentile >= 0.0 && config_.voxel_percentile <= 100.0,
+              "SpatioTemporalMemory: voxel_percentile must be in [0, 100]");
+}
+
+void SpatioTemporalMemory::reset() {
+  batch_ = 0;
+  channels_ = 0;
+  frames_added_ = 0;
+  next_order_ = 0;
+  short_term_ = Tokens();
+  short_frame_sizes_.clear();
+  streams_.clear();
+  layout_ = Layout();
+  layout_valid_ = false;
+}
+
+void SpatioTemporalMemory::add_frame(const at::Tensor& keys, const at::Tensor& values,
+                                     const at::Tensor& positions, int64_t frame_index,
+                                     at::IntArrayRef grid_hw) {
+  TORCH_CHECK(keys.dim() == 3, "add_frame: keys must be [B,P,C]");
+  TORCH_CHECK(values.sizes() == keys.sizes(), "add_frame: values must match keys");
+  const int64_t batch = keys.size(0);
+  const int64_t tokens = keys.size(1);
+  const int64_t channels = keys.size(2);
+  TORCH_CHECK(batch > 0 && tokens > 0, "add_frame: empty frame");
+  TORCH_CHECK(positions.dim() == 3 && positions.size(0) == batch && positions.size(1) == tokens &&
+                  positions.size(2) == 3,
+              "add_frame: positions must be [B,P,3]");
+  TORCH_CHECK(grid_hw.size() == 2 && grid_hw[0] * grid_hw[1] == tokens,
+              "add_frame: grid_hw must be {H, W} with H*W = P");
+  if (batch_ == 0) {
+    batch_ = batch;
+    channels_ = channels;
+    const at::TensorOptions long_opts = keys.options().dtype(at::kLong);
+    const at::TensorOptions att_opts = keys.options().dtype(at::kFloat);
+    short_term_.keys = at::empty({batch, 0, channels}, keys.options());
+    short_term_.values = at::empty({batch, 0, channels}, values.options());
+    short_term_.positions = at::empty({batch, 0, 3}, positions.options());
+    short_term_.attention = at::empty({batch, 0}, att_opts);
+    short_term_.frame = at::empty({0}, long_opts);
+    short_term_.order = at::empty({0}, long_opts);
+    streams_.assign(static_cast<size_t>(batch), Stream());
+    for (Stream& s : streams_) {
+      s.long_term.keys = at::empty({0, channels}, keys.options());
+      s.long_term.values = at::empty({0, channels}, values.options());
+      s.long_term.positions = at::empty({0, 3}, positions.options());
+      s.long_term.attention = at::empty({0}, att_opts);
+      s.long_term.frame = at::empty({0}, long_opts);
+      s.long_term.order = at::empty({0}, long_opts);
+    }
+  }
+  TORCH_CHECK(batch == batch_ && channels == channels_,
+              "add_frame: batch size and channels are fixed until reset()");
+
+  const std::vector<double> v_img =
+      image_voxel_size(positions, grid_hw, config_.voxel_statistic, config_.voxel_percentile);
+  for (int64_t b = 0; b < batch_; ++b) {
+    Stream& s = streams_[static_cast<size_t>(b)];
+    s.v_img_last = v_img[static_cast<size_t>(b)];
+    if (std::isfinite(s.v_img_last)) {
+      s.v_img_sum += s.v_img_last;
+      ++s.v_img_count;
+    }
+  }
+
+  short_term_.keys = at::cat({short_term_.keys, maybe_detach(keys, training_)}, 1);
+  short_term_.values = at::cat({short_term_.values, maybe_detach(values, training_)}, 1);
+  short_term_.positions = at::cat(
+      {short_term_.positions, maybe_detach(positions, training_).to(short_term_.positions)}, 1);
+  short_term_.attention = at::cat(
+      {short_term_.attention, at::zeros({batch_, tokens}, short_term_.attention.options())}, 1);
+  short_term_.frame =
+      at::cat({short_term_.frame, at::full({tokens}, frame_index, short_term_.frame.options())});
+  short_term_.order = at::cat({short_term_.order, at::arange(next_order_, next_order_ + tokens,
+                                                             short_term_.order.options())});
+  next_order_ += tokens;
+  short_frame_sizes_.push_back(tokens);
+  ++frames_added_;
+  layout_valid_ = false;
+
+  while (short_frames() > config_.short_term_frames) move_oldest_frame_to_long_term();
+}
+
+void SpatioTemporalMemory::move_oldest_frame_to_long_term() {
+  const int64_t n = short_frame_sizes_.front();
+  short_frame_sizes_.pop_front();
+  const int64_t rest = short_term_.frame.size(0) - n;
+  const std::vector<double> scene = v_scene();
+  for (int64_t b = 0; b < batch_; ++b) {
+    Tokens& lt = streams_[static_cast<size_t>(b)].long_term;
+    lt.keys = at::cat({lt.keys, short_term_.keys[b].narrow(0, 0, n)});
+    lt.values = at::cat({lt.values, short_term_.values[b].narrow(0, 0, n)});
+    lt.positions = at::cat({lt.positions, short_term_.positions[b].narrow(0, 0, n)});
+    lt.attention = at::cat({lt.attention, short_term_.attention[b].narrow(0, 0, n)});
+    lt.frame = at::cat({lt.frame, short_term_.frame.narrow(0, 0, n)});
+    lt.order = at::cat({lt.order, short_term_.order.narrow(0, 0, n)});
+
+    const at::Tensor kept =
+        select_long_term_tokens(lt.positions, lt.attention, lt.frame, lt.order,
+                                scene[static_cast<size_t>(b)], config_.long_term_capacity);
+    if (kept.size(0) < lt.frame.size(0)) {
+      lt.keys = lt.keys.index_select(0, kept.to(lt.keys.device()));
+      lt.values = lt.values.index_select(0, kept.to(lt.values.device()));
+      lt.positions = lt.positions.index_select(0, kept.to(lt.positions.device()));
+      lt.attention = lt.attention.index_select(0, kept.to(lt.attention.device()));
+      lt.frame = lt.frame.index_select(0, kept.to(lt.frame.device()));
+      lt.order = lt.order.index_select(0, kept.to(lt.order.device()));
+    }
+  }
+  short_term_.keys = short_term_.keys.narrow(1, n, rest);
+  short_term_.values = short_term_.values.narrow(1, n, rest);
+  short_term_.positions = short_term_.positions.narrow(1, n, rest);
+  short_term_.attention = short_term_.attention.narrow(1, n, rest);
+  short_term_.frame = short_term_.frame.narrow(0, n, rest);
+  short_term_.order = short_term_.order.narrow(0, n, rest);
+  layout_valid_ = false;
+}
+
+int64_t SpatioTemporalMemory::short_size() const {
+  return batch_ == 0 ? 0 : short_term_.frame.size(0);
+}
+
+std::vector<int64_t> SpatioTemporalMemory::long_sizes() const {
+  std::vector<int64_t> out;
+  for (const Stream& s : streams_) out.push_back(s.long_term.frame.size(0));
+  return out;
+}
+
+std::vector<int64_t> SpatioTemporalMemory::total_sizes() const {
+  std::vector<int64_t> out = long_sizes();
+  for (int64_t& n : out) n += short_size();
+  return out;
+}
+
+int64_t SpatioTemporalMemory::padded_size() const {
+  int64_t longest = 0;
+  for (const Stream& s : streams_) longest = std::max(longest, s.long_term.frame.size(0));
+  return short_size() + longest;
+}
+
+std::vector<double> SpatioTemporalMemory::last_v_img() const {
+  std::vector<double> out;
+  for (const Stream& s : streams_) out.push_back(s.v_img_last);
+  return out;
+}
+
+std::vector<double> SpatioTemporalMemory::v_scene() const {
+  std::vector<double> out;
+  for (const Stream& s : streams_) {
+    out.push_back(s.v_img_count > 0 ? s.v_img_sum / static_cast<double>(s.v_img_count) : kNaN);
+  }
+  return out;
+}
+
+at::Tensor SpatioTemporalMemory::assemble(const at::Tensor& short_part,
+                                          const std::vector<at::Tensor>& long_parts,
+                                          double pad) const {
+  const int64_t total = padded_size();
+  std::vector<at::Tensor> rows;
+  rows.reserve(long_parts.size());
+  for (int64_t b = 0; b < batch_; ++b) {
+    const at::Tensor& lp = long_parts[static_cast<size_t>(b)];
+    std::vector<at::Tensor> parts = {short_part[b], lp};
+    const int64_t missing = total - short_part.size(1) - lp.size(0);
+    if (missing > 0) {
+      std::vector<int64_t> shape = lp.sizes().vec();
+      shape[0] = missing;
+      parts.push_back(at::full(shape, pad, lp.options()));
+    }
+    rows.push_back(at::cat(parts, 0));
+  }
+  if (rows.size() == 1) return rows[0].unsqueeze(0);
+  return at::stack(rows, 0);
+}
+
+const SpatioTemporalMemory::Layout& SpatioTemporalMemory::layout() const {
+  if (layout_valid_) return layout_;
+  std::vector<at::Tensor> long_keys, long_values, long_positions, long_frames, long_valid;
+  for (const Stream& s : streams_) {
+    long_keys.push_back(s.long_term.keys);
+    long_values.push_back(s.long_term.values);
+    long_positions.push_back(s.long_term.positions);
+    long_frames.push_back(s.long_term.frame);
+    long_valid.push_back(
+        at::ones({s.long_term.frame.size(0)}, s.long_term.frame.options().dtype(at::kBool)));
+  }
+  const int64_t ns = short_size();
+  layout_.keys = assemble(short_term_.keys, long_keys, 0.0);
+  layout_.values = assemble(short_term_.values, long_values, 0.0);
+  layout_.positions = assemble(short_term_.positions, long_positions, 0.0);
+  layout_.frame = assemble(short_term_.frame.unsqueeze(0).expand({batch_, ns}), long_frames, -1.0);
+  layout_.valid = assemble(at::ones({batch_, ns}, short_term_.frame.options().dtype(at::kBool)),
+                           long_valid, 0.0);
+  layout_valid_ = true;
+  return layout_;
+}
+
+at::Tensor SpatioTemporalMemory::keys() const { return batch_ == 0 ? at::Tensor() : layout().keys; }
+at::Tensor SpatioTemporalMemory::values() const {
+  return batch_ == 0 ? at::Tensor() : layout().values;
+}
+at::Tensor SpatioTemporalMemory::positions() const {
+  return batch_ == 0 ? at::Tensor() : layout().positions;
+}
+at::Tensor SpatioTemporalMemory::frame_indices() const {
+  return batch_ == 0 ? at::Tensor() : layout().frame;
+}
+at::Tensor SpatioTemporalMemory::valid_mask() const {
+  return batch_ == 0 ? at::Tensor() : layout().valid;
+}
+
+at::Tensor SpatioTemporalMemory::attention() const {
+  if (batch_ == 0) return at::Tensor();
+  std::vector<at::Tensor> parts;
+  for (const Stream& s : streams_) parts.push_back(s.long_term.attention);
+  return assemble(short_term_.attention, parts, 0.0);
+}
+
+void SpatioTemporalMemory::add_attention(const at::Tensor& increment) {
+  TORCH_CHECK(batch_ > 0, "add_attention: memory is empty");
+  TORCH_CHECK(
+      increment.dim() == 2 && increment.size(0) == batch_ && increment.size(1) == padded_size(),
+      "add_attention: increment must be [B,S] in the memory's current layout");
+  const at::Tensor inc =
+      maybe_detach(increment, training_).to(short_term_.attention.device(), at::kFloat);
+  const int64_t ns = short_size();
+  short_term_.attention = short_term_.attention + inc.narrow(1, 0, ns);
+  for (int64_t b = 0; b < batch_; ++b) {
+    Tokens& lt = streams_[static_cast<size_t>(b)].long_term;
+    lt.attention = lt.attention + inc[b].narrow(0, ns, lt.attention.size(0));
+  }
+}
+
+GatingResult SpatioTemporalMemory::read(const at::Tensor& queries, const at::Tensor& features,
+                                        const GatingNorms& norms) {
+  if (batch_ == 0) {
+    TORCH_CHECK(queries.dim() == 3, "read: queries must be [B,P,C]");
+    const at::Tensor none = at::empty({queries.size(0), 0, queries.size(2)}, queries.options());
+    return memory_gating(queries, none, none, features, norms, config_.tau, training_);
+  }
+  // The mask only matters when the streams' long-term sizes differ.
+  const std::vector<int64_t> sizes = long_sizes();
+  const bool padded =
+      std::any_of(sizes.begin(), sizes.end(), [&](int64_t n) { return n != sizes.front(); });
+  GatingResult r = memory_gating(queries, keys(), values(), features, norms, config_.tau, training_,
+                                 padded ? valid_mask() : at::Tensor());
+  add_attention(r.attention_increment);
+  return r;
+}
+
+}  // namespace long3r
