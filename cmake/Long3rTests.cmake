@@ -47,6 +47,8 @@ endforeach()
 
 if(LONG3R_WITH_ROS)
   find_package(rostest REQUIRED)
+  find_package(roslaunch REQUIRED)
+  roslaunch_add_file_check(launch/long3r.launch)
   file(GLOB LONG3R_ROSTESTS CONFIGURE_DEPENDS test/ros/*.test)
   foreach(t ${LONG3R_ROSTESTS})
     add_rostest(${t})
