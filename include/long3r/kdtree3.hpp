@@ -1,0 +1,49 @@
+// Exact nearest-neighbour search over a static 3D point set (k-d tree).
+//
+// Used by the reconstruction metrics (accuracy, completion, normal estimation)
+// and ICP. Build once, then query from any number of threads: queries are
+// const and allocate nothing shared. Distances are Euclidean, returned squared.
+#pragma once
+
+#include <Eigen/Core>
+
+#include <cstdint>
+#include <vector>
+
+namespace long3r {
+
+class KdTree3 {
+ public:
+  KdTree3() = default;
+  explicit KdTree3(const std::vector<Eigen::Vector3f>& points) { build(points); }
+
+  // Copies the points and builds the tree (leaves of at most 8 points).
+  void build(const std::vector<Eigen::Vector3f>& points);
+
+  size_t size() const { return points_.size(); }
+  bool empty() const { return points_.empty(); }
+  const std::vector<Eigen::Vector3f>& points() const { return points_; }
+
+  // Index of the nearest point (-1 if empty) and its squared distance.
+  int nearest(const Eigen::Vector3f& query, float* squared_distance = nullptr) const;
+
+  // The min(k, size()) nearest points, closest first.
+  void knn(const Eigen::Vector3f& query, int k, std::vector<int>* indices,
+           std::vector<float>* squared_distances) const;
+
+ private:
+  struct Node {
+    // Leaf: [begin, end) in order_. Inner: split axis/value, children.
+    int32_t begin = 0, end = 0;
+    int32_t left = -1, right = -1;
+    int32_t axis = -1;
+    float split = 0.0f;
+  };
+  int32_t build_node(int32_t begin, int32_t end);
+
+  std::vector<Eigen::Vector3f> points_;
+  std::vector<int32_t> order_;
+  std::vector<Node> nodes_;
+};
+
+}  // namespace long3r

@@ -1,0 +1,307 @@
+// long3r_eval: the paper's trajectory (ATE, RPE) and reconstruction (accuracy,
+// completion, normal consistency) metrics on TUM-format data; writes a JSON,
+// prints a table and draws plots. See docs/evaluation.md.
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <optional>
+#include <sstream>
+#include <string>
+
+#include "long3r/eval.hpp"
+#include "long3r/tum_dataset.hpp"
+
+namespace {
+
+void usage() {
+  std::puts(
+      "usage: long3r_eval [--gt DIR | --gt-traj FILE] [--est-traj FILE] [--est-map FILE] "
+      "[options]\n"
+      "inputs:\n"
+      "  --gt DIR             TUM-layout folder (groundtruth.txt, depth, calibration.txt)\n"
+      "  --gt-traj FILE       reference trajectory (default DIR/groundtruth.txt)\n"
+      "  --gt-cloud FILE      reference cloud (.ply/.pcd/.xyz) instead of DIR's depth maps\n"
+      "  --est-traj FILE      estimated trajectory, TUM format\n"
+      "  --est-map FILE       estimated map (.ply/.pcd/.xyz)\n"
+      "  --calib 'fx fy cx cy'  intrinsics when DIR has no calibration.txt\n"
+      "trajectory:\n"
+      "  --max-diff S         association tolerance, seconds (default 0.01, as evo)\n"
+      "  --offset S           added to the estimate's stamps (default 0)\n"
+      "  --delta N            RPE delta in frames (default 1)\n"
+      "  --all-pairs          RPE over all pairs (i, i+N), not consecutive ones\n"
+      "  --no-align           no alignment;  --no-scale  SE(3) instead of Sim(3)\n"
+      "reconstruction:\n"
+      "  --map-align MODE     traj (default with --est-traj) | none | corr\n"
+      "  --corr-pred F --corr-gt F   corresponding points for --map-align corr\n"
+      "  --no-icp             skip the ICP refinement (default: rigid point-to-point)\n"
+      "  --icp-threshold M    ICP max correspondence distance (default 0.1)\n"
+      "  --icp-scale          let ICP refine the scale too\n"
+      "  --gt-frame-step N    GT cloud from every N-th frame (default 10)\n"
+      "  --gt-pixel-step N    and every N-th pixel (default 1)\n"
+      "  --max-depth M        ignore GT depth beyond M metres (default none)\n"
+      "  --voxel M            voxel-downsample both clouds first (default 0 = off)\n"
+      "  --no-normals         skip normal consistency\n"
+      "output:\n"
+      "  --out DIR            metrics.json, trajectory.png, map_error.png (default eval_out)\n"
+      "  --plot-max-error M   colour scale of map_error.png (default 0.1)\n"
+      "  --save-aligned       also write the aligned prediction as map_aligned.ply\n"
+      "  --save-gt-cloud      write the GT cloud used as gt_cloud.ply (also without --est-map)");
+}
+
+nlohmann::json stats_json(const long3r::ErrorStatistics& s) {
+  return {{"rmse", s.rmse}, {"mean", s.mean}, {"median", s.median}, {"std", s.std},
+          {"min", s.min},   {"max", s.max},   {"sse", s.sse},       {"count", s.count}};
+}
+nlohmann::json sim3_json(const long3r::Sim3& s) {
+  nlohmann::json r = nlohmann::json::array();
+  for (int i = 0; i < 3; ++i) r.push_back({s.rotation(i, 0), s.rotation(i, 1), s.rotation(i, 2)});
+  return {{"scale", s.scale},
+          {"rotation", r},
+          {"translation", {s.translation.x(), s.translation.y(), s.translation.z()}}};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  namespace fs = std::filesystem;
+  using namespace long3r;
+  std::string gt_dir, gt_traj_path, gt_cloud_path, est_traj_path, est_map_path,
+      out_dir = "eval_out";
+  std::string calib, map_align, corr_pred, corr_gt;
+  TrajectoryEvalOptions topt;
+  ReconstructionEvalOptions ropt;
+  GroundTruthCloudOptions gopt;
+  double voxel = 0.0, plot_max = 0.1;
+  bool save_aligned = false, save_gt_cloud = false;
+  try {
+    for (int i = 1; i < argc; ++i) {
+      const std::string a = argv[i];
+      auto next = [&]() -> std::string {
+        if (i + 1 >= argc) throw std::invalid_argument("missing value after " + a);
+        return argv[++i];
+      };
+      if (a == "--gt")
+        gt_dir = next();
+      else if (a == "--gt-traj")
+        gt_traj_path = next();
+      else if (a == "--gt-cloud")
+        gt_cloud_path = next();
+      else if (a == "--est-traj")
+        est_traj_path = next();
+      else if (a == "--est-map")
+        est_map_path = next();
+      else if (a == "--calib")
+        calib = next();
+      else if (a == "--max-diff")
+        topt.max_diff = std::stod(next());
+      else if (a == "--offset")
+        topt.offset = std::stod(next());
+      else if (a == "--delta")
+        topt.rpe_delta = std::stoi(next());
+      else if (a == "--all-pairs")
+        topt.rpe_all_pairs = true;
+      else if (a == "--no-align")
+        topt.align = false;
+      else if (a == "--no-scale")
+        topt.correct_scale = false;
+      else if (a == "--map-align")
+        map_align = next();
+      else if (a == "--corr-pred")
+        corr_pred = next();
+      else if (a == "--corr-gt")
+        corr_gt = next();
+      else if (a == "--no-icp")
+        ropt.icp = false;
+      else if (a == "--icp-threshold")
+        ropt.icp_options.max_correspondence_distance = std::stod(next());
+      else if (a == "--icp-scale")
+        ropt.icp_options.estimate_scale = true;
+      else if (a == "--gt-frame-step")
+        gopt.frame_step = std::stoi(next());
+      else if (a == "--gt-pixel-step")
+        gopt.pixel_step = std::stoi(next());
+      else if (a == "--max-depth")
+        gopt.max_depth = std::stod(next());
+      else if (a == "--voxel")
+        voxel = std::stod(next());
+      else if (a == "--no-normals")
+        ropt.metrics.normals = false;
+      else if (a == "--out")
+        out_dir = next();
+      else if (a == "--plot-max-error")
+        plot_max = std::stod(next());
+      else if (a == "--save-aligned")
+        save_aligned = true;
+      else if (a == "--save-gt-cloud")
+        save_gt_cloud = true;
+      else if (a == "-h" || a == "--help") {
+        usage();
+        return 0;
+      } else {
+        throw std::invalid_argument("unknown option " + a);
+      }
+    }
+    if (gt_traj_path.empty() && !gt_dir.empty())
+      gt_traj_path = (fs::path(gt_dir) / "groundtruth.txt").string();
+    if (est_traj_path.empty() && est_map_path.empty() && !save_gt_cloud) {
+      throw std::invalid_argument("nothing to evaluate: give --est-traj and/or --est-map");
+    }
+    if (map_align.empty()) map_align = est_traj_path.empty() ? "none" : "traj";
+    if (map_align != "traj" && map_align != "none" && map_align != "corr") {
+      throw std::invalid_argument("--map-align must be traj, none or corr");
+    }
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "long3r_eval: %s\n", e.what());
+    usage();
+    return 2;
+  }
+
+  try {
+    fs::create_directories(out_dir);
+    nlohmann::json js;
+    std::optional<TrajectoryMetrics> tm;
+    Eigen::Vector3d up = Eigen::Vector3d::UnitZ();
+    std::printf("%-28s %12s\n", "metric", "value");
+
+    if (!est_traj_path.empty()) {
+      if (gt_traj_path.empty()) throw std::invalid_argument("--est-traj needs --gt or --gt-traj");
+      const PoseTrajectory ref = read_tum_trajectory(gt_traj_path);
+      const PoseTrajectory est = read_tum_trajectory(est_traj_path);
+      tm = evaluate_trajectory(ref, est, topt);
+      up = estimate_up_axis(tm->ref);
+      js["trajectory"] = {
+          {"reference", gt_traj_path},
+          {"estimate", est_traj_path},
+          {"poses_reference", ref.size()},
+          {"poses_estimate", est.size()},
+          {"matched", tm->matched},
+          {"max_diff_s", topt.max_diff},
+          {"alignment",
+           topt.align ? (topt.correct_scale ? "sim3_umeyama" : "se3_umeyama") : "none"},
+          {"sim3", sim3_json(tm->alignment)},
+          {"ate_m", stats_json(tm->ate)},
+          {"rpe_delta_frames", topt.rpe_delta},
+          {"rpe_pairs", topt.rpe_all_pairs ? "all" : "consecutive"},
+          {"rpe_translation_m", stats_json(tm->rpe_translation)},
+          {"rpe_rotation_deg", stats_json(tm->rpe_rotation_deg)}};
+      std::printf("%-28s %12zu\n", "poses matched", tm->matched);
+      std::printf("%-28s %12.6f\n", "alignment scale", tm->alignment.scale);
+      std::printf("%-28s %12.4f\n", "ATE RMSE [cm]", 100.0 * tm->ate.rmse);
+      std::printf("%-28s %12.4f\n", "RPE trans RMSE [cm]", 100.0 * tm->rpe_translation.rmse);
+      std::printf("%-28s %12.4f\n", "RPE rot RMSE [deg]", tm->rpe_rotation_deg.rmse);
+      std::printf("%-28s %12.4f\n", "RPE trans mean [cm]", 100.0 * tm->rpe_translation.mean);
+      std::printf("%-28s %12.4f\n", "RPE rot mean [deg]", tm->rpe_rotation_deg.mean);
+      std::vector<Eigen::Vector3d> rp, ep;
+      for (size_t i = 0; i < tm->ref.size(); ++i) {
+        rp.push_back(tm->ref[i].translation());
+        ep.push_back(tm->est_aligned[i].translation());
+      }
+      char title[160];
+      std::snprintf(title, sizeof(title), "ATE %.2f cm  RPE %.2f cm / %.2f deg (delta %d)",
+                    100.0 * tm->ate.rmse, 100.0 * tm->rpe_translation.rmse,
+                    tm->rpe_rotation_deg.rmse, topt.rpe_delta);
+      cv::imwrite((fs::path(out_dir) / "trajectory.png").string(),
+                  plot_trajectory_top_view(rp, ep, up, title));
+    }
+
+    std::vector<Eigen::Vector3f> gt_cloud;
+    if (!est_map_path.empty() || save_gt_cloud) {
+      if (!gt_cloud_path.empty()) {
+        gt_cloud = load_point_cloud(gt_cloud_path);
+      } else {
+        if (gt_dir.empty()) throw std::invalid_argument("--est-map needs --gt DIR or --gt-cloud");
+        TumDatasetOptions dopt;
+        dopt.require_depth = true;
+        dopt.require_pose = true;
+        const TumDataset ds = TumDataset::open(gt_dir, dopt);
+        PinholeIntrinsics k;
+        if (!calib.empty()) {
+          std::istringstream ss(calib);
+          if (!(ss >> k.fx >> k.fy >> k.cx >> k.cy)) throw std::invalid_argument("bad --calib");
+        } else if (ds.calibration()) {
+          k = *ds.calibration();
+        } else {
+          throw std::invalid_argument(gt_dir + " has no calibration.txt; pass --calib");
+        }
+        gt_cloud = ground_truth_cloud(ds, k, gopt);
+        if (!tm) up = estimate_up_axis(ds.frame_trajectory().poses);
+      }
+      if (voxel > 0) gt_cloud = voxel_downsample(gt_cloud, voxel);
+      if (save_gt_cloud) {
+        save_point_cloud_ply((fs::path(out_dir) / "gt_cloud.ply").string(), gt_cloud);
+        std::printf("%-28s %12zu\n", "GT cloud points (saved)", gt_cloud.size());
+      }
+    }
+    if (!est_map_path.empty()) {
+      std::vector<Eigen::Vector3f> pred = load_point_cloud(est_map_path);
+      if (voxel > 0) pred = voxel_downsample(pred, voxel);
+      if (map_align == "traj") {
+        if (!tm) throw std::invalid_argument("--map-align traj needs --est-traj");
+        ropt.initial = tm->alignment;
+      } else if (map_align == "corr") {
+        if (corr_pred.empty() || corr_gt.empty()) {
+          throw std::invalid_argument("--map-align corr needs --corr-pred and --corr-gt");
+        }
+        ropt.initial =
+            align_correspondences(load_point_cloud(corr_pred), load_point_cloud(corr_gt), true);
+      }
+      const ReconstructionEvalResult rr = evaluate_reconstruction(pred, gt_cloud, ropt);
+      const ReconstructionMetrics& m = rr.metrics;
+      js["reconstruction"] = {
+          {"prediction", est_map_path},
+          {"points_prediction", m.num_pred},
+          {"points_gt", m.num_gt},
+          {"voxel_m", voxel},
+          {"initial_alignment", map_align},
+          {"icp", ropt.icp ? (ropt.icp_options.estimate_scale ? "sim3_point_to_point"
+                                                              : "rigid_point_to_point")
+                           : "none"},
+          {"icp_threshold_m", ropt.icp_options.max_correspondence_distance},
+          {"icp_fitness", rr.icp ? rr.icp->fitness : 0.0},
+          {"icp_iterations", rr.icp ? rr.icp->iterations : 0},
+          {"sim3", sim3_json(rr.alignment)},
+          {"accuracy_mean_m", m.accuracy_mean},
+          {"accuracy_median_m", m.accuracy_median},
+          {"completion_mean_m", m.completion_mean},
+          {"completion_median_m", m.completion_median},
+          {"completion_ratio", m.completion_ratio},
+          {"completion_ratio_threshold_m", ropt.metrics.completion_ratio_threshold}};
+      if (ropt.metrics.normals) {
+        js["reconstruction"]["nc_mean"] = m.nc_mean;
+        js["reconstruction"]["nc_median"] = m.nc_median;
+        js["reconstruction"]["nc_accuracy_mean"] = m.nc_accuracy_mean;
+        js["reconstruction"]["nc_accuracy_median"] = m.nc_accuracy_median;
+        js["reconstruction"]["nc_completion_mean"] = m.nc_completion_mean;
+        js["reconstruction"]["nc_completion_median"] = m.nc_completion_median;
+        js["reconstruction"]["normal_neighbours"] = ropt.metrics.normal_neighbours;
+      }
+      std::printf("%-28s %12zu\n", "points pred / GT", m.num_pred);
+      std::printf("%-28s %12zu\n", "", m.num_gt);
+      std::printf("%-28s %12.4f\n", "Acc mean [cm]", 100.0 * m.accuracy_mean);
+      std::printf("%-28s %12.4f\n", "Acc median [cm]", 100.0 * m.accuracy_median);
+      std::printf("%-28s %12.4f\n", "Comp mean [cm]", 100.0 * m.completion_mean);
+      std::printf("%-28s %12.4f\n", "Comp median [cm]", 100.0 * m.completion_median);
+      if (ropt.metrics.normals) {
+        std::printf("%-28s %12.4f\n", "NC mean", m.nc_mean);
+        std::printf("%-28s %12.4f\n", "NC median", m.nc_median);
+      }
+      std::printf("%-28s %12.4f\n", "Comp ratio (<5cm)", m.completion_ratio);
+      cv::imwrite((fs::path(out_dir) / "map_error.png").string(),
+                  plot_error_top_view(rr.pred_aligned, m.accuracy_errors, gt_cloud,
+                                      m.completion_errors, up, plot_max));
+      if (save_aligned)
+        save_point_cloud_ply((fs::path(out_dir) / "map_aligned.ply").string(), rr.pred_aligned);
+    }
+    const std::string json_path = (fs::path(out_dir) / "metrics.json").string();
+    std::ofstream(json_path) << js.dump(2) << "\n";
+    std::printf("wrote %s\n", json_path.c_str());
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "long3r_eval: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}

@@ -1,0 +1,245 @@
+// CPU ray caster and the TUM-layout sequence writer.
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <stdexcept>
+#include <thread>
+
+#include "long3r/synth.hpp"
+#include "long3r/tum_dataset.hpp"
+
+namespace long3r::synth {
+
+namespace {
+
+// Linear [0, 1] -> sRGB-like 8-bit (gamma 2.2), tabulated.
+const std::array<uint8_t, 4096>& gamma_table() {
+  static const std::array<uint8_t, 4096> table = [] {
+    std::array<uint8_t, 4096> t{};
+    for (int i = 0; i < 4096; ++i) {
+      t[i] = static_cast<uint8_t>(std::lround(255.0 * std::pow(i / 4095.0, 1.0 / 2.2)));
+    }
+    return t;
+  }();
+  return table;
+}
+inline uint8_t encode(float linear) {
+  const int i = static_cast<int>(std::clamp(linear, 0.0f, 1.0f) * 4095.0f + 0.5f);
+  return gamma_table()[i];
+}
+
+void render_rows(const Scene& scene, const Eigen::Isometry3d& T, const PinholeIntrinsics& k,
+                 int supersample, int row_begin, int row_step, RenderedFrame* out) {
+  const Eigen::Matrix3d R = T.linear();
+  const Eigen::Vector3d o = T.translation();
+  const int n = std::max(1, supersample);
+  for (int v = row_begin; v < k.height; v += row_step) {
+    cv::Vec3b* rgb = out->bgr.ptr<cv::Vec3b>(v);
+    float* depth = out->depth.ptr<float>(v);
+    int32_t* sid = out->surface_id.ptr<int32_t>(v);
+    for (int u = 0; u < k.width; ++u) {
+      Hit hit;
+      Eigen::Vector3f colour = Eigen::Vector3f::Zero();
+      const Eigen::Vector3d dc((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
+      const Eigen::Vector3d d = R * dc;
+      if (intersect(scene, o, d, &hit)) {
+        depth[u] = static_cast<float>(hit.t);  // t along R * (x, y, 1) is the z-depth
+        sid[u] = hit.surface_id;
+      } else {
+        depth[u] = 0.0f;
+        sid[u] = -1;
+      }
+      if (n == 1) {
+        if (sid[u] >= 0) {
+          const double cos_inc = std::max(0.25, std::abs(hit.normal.dot(d.normalized())));
+          colour = shade(scene, hit, hit.t / k.fx / cos_inc);
+        }
+      } else {
+        for (int sy = 0; sy < n; ++sy) {
+          for (int sx = 0; sx < n; ++sx) {
+            const double du = (sx + 0.5) / n - 0.5, dv = (sy + 0.5) / n - 0.5;
+            const Eigen::Vector3d ds =
+                R * Eigen::Vector3d((u + du - k.cx) / k.fx, (v + dv - k.cy) / k.fy, 1.0);
+            Hit h;
+            if (!intersect(scene, o, ds, &h)) continue;
+            const double cos_inc = std::max(0.25, std::abs(h.normal.dot(ds.normalized())));
+            colour += shade(scene, h, h.t / (k.fx * n) / cos_inc);
+          }
+        }
+        colour /= static_cast<float>(n * n);
+      }
+      rgb[u] = cv::Vec3b(encode(colour.z()), encode(colour.y()), encode(colour.x()));
+    }
+  }
+}
+
+std::string stamp_name(double t) {
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), "%.6f", t);
+  return buf;
+}
+
+nlohmann::json scene_json(const Sequence& seq) {
+  using nlohmann::json;
+  const SequenceConfig& c = seq.config;
+  auto vec = [](const auto& v) { return json::array({v.x(), v.y(), v.z()}); };
+  static const char* kPattern[] = {"noise",   "tiles", "bricks", "checker",
+                                   "stripes", "dots",  "wood",   "marble"};
+  static const char* kShape[] = {"box", "cylinder", "sphere"};
+  json j;
+  j["generator"] = "long3r_synth";
+  j["seed"] = c.seed;
+  j["frames"] = c.trajectory.frames;
+  j["fps"] = c.fps;
+  j["trajectory"] = {{"type", to_string(c.trajectory.type)},
+                     {"speed_m_per_frame", c.trajectory.speed},
+                     {"max_yaw_rate_deg", c.trajectory.max_yaw_rate_deg},
+                     {"clearance_m", c.trajectory.clearance},
+                     {"height_range_m", {c.trajectory.min_height, c.trajectory.max_height}},
+                     {"pitch_deg", c.trajectory.pitch_deg},
+                     {"roll_deg", c.trajectory.roll_deg}};
+  const PinholeIntrinsics& k = c.intrinsics;
+  j["intrinsics"] = {{"fx", k.fx}, {"fy", k.fy},       {"cx", k.cx},
+                     {"cy", k.cy}, {"width", k.width}, {"height", k.height}};
+  j["depth_factor"] = kTumDepthFactor;
+  j["world_frame"] = "z up; room spans [0, room_size]";
+  j["room_size"] = vec(seq.scene.room_size);
+  j["room_material"] = json::array();
+  for (int m : seq.scene.room_material) j["room_material"].push_back(m);
+  j["shapes"] = json::array();
+  for (const Shape& s : seq.scene.shapes) {
+    j["shapes"].push_back({{"type", kShape[static_cast<int>(s.type)]},
+                           {"label", s.label},
+                           {"center", vec(s.center)},
+                           {"half_size", vec(s.half_size)},
+                           {"yaw", s.yaw},
+                           {"material", s.material}});
+  }
+  j["materials"] = json::array();
+  for (const Material& m : seq.scene.materials) {
+    j["materials"].push_back({{"pattern", kPattern[static_cast<int>(m.pattern)]},
+                              {"base", vec(m.base)},
+                              {"accent", vec(m.accent)},
+                              {"pattern_scale", m.pattern_scale},
+                              {"pattern_angle", m.pattern_angle},
+                              {"noise_scale", m.noise_scale},
+                              {"noise_amount", m.noise_amount},
+                              {"cell_variation", m.cell_variation},
+                              {"seed", m.seed}});
+  }
+  j["lights"] = {{"ambient", seq.scene.ambient},
+                 {"directional", seq.scene.directional},
+                 {"direction", vec(seq.scene.light_direction)},
+                 {"point", vec(seq.scene.point_light)},
+                 {"point_intensity", seq.scene.point_intensity}};
+  return j;
+}
+
+}  // namespace
+
+RenderedFrame render_frame(const Scene& scene, const Eigen::Isometry3d& T_W_C,
+                           const PinholeIntrinsics& k, const RenderOptions& options) {
+  if (!k.valid() || k.width < 1 || k.height < 1) {
+    throw std::invalid_argument("render_frame: invalid intrinsics");
+  }
+  for (const Shape& s : scene.shapes) {
+    if (s.material < 0 || s.material >= static_cast<int>(scene.materials.size())) {
+      throw std::invalid_argument("render_frame: shape material out of range");
+    }
+  }
+  for (int m : scene.room_material) {
+    if (m < 0 || m >= static_cast<int>(scene.materials.size())) {
+      throw std::invalid_argument("render_frame: room material out of range");
+    }
+  }
+  RenderedFrame out;
+  out.bgr.create(k.height, k.width, CV_8UC3);
+  out.depth.create(k.height, k.width, CV_32FC1);
+  out.surface_id.create(k.height, k.width, CV_32SC1);
+  gamma_table();  // build before the threads start
+  const int threads = std::clamp(options.threads, 1, std::max(1, k.height));
+  if (threads == 1) {
+    render_rows(scene, T_W_C, k, options.supersample, 0, 1, &out);
+    return out;
+  }
+  // Interleaved rows balance the load (the top and bottom of a view differ in cost).
+  std::vector<std::thread> pool;
+  for (int t = 0; t < threads; ++t) {
+    pool.emplace_back(render_rows, std::cref(scene), std::cref(T_W_C), std::cref(k),
+                      options.supersample, t, threads, &out);
+  }
+  for (auto& th : pool) th.join();
+  return out;
+}
+
+WriteStats write_tum_sequence(const Sequence& seq, const std::string& dir,
+                              const RenderOptions& options,
+                              const std::function<void(int, int)>& progress) {
+  namespace fs = std::filesystem;
+  using clock = std::chrono::steady_clock;
+  if (seq.stamps.size() != seq.poses.size()) {
+    throw std::invalid_argument("write_tum_sequence: stamps and poses differ in size");
+  }
+  const fs::path root(dir);
+  fs::create_directories(root / "rgb");
+  fs::create_directories(root / "depth");
+
+  const PinholeIntrinsics& k = seq.config.intrinsics;
+  write_calibration_file((root / "calibration.txt").string(), k);
+  {
+    std::ofstream js(root / "scene.json");
+    js << scene_json(seq).dump(1) << "\n";
+    if (!js) throw std::runtime_error("cannot write scene.json in " + dir);
+  }
+  PoseTrajectory gt;
+  gt.stamps = seq.stamps;
+  gt.poses = seq.poses;
+  write_tum_trajectory((root / "groundtruth.txt").string(), gt,
+                       "ground truth T_W_C (camera optical frame: x right, y down, z forward)");
+
+  std::ofstream rgb_list(root / "rgb.txt"), depth_list(root / "depth.txt");
+  rgb_list << "# color images\n# file: long3r_synth\n# timestamp filename\n";
+  depth_list << "# depth maps (uint16, metres * " << kTumDepthFactor
+             << ")\n# file: long3r_synth\n# timestamp filename\n";
+
+  const std::vector<int> png_params = {cv::IMWRITE_PNG_COMPRESSION, 1};
+  WriteStats stats;
+  const int n = static_cast<int>(seq.poses.size());
+  cv::Mat depth16(k.height, k.width, CV_16UC1);
+  for (int i = 0; i < n; ++i) {
+    const auto t0 = clock::now();
+    const RenderedFrame f = render_frame(seq.scene, seq.poses[i], k, options);
+    const auto t1 = clock::now();
+    for (int v = 0; v < k.height; ++v) {
+      const float* z = f.depth.ptr<float>(v);
+      uint16_t* d = depth16.ptr<uint16_t>(v);
+      for (int u = 0; u < k.width; ++u) {
+        const double q = std::round(z[u] * kTumDepthFactor);
+        d[u] = (q > 0.0 && q <= 65535.0) ? static_cast<uint16_t>(q) : 0;
+      }
+    }
+    const std::string name = stamp_name(seq.stamps[i]) + ".png";
+    if (!cv::imwrite((root / "rgb" / name).string(), f.bgr, png_params) ||
+        !cv::imwrite((root / "depth" / name).string(), depth16, png_params)) {
+      throw std::runtime_error("cannot write frame images in " + dir);
+    }
+    rgb_list << stamp_name(seq.stamps[i]) << " rgb/" << name << "\n";
+    depth_list << stamp_name(seq.stamps[i]) << " depth/" << name << "\n";
+    const auto t2 = clock::now();
+    stats.render_seconds += std::chrono::duration<double>(t1 - t0).count();
+    stats.write_seconds += std::chrono::duration<double>(t2 - t1).count();
+    ++stats.frames;
+    if (progress) progress(i + 1, n);
+  }
+  if (!rgb_list || !depth_list) throw std::runtime_error("cannot write file lists in " + dir);
+  return stats;
+}
+
+}  // namespace long3r::synth

@@ -1,0 +1,144 @@
+#!/usr/bin/env python3
+"""Bag route test: long3r_synth writes a 5-frame sequence, scripts/tum_to_bag.py
+converts it, and python rosbag reads it back (registered in synth.cmake)."""
+
+import argparse
+import importlib.util
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import zlib
+
+import numpy as np
+import rosbag
+
+
+def fail(msg):
+    print("FAIL: " + msg)
+    sys.exit(1)
+
+
+def check(cond, msg):
+    if not cond:
+        fail(msg)
+
+
+def encode_png(arr, filters):
+    """Minimal PNG writer using the given filter type per row (for decoder tests)."""
+    h, w = arr.shape[:2]
+    c = 1 if arr.ndim == 2 else arr.shape[2]
+    depth = 16 if arr.dtype == np.uint16 else 8
+    raw_rows = [(arr[y].astype(">u2") if depth == 16 else arr[y]).tobytes() for y in range(h)]
+    bpp = c * depth // 8
+    out, prev = b"", bytes(len(raw_rows[0]))
+    for y, row in enumerate(raw_rows):
+        f = filters[y % len(filters)]
+        enc = bytearray(len(row))
+        for i in range(len(row)):
+            a = row[i - bpp] if i >= bpp else 0
+            b = prev[i]
+            cc = prev[i - bpp] if i >= bpp else 0
+            if f == 0:
+                pred = 0
+            elif f == 1:
+                pred = a
+            elif f == 2:
+                pred = b
+            elif f == 3:
+                pred = (a + b) >> 1
+            else:
+                p = a + b - cc
+                pa, pb, pc = abs(p - a), abs(p - b), abs(p - cc)
+                pred = a if pa <= pb and pa <= pc else (b if pb <= pc else cc)
+            enc[i] = (row[i] - pred) & 0xFF
+        out += bytes([f]) + bytes(enc)
+        prev = row
+
+    def chunk(t, body):
+        return struct.pack(">I", len(body)) + t + body + struct.pack(">I", zlib.crc32(t + body) & 0xFFFFFFFF)
+
+    colour = {1: 0, 3: 2, 4: 6}[c]
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, depth, colour, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(out)) + chunk(b"IEND", b""))
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--synth", required=True)
+    ap.add_argument("--script", required=True)
+    ap.add_argument("--workdir", required=True)
+    args = ap.parse_args()
+
+    spec = importlib.util.spec_from_file_location("tum_to_bag", args.script)
+    t2b = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(t2b)
+
+    # The built-in PNG decoder against every filter type, 8-bit RGB and 16-bit grey.
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, size=(7, 9, 3), dtype=np.uint8)
+    grey16 = rng.integers(0, 65536, size=(5, 6), dtype=np.uint16)
+    check(np.array_equal(t2b.decode_png_builtin(encode_png(rgb, [0, 1, 2, 3, 4])), rgb), "PNG rgb decode")
+    check(np.array_equal(t2b.decode_png_builtin(encode_png(grey16, [4, 3, 2, 1, 0])), grey16), "PNG 16-bit decode")
+
+    shutil.rmtree(args.workdir, ignore_errors=True)
+    os.makedirs(args.workdir)
+    seq = os.path.join(args.workdir, "seq")
+    bag_path = os.path.join(args.workdir, "seq.bag")
+    subprocess.run([args.synth, "--out", seq, "--frames", "5", "--width", "64", "--height", "48",
+                    "--seed", "3", "--quiet"], check=True)
+    subprocess.run([sys.executable, args.script, seq, bag_path, "--depth-topic", "/camera/depth"], check=True)
+
+    rgb_list = t2b.read_list(os.path.join(seq, "rgb.txt"))
+    gt = t2b.read_trajectory(os.path.join(seq, "groundtruth.txt"))
+    (fx, fy, cx, cy), size = t2b.read_calibration(os.path.join(seq, "calibration.txt"))
+    check(size == (64, 48), "calibration size")
+
+    with rosbag.Bag(bag_path) as bag:
+        info = bag.get_type_and_topic_info()
+        topics = info.topics
+        expected = {"/camera/image_raw": "sensor_msgs/Image", "/camera/camera_info": "sensor_msgs/CameraInfo",
+                    "/tf": "tf2_msgs/TFMessage", "/camera/depth": "sensor_msgs/Image"}
+        for topic, msg_type in expected.items():
+            check(topic in topics, "missing topic " + topic)
+            check(topics[topic].msg_type == msg_type, "type of " + topic)
+            check(topics[topic].message_count == 5, "count on %s: %d" % (topic, topics[topic].message_count))
+        md5 = {"sensor_msgs/Image": t2b.IMAGE_MD5, "sensor_msgs/CameraInfo": t2b.CAMERA_INFO_MD5,
+               "tf2_msgs/TFMessage": t2b.TF_MESSAGE_MD5}
+        for msg_type, h in info.msg_types.items():
+            check(md5[msg_type] == h, "md5 of " + msg_type)
+
+        images = [m for _, m, _ in bag.read_messages(topics=["/camera/image_raw"])]
+        infos = [m for _, m, _ in bag.read_messages(topics=["/camera/camera_info"])]
+        tfs = [m for _, m, _ in bag.read_messages(topics=["/tf"])]
+        depths = [m for _, m, _ in bag.read_messages(topics=["/camera/depth"])]
+
+    for i in range(5):
+        stamp = rgb_list[i][0]
+        img, ci, tf, dm = images[i], infos[i], tfs[i], depths[i]
+        check(abs(img.header.stamp.to_sec() - stamp) < 1e-6, "image stamp %d" % i)
+        check(img.header.frame_id == "camera", "frame_id")
+        check((img.width, img.height, img.encoding, img.step) == (64, 48, "rgb8", 192), "image layout")
+        pixels = np.frombuffer(img.data, np.uint8).reshape(48, 64, 3)
+        png = t2b.read_png(os.path.join(seq, rgb_list[i][1]))
+        check(np.array_equal(pixels, png), "pixels %d" % i)
+        check(pixels.std() > 5.0, "image %d looks blank" % i)
+        check(abs(ci.header.stamp.to_sec() - stamp) < 1e-6, "camera info stamp")
+        check(list(ci.K) == [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0], "K")
+        check((ci.width, ci.height) == (64, 48), "camera info size")
+        check(len(tf.transforms) == 1, "one transform")
+        ts = tf.transforms[0]
+        check(ts.header.frame_id == "map" and ts.child_frame_id == "gt_camera", "tf frames")
+        _, t, q = gt[i]
+        got_t = (ts.transform.translation.x, ts.transform.translation.y, ts.transform.translation.z)
+        got_q = (ts.transform.rotation.x, ts.transform.rotation.y, ts.transform.rotation.z, ts.transform.rotation.w)
+        check(np.allclose(got_t, t, atol=1e-12) and np.allclose(got_q, q, atol=1e-12), "tf pose %d" % i)
+        check(dm.encoding == "32FC1", "depth encoding")
+        z = np.frombuffer(dm.data, "<f4")
+        check(z.size == 64 * 48 and z.min() > 0.25 and z.max() < 15.0, "depth range %d" % i)
+    print("5 passed, 0 failed")
+
+
+if __name__ == "__main__":
+    main()
