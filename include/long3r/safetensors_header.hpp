@@ -40,6 +40,9 @@ struct SafetensorsHeader {
   uint64_t data_offset = 0;  // absolute file offset of the data section
 };
 
+// Largest accepted header (JSON) length; real headers are well below 1 MB.
+constexpr uint64_t kMaxSafetensorsHeaderBytes = 100ull << 20;
+
 // Validates everything that can be checked before touching tensor data: the
 // header length bound, JSON syntax, known dtypes, shape x itemsize == byte
 // range, ranges inside the file and non-overlapping. `data` holds at least the
