@@ -1,0 +1,203 @@
+// Camera pose by PnP-RANSAC from synthetic pointmaps with a known pose.
+#include <gtest/gtest.h>
+
+#include <opencv2/core.hpp>
+
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include "long3r/pose.hpp"
+
+namespace long3r {
+namespace {
+
+Intrinsics model_camera() {
+  Intrinsics k;
+  k.fx = 200.0;
+  k.fy = 201.0;
+  k.cx = 111.5;
+  k.cy = 112.0;
+  k.width = 224;
+  k.height = 224;
+  return k;
+}
+
+Eigen::Isometry3d known_pose() {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(0.35, Eigen::Vector3d(0.2, 1.0, -0.3).normalized()).matrix();
+  T.translation() = Eigen::Vector3d(0.3, -0.2, 0.5);
+  return T;
+}
+
+// World pointmap seen by camera T_W_C: a smooth bumpy surface 1.5-4 m away,
+// so each pixel's world point projects exactly onto that pixel's centre.
+void make_scene(const Intrinsics& k, const Eigen::Isometry3d& T_W_C, cv::Mat& pts_W,
+                cv::Mat& conf) {
+  pts_W.create(k.height, k.width, CV_32FC3);
+  conf.create(k.height, k.width, CV_32FC1);
+  conf.setTo(5.0f);
+  for (int v = 0; v < k.height; ++v) {
+    for (int u = 0; u < k.width; ++u) {
+      const double d = 2.5 + 0.8 * std::sin(0.05 * u) * std::cos(0.07 * v) + 0.004 * u;
+      const Eigen::Vector3d X = T_W_C * k.backproject(u, v, d);
+      pts_W.at<cv::Vec3f>(v, u) = cv::Vec3f(static_cast<float>(X.x()), static_cast<float>(X.y()),
+                                            static_cast<float>(X.z()));
+    }
+  }
+}
+
+double rotation_error(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
+  return Eigen::AngleAxisd(a.linear().transpose() * b.linear()).angle();
+}
+
+void expect_pose_near(const Eigen::Isometry3d& est, const Eigen::Isometry3d& truth, double tol) {
+  EXPECT_LT(rotation_error(est, truth), tol);
+  EXPECT_LT((est.translation() - truth.translation()).norm(), tol);
+  EXPECT_LT((est.matrix() - truth.matrix()).cwiseAbs().maxCoeff(), tol);
+}
+
+TEST(Pose, PnpRecoversAKnownPose) {
+  const Intrinsics k = model_camera();
+  const Eigen::Isometry3d T = known_pose();
+  cv::Mat pts, conf;
+  make_scene(k, T, pts, conf);
+  const PoseResult r = estimate_pose_pnp(pts, conf, k);
+  ASSERT_TRUE(r.ok()) << r.message;
+  EXPECT_EQ(r.status, PnpStatus::kOk);
+  EXPECT_TRUE(r.message.empty());
+  expect_pose_near(r.T_W_C, T, 1e-4);
+  EXPECT_EQ(r.correspondences, 4000);  // default max_correspondences
+  EXPECT_EQ(r.inliers, 4000);
+  EXPECT_LT(r.inlier_rmse_px, 1e-3);
+}
+
+TEST(Pose, FrameZeroIsTheIdentity) {
+  const Intrinsics k = model_camera();
+  cv::Mat pts, conf;
+  make_scene(k, Eigen::Isometry3d::Identity(), pts, conf);
+  const PoseResult r = estimate_pose_pnp(pts, conf, k);
+  ASSERT_TRUE(r.ok()) << r.message;
+  expect_pose_near(r.T_W_C, Eigen::Isometry3d::Identity(), 1e-4);
+}
+
+TEST(Pose, OutliersAndLowConfidenceAreRejected) {
+  const Intrinsics k = model_camera();
+  const Eigen::Isometry3d T = known_pose();
+  cv::Mat pts, conf;
+  make_scene(k, T, pts, conf);
+  cv::RNG rng(21);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (int v = 0; v < pts.rows; ++v) {
+    for (int u = 0; u < pts.cols; ++u) {
+      const double x = rng.uniform(0.0, 1.0);
+      cv::Vec3f& p = pts.at<cv::Vec3f>(v, u);
+      if (x < 0.3) {  // gross outliers the confidence does not flag
+        p += cv::Vec3f(rng.uniform(-1.f, 1.f), rng.uniform(-1.f, 1.f), rng.uniform(-1.f, 1.f));
+      } else if (x < 0.5) {  // outliers with low confidence
+        p += cv::Vec3f(5.f, 5.f, 5.f);
+        conf.at<float>(v, u) = 1.2f;
+      } else if (x < 0.55) {
+        p[1] = nan;
+      }
+    }
+  }
+  PnpConfig config;
+  config.iterations = 500;
+  const PoseResult r = estimate_pose_pnp(pts, conf, k, config);
+  ASSERT_TRUE(r.ok()) << r.message;
+  expect_pose_near(r.T_W_C, T, 1e-4);
+  // 0.75 of the pixels are usable (confident and finite); 0.3 / 0.75 of those are outliers.
+  EXPECT_GT(r.inliers, 0.5 * r.correspondences);
+  EXPECT_LT(r.inliers, 0.7 * r.correspondences);
+}
+
+TEST(Pose, SubsamplingRespectsTheCap) {
+  const Intrinsics k = model_camera();
+  cv::Mat pts, conf;
+  make_scene(k, known_pose(), pts, conf);
+  PnpConfig config;
+  config.max_correspondences = 300;
+  const PoseResult r = estimate_pose_pnp(pts, conf, k, config);
+  ASSERT_TRUE(r.ok()) << r.message;
+  EXPECT_EQ(r.correspondences, 300);
+  expect_pose_near(r.T_W_C, known_pose(), 1e-4);
+}
+
+TEST(Pose, TrackerKeepsTheLastGoodPoseOnFailure) {
+  const Intrinsics k = model_camera();
+  const Eigen::Isometry3d T = known_pose();
+  cv::Mat pts, conf;
+  make_scene(k, T, pts, conf);
+  PoseTracker tracker;
+  EXPECT_FALSE(tracker.has_good_pose());
+  ASSERT_TRUE(tracker.track(pts, conf, k).ok());
+  EXPECT_TRUE(tracker.has_good_pose());
+
+  // Nothing confident: too few points.
+  const cv::Mat low(conf.size(), CV_32FC1, cv::Scalar(1.0f));
+  PoseResult r = tracker.track(pts, low, k);
+  EXPECT_EQ(r.status, PnpStatus::kTooFewPoints);
+  EXPECT_STREQ(to_string(r.status), "too_few_points");
+  EXPECT_FALSE(r.message.empty());
+  expect_pose_near(r.T_W_C, T, 1e-4);
+  EXPECT_EQ(tracker.consecutive_failures(), 1);
+
+  // Points that fit no camera: no pose with enough inliers.
+  cv::Mat noise(pts.size(), CV_32FC3);
+  cv::RNG(22).fill(noise, cv::RNG::UNIFORM, -3.0, 3.0);
+  r = tracker.track(noise, conf, k);
+  EXPECT_FALSE(r.ok());
+  EXPECT_TRUE(r.status == PnpStatus::kTooFewInliers || r.status == PnpStatus::kSolverFailed)
+      << to_string(r.status) << ": " << r.message;
+  expect_pose_near(r.T_W_C, T, 1e-4);
+  EXPECT_EQ(tracker.consecutive_failures(), 2);
+
+  // All non-finite.
+  const cv::Mat nan_pts(pts.size(), CV_32FC3,
+                        cv::Scalar::all(std::numeric_limits<float>::quiet_NaN()));
+  EXPECT_EQ(tracker.track(nan_pts, conf, k).status, PnpStatus::kTooFewPoints);
+
+  // A good frame again resets the failure count.
+  ASSERT_TRUE(tracker.track(pts, conf, k).ok());
+  EXPECT_EQ(tracker.consecutive_failures(), 0);
+  tracker.reset();
+  EXPECT_FALSE(tracker.has_good_pose());
+  expect_pose_near(tracker.last_good_pose(), Eigen::Isometry3d::Identity(), 0.0 + 1e-15);
+}
+
+TEST(Pose, BadInputsThrow) {
+  const Intrinsics k = model_camera();
+  cv::Mat pts, conf;
+  make_scene(k, known_pose(), pts, conf);
+  Intrinsics other = k;
+  other.width = 320;
+  EXPECT_THROW(estimate_pose_pnp(pts, conf, other), std::invalid_argument);
+  EXPECT_THROW(estimate_pose_pnp(pts, cv::Mat(), k), std::invalid_argument);
+  EXPECT_THROW(estimate_pose_pnp(pts, conf, Intrinsics{}), std::invalid_argument);
+}
+
+TEST(Pose, PointsInCameraFrame) {
+  const Intrinsics k = model_camera();
+  const Eigen::Isometry3d T = known_pose();
+  cv::Mat pts, conf;
+  make_scene(k, T, pts, conf);
+  pts.at<cv::Vec3f>(3, 4)[2] = std::numeric_limits<float>::infinity();
+  const cv::Mat pc = points_in_camera(pts, T);
+  ASSERT_EQ(pc.type(), CV_32FC3);
+  for (int v = 0; v < k.height; v += 13) {
+    for (int u = 0; u < k.width; u += 11) {
+      if (v == 3 && u == 4) continue;
+      const cv::Vec3f p = pc.at<cv::Vec3f>(v, u);
+      const Eigen::Vector2d px = k.project(Eigen::Vector3d(p[0], p[1], p[2]));
+      EXPECT_NEAR(px.x(), u, 1e-4);
+      EXPECT_NEAR(px.y(), v, 1e-4);
+      const double d = 2.5 + 0.8 * std::sin(0.05 * u) * std::cos(0.07 * v) + 0.004 * u;
+      EXPECT_NEAR(p[2], d, 1e-5);
+    }
+  }
+  EXPECT_TRUE(std::isnan(pc.at<cv::Vec3f>(3, 4)[0]));
+}
+
+}  // namespace
+}  // namespace long3r
