@@ -1,0 +1,137 @@
+// Model configuration of the DUSt3R / Spann3R inference engine, parsed from the
+// JSON a checkpoint stores in its safetensors `__metadata__["config"]`.
+//
+// Torch-free. Field names follow the official constructor arguments (see
+// docs/checkpoints.md, "Model configuration"). Missing optional fields take the
+// defaults of the official DUSt3R ViT-L / BaseDecoder DPT model (the network
+// Spann3R is built on); unknown keys inside the known sections are errors, so a
+// misspelt field is reported instead of silently defaulted.
+#pragma once
+
+#include <cstdint>
+#include <limits>
+#include <map>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace long3r {
+
+namespace json {
+class Value;
+}  // namespace json
+
+// Malformed or unsupported configuration; the message names the field
+// (e.g. "dust3r.enc_num_heads").
+class ModelConfigError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+enum class ModelKind { kDust3r, kSpann3r };
+// Point-map regression (official reg_dense_depth): pts = xyz/|xyz| * f(|xyz|).
+enum class DepthMode { kLinear, kSquare, kExp };
+// Confidence (official reg_dense_conf): exp: vmin + min(exp(c), vmax - vmin);
+// sigmoid: (vmax - vmin) * sigmoid(c) + vmin. kNone: the head has no
+// confidence channel.
+enum class ConfMode { kNone, kExp, kSigmoid };
+// PatchEmbedDust3R, or ManyAR_PatchEmbed (same weights and, for landscape
+// images, the same result; portrait images are refused with it).
+enum class PatchEmbedKind { kDust3r, kManyAR };
+
+// DPT head (official PixelwiseTaskWithDPT + DPTOutputAdapter_fix).
+struct DptHeadConfig {
+  int64_t feature_dim = 256;                           // F: width of the fusion path
+  int64_t last_dim = 128;                              // width before the last 1x1 conv
+  std::vector<int64_t> layer_dims{96, 192, 384, 768};  // after act_postprocess
+  std::vector<int64_t> hooks;       // decoder-output indices; default [0, B/2, 3B/4, B]
+  std::vector<int64_t> dim_tokens;  // widths of the hooked tokens; default [C_e, C_d x3]
+  int64_t num_channels = 4;         // 3 + (conf_mode != none)
+};
+
+// AsymmetricCroCo3DStereo: ViT encoder, two-branch decoder, two heads.
+struct Dust3rConfig {
+  int64_t patch_size = 16;
+  int64_t enc_embed_dim = 1024;
+  int64_t enc_depth = 24;
+  int64_t enc_num_heads = 16;
+  int64_t dec_embed_dim = 768;
+  int64_t dec_depth = 12;
+  int64_t dec_num_heads = 12;
+  double mlp_ratio = 4.0;
+  double norm_eps = 1e-6;  // every LayerNorm of encoder, decoder and heads
+  bool norm_im2_in_dec = true;
+  double rope_freq = 100.0;  // "RoPE100"
+  DepthMode depth_mode = DepthMode::kExp;
+  ConfMode conf_mode = ConfMode::kExp;
+  double conf_vmin = 1.0;
+  double conf_vmax = std::numeric_limits<double>::infinity();
+  // Portrait inputs: the heads' output maps are transposed ([B, W, H, .]),
+  // exactly as the official transpose_to_landscape wrapper does with
+  // PatchEmbedDust3R.
+  bool landscape_only = true;
+  PatchEmbedKind patch_embed = PatchEmbedKind::kDust3r;
+  std::vector<int64_t> img_size{512, 512};  // training size; informational (RoPE has no table)
+  DptHeadConfig dpt;
+
+  int64_t mlp_hidden(int64_t dim) const { return static_cast<int64_t>(dim * mlp_ratio); }
+};
+
+// Spann3R's value encoder: blocks over pos_patch_embed(pointmap) (or over the
+// decoder output when use_feat), then value_norm and value_out.
+struct ValueEncoderConfig {
+  int64_t depth = 6;
+  int64_t embed_dim = 1024;
+  int64_t num_heads = 16;
+  double mlp_ratio = 4.0;
+  bool qkv_bias = true;
+  double norm_eps = 1e-6;
+  int64_t out_dim = 1024;  // C_m
+};
+
+struct Spann3rConfig {
+  bool use_feat = false;     // values from dec1[-1] instead of the pointmap
+  bool mem_pos_enc = false;  // RoPE inside the value encoder
+  ValueEncoderConfig value_encoder;
+  double norm_qkv_eps = 1e-5;  // norm_q / norm_k / norm_v (nn.LayerNorm default)
+};
+
+// Spann3R SpatialMemory settings for inference.
+struct SpatialMemoryConfig {
+  int64_t long_mem_size = 4000;
+  int64_t top_k = 4000;
+  int64_t work_mem_size = 5;
+  double attn_thresh = 5e-4;
+  double sim_thresh = 0.95;
+  int64_t num_patches = 0;  // tokens per frame; 0 = taken from the first frame
+};
+
+struct ModelConfig {
+  ModelKind kind = ModelKind::kDust3r;
+  Dust3rConfig dust3r;
+  Spann3rConfig spann3r;               // kSpann3r only
+  SpatialMemoryConfig spatial_memory;  // kSpann3r only
+
+  // Width of the memory tokens (C_m) of a Spann3R model.
+  int64_t memory_dim() const { return spann3r.value_encoder.out_dim; }
+};
+
+// Parses and validates; throws ModelConfigError (json errors are wrapped and
+// name the field).
+ModelConfig parse_model_config(const std::string& json_text);
+ModelConfig parse_model_config(const json::Value& config);
+
+// The configuration a checkpoint stores as metadata "config"; `source` names
+// the file in errors.
+ModelConfig model_config_from_metadata(const std::map<std::string, std::string>& metadata,
+                                       const std::string& source);
+
+// Consistency checks (head counts divide widths, RoPE needs head dims that are
+// multiples of 4, hooks within the decoder, DPT widths, Spann3R widths that
+// must agree, ...). parse_model_config calls it; call it again after editing a
+// config by hand.
+void validate_model_config(const ModelConfig& config);
+
+const char* model_kind_name(ModelKind kind);
+
+}  // namespace long3r

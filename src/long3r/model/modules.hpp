@@ -1,0 +1,298 @@
+// torch::nn modules of the DUSt3R / Spann3R networks (private to the model
+// library and its tests; includes torch/nn).
+//
+// Every submodule is registered under the name the official PyTorch module
+// tree uses, so that official state_dicts load by name with
+// load_module_strict(): `enc_blocks.3.attn.qkv.weight`,
+// `dec_blocks2.0.cross_attn.projq.weight`,
+// `downstream_head1.dpt.scratch.refinenet1.resConfUnit1.conv1.weight`, ...
+//
+// Tensor layouts: tokens [B, N, C] in row-major patch order, positions (y, x);
+// feature maps NCHW; point maps [B, H, W, 3] (channel last), confidences
+// [B, H, W]. All forward functions are pure (they never modify their inputs).
+#pragma once
+
+#include <torch/nn/module.h>
+#include <torch/nn/modules/container/modulelist.h>
+#include <torch/nn/modules/container/sequential.h>
+#include <torch/nn/modules/conv.h>
+#include <torch/nn/modules/linear.h>
+#include <torch/nn/modules/normalization.h>
+
+#include <map>
+#include <mutex>
+#include <tuple>
+#include <vector>
+
+#include "long3r/model_config.hpp"
+#include "long3r/model_trace.hpp"
+
+namespace long3r {
+namespace model {
+
+// ---------------------------------------------------------------------------
+// 2D rotary position embedding (CroCo RoPE2D): the first half of each head's
+// channels rotates with the token's row y, the second half with its column x;
+// inside each half, channel pairs (i, i + D/2) rotate by pos * base^(-2i/D).
+
+// Per-token tables for one head width and one patch grid, [N, Dh]: `cos`, and
+// `sin` with rotate_half's sign folded in, so that
+//   rope(x) = x * cos + swap_halves(x) * sin
+// equals the official x * cos + rotate_half(x) * sin value for value.
+struct RopeTable {
+  at::Tensor cos;
+  at::Tensor sin;
+  bool defined() const { return cos.defined(); }
+};
+
+class Rope2D {
+ public:
+  explicit Rope2D(double base = 100.0) : base_(base) {}
+  Rope2D(const Rope2D&) = delete;
+  Rope2D& operator=(const Rope2D&) = delete;
+
+  // Cached per (head_dim, grid, device, dtype); computed once, then shared
+  // (thread-safe).
+  RopeTable table(int64_t head_dim, int64_t grid_h, int64_t grid_w, const at::Device& device,
+                  at::ScalarType dtype) const;
+  std::size_t cache_size() const;
+  void clear_cache();
+  double base() const { return base_; }
+
+  // x: [..., N, Dh] (any strides). Returns a new tensor.
+  static at::Tensor apply(const at::Tensor& x, const RopeTable& table);
+
+ private:
+  using Key = std::tuple<int64_t, int64_t, int64_t, int, int, int>;
+  double base_;
+  mutable std::mutex mutex_;
+  mutable std::map<Key, RopeTable> cache_;
+};
+
+// Row-major (y, x) positions of a grid_h x grid_w patch grid, [B, N, 2] int64
+// (what the official PositionGetter returns).
+at::Tensor grid_positions(int64_t batch, int64_t grid_h, int64_t grid_w, const at::Device& device);
+
+// softmax(q k^T / sqrt(Dh)) v over [B, H, N, Dh] tensors (plain matmul and
+// softmax; the fused kernel where libtorch >= 2 has it).
+at::Tensor attend(const at::Tensor& q, const at::Tensor& k, const at::Tensor& v);
+
+// ---------------------------------------------------------------------------
+// Transformer parts (CroCo blocks).
+
+class MlpImpl : public torch::nn::Module {
+ public:
+  MlpImpl(int64_t dim, int64_t hidden);
+  at::Tensor forward(const at::Tensor& x);
+  torch::nn::Linear fc1{nullptr}, fc2{nullptr};
+};
+TORCH_MODULE(Mlp);
+
+// Self-attention: qkv Linear, RoPE on q and k, softmax, proj.
+class AttentionImpl : public torch::nn::Module {
+ public:
+  AttentionImpl(int64_t dim, int64_t num_heads, bool qkv_bias);
+  // rope: undefined table = no position encoding.
+  at::Tensor forward(const at::Tensor& x, const RopeTable& rope);
+  torch::nn::Linear qkv{nullptr}, proj{nullptr};
+  int64_t num_heads;
+};
+TORCH_MODULE(Attention);
+
+class CrossAttentionImpl : public torch::nn::Module {
+ public:
+  CrossAttentionImpl(int64_t dim, int64_t num_heads, bool qkv_bias);
+  at::Tensor forward(const at::Tensor& query, const at::Tensor& key, const at::Tensor& value,
+                     const RopeTable& qrope, const RopeTable& krope);
+  torch::nn::Linear projq{nullptr}, projk{nullptr}, projv{nullptr}, proj{nullptr};
+  int64_t num_heads;
+};
+TORCH_MODULE(CrossAttention);
+
+// Pre-norm encoder block: x + attn(norm1(x)); x + mlp(norm2(x)).
+class BlockImpl : public torch::nn::Module {
+ public:
+  BlockImpl(int64_t dim, int64_t num_heads, int64_t mlp_hidden, bool qkv_bias, double eps);
+  at::Tensor forward(const at::Tensor& x, const RopeTable& rope);
+  torch::nn::LayerNorm norm1{nullptr}, norm2{nullptr};
+  Attention attn{nullptr};
+  Mlp mlp{nullptr};
+};
+TORCH_MODULE(Block);
+
+// Decoder block: self-attention, cross-attention to the other branch (norm_y
+// on its tokens when norm_mem), MLP; all pre-norm and residual.
+class DecoderBlockImpl : public torch::nn::Module {
+ public:
+  DecoderBlockImpl(int64_t dim, int64_t num_heads, int64_t mlp_hidden, double eps, bool norm_mem);
+  at::Tensor forward(const at::Tensor& x, const at::Tensor& y, const RopeTable& xrope,
+                     const RopeTable& yrope);
+  torch::nn::LayerNorm norm1{nullptr}, norm2{nullptr}, norm3{nullptr}, norm_y{nullptr};
+  Attention attn{nullptr};
+  CrossAttention cross_attn{nullptr};
+  Mlp mlp{nullptr};
+};
+TORCH_MODULE(DecoderBlock);
+
+// PatchEmbedDust3R: conv patch x patch / stride patch, flattened row-major.
+class PatchEmbedImpl : public torch::nn::Module {
+ public:
+  PatchEmbedImpl(int64_t in_channels, int64_t dim, int64_t patch);
+  // [B, C_in, H, W] -> contiguous [B, (H/p)(W/p), dim].
+  at::Tensor forward(const at::Tensor& image);
+  torch::nn::Conv2d proj{nullptr};
+  int64_t patch;
+};
+TORCH_MODULE(PatchEmbed);
+
+// ---------------------------------------------------------------------------
+// DPT head (official DPTOutputAdapter_fix inside PixelwiseTaskWithDPT).
+
+class ResidualConvUnitImpl : public torch::nn::Module {
+ public:
+  explicit ResidualConvUnitImpl(int64_t features);
+  at::Tensor forward(const at::Tensor& x);
+  torch::nn::Conv2d conv1{nullptr}, conv2{nullptr};
+};
+TORCH_MODULE(ResidualConvUnit);
+
+class FeatureFusionBlockImpl : public torch::nn::Module {
+ public:
+  explicit FeatureFusionBlockImpl(int64_t features);
+  // x0 + resConfUnit1(x1) (when x1 is defined), resConfUnit2, 2x bilinear
+  // upsampling (align_corners), out_conv.
+  at::Tensor forward(const at::Tensor& x0, const at::Tensor& x1 = at::Tensor());
+  torch::nn::Conv2d out_conv{nullptr};
+  ResidualConvUnit resConfUnit1{nullptr}, resConfUnit2{nullptr};
+};
+TORCH_MODULE(FeatureFusionBlock);
+
+// `scratch`: layer{1..4}_rn convs, also registered as layer_rn.{0..3} (the
+// same modules, as the official make_scratch does), and refinenet1..4.
+class ScratchImpl : public torch::nn::Module {
+ public:
+  ScratchImpl(const std::vector<int64_t>& layer_dims, int64_t features);
+  std::vector<torch::nn::Conv2d> layer_rn_convs;  // layer{1..4}_rn
+  torch::nn::ModuleList layer_rn{nullptr};
+  std::vector<FeatureFusionBlock> refinenet;  // refinenet[i] = refinenet{i+1}
+};
+TORCH_MODULE(Scratch);
+
+class DptAdapterImpl : public torch::nn::Module {
+ public:
+  explicit DptAdapterImpl(const Dust3rConfig& config);
+  // decout: the decoder outputs (index 0 = encoder output); returns the raw
+  // [B, num_channels, H, W] map for an H x W image.
+  at::Tensor forward(const std::vector<at::Tensor>& decout, int64_t H, int64_t W,
+                     const Trace& trace);
+  std::vector<int64_t> hooks;
+  int64_t patch;
+  torch::nn::ModuleList act_postprocess{nullptr};
+  std::vector<torch::nn::Sequential> act_postprocess_seq;
+  Scratch scratch{nullptr};
+  torch::nn::Sequential head{nullptr};
+};
+TORCH_MODULE(DptAdapter);
+
+// Point map and confidence of one head.
+struct HeadOutput {
+  at::Tensor pts3d;  // [B, H, W, 3]
+  at::Tensor conf;   // [B, H, W]; undefined with ConfMode::kNone
+};
+
+// Official postprocess(): channel-last, depth_mode on xyz, conf_mode on the rest.
+HeadOutput postprocess(const at::Tensor& raw, const Dust3rConfig& config);
+
+class DptHeadImpl : public torch::nn::Module {
+ public:
+  explicit DptHeadImpl(const Dust3rConfig& config);
+  DptAdapter dpt{nullptr};
+};
+TORCH_MODULE(DptHead);
+
+// ---------------------------------------------------------------------------
+// AsymmetricCroCo3DStereo.
+
+// Decoder outputs of one branch, as the official _decoder returns them:
+// [enc_out, block_0, ..., block_{D-2}, dec_norm(block_{D-1})].
+using DecoderOutputs = std::vector<at::Tensor>;
+// Patch grid (rows, columns).
+using Grid = std::pair<int64_t, int64_t>;
+
+class Dust3rNetImpl : public torch::nn::Module {
+ public:
+  explicit Dust3rNetImpl(const Dust3rConfig& config);
+
+  const Dust3rConfig& config() const { return config_; }
+  // Patch grid (rows, columns) of an H x W image; throws for sizes that are
+  // not multiples of the patch size.
+  Grid grid(int64_t H, int64_t W) const;
+  RopeTable enc_rope(int64_t gh, int64_t gw, const at::Tensor& like) const;
+  RopeTable dec_rope(int64_t gh, int64_t gw, const at::Tensor& like) const;
+
+  // images [B, 3, H, W] -> enc_norm(blocks(patch_embed)) [B, N, C_e].
+  // Records patch_embed, pos, enc_block{i}, enc_out.
+  at::Tensor encode(const at::Tensor& images, const Trace& trace);
+
+  // Two-branch decoder; each branch's tokens lie on their own patch grid
+  // (RoPE positions). Records dec{1,2}.embed, dec{1,2}.block{i},
+  // dec{1,2}.final under `trace`.
+  std::pair<DecoderOutputs, DecoderOutputs> decode(const at::Tensor& f1, Grid grid1,
+                                                   const at::Tensor& f2, Grid grid2,
+                                                   const Trace& trace);
+
+  // Head `which` (1 or 2) on an H x W image: DPT + postprocess, with the
+  // official transpose_to_landscape behaviour (portrait + landscape_only:
+  // the head runs at H x W and the outputs are transposed to [B, W, H, .]).
+  // Records act_postprocess{i}, layer_rn{i}, refinenet{n}, raw.
+  HeadOutput head(int which, const DecoderOutputs& dec, int64_t H, int64_t W, const Trace& trace);
+
+  at::Tensor mask_token;  // pre-training only; present in every checkpoint
+  PatchEmbed patch_embed{nullptr};
+  torch::nn::ModuleList enc_blocks{nullptr};
+  torch::nn::LayerNorm enc_norm{nullptr};
+  torch::nn::Linear decoder_embed{nullptr};
+  torch::nn::ModuleList dec_blocks{nullptr};
+  torch::nn::ModuleList dec_blocks2{nullptr};
+  torch::nn::LayerNorm dec_norm{nullptr};
+  DptHead downstream_head1{nullptr};
+  DptHead downstream_head2{nullptr};
+  std::vector<Block> enc;
+  std::vector<DecoderBlock> dec1, dec2;
+  Rope2D rope;
+
+ private:
+  Dust3rConfig config_;
+};
+TORCH_MODULE(Dust3rNet);
+
+// ---------------------------------------------------------------------------
+// Spann3R: DUSt3R plus the memory key/value encoders.
+
+class Spann3rNetImpl : public torch::nn::Module {
+ public:
+  explicit Spann3rNetImpl(const ModelConfig& config);
+
+  // attn_head_{num}(cat(feat, dec_last)) [B, N, C_m].
+  at::Tensor feat_key(int num, const at::Tensor& feat, const at::Tensor& dec_last);
+  // Value of the current frame: value_out(value_norm(value_encoder(x))) with x
+  // = pos_patch_embed(pts3d as NCHW) (or dec_last when use_feat). pts3d is the
+  // head-1 point map as returned (transposed for portrait inputs).
+  at::Tensor cur_value(const at::Tensor& pts3d, const at::Tensor& dec_last, int64_t gh, int64_t gw);
+
+  Dust3rNet dust3r{nullptr};
+  torch::nn::ModuleList value_encoder{nullptr};
+  std::vector<Block> value_blocks;
+  torch::nn::LayerNorm value_norm{nullptr};
+  torch::nn::Linear value_out{nullptr};
+  PatchEmbed pos_patch_embed{nullptr};  // null with use_feat
+  torch::nn::LayerNorm norm_q{nullptr}, norm_k{nullptr}, norm_v{nullptr};
+  torch::nn::Sequential attn_head_1{nullptr}, attn_head_2{nullptr};
+
+ private:
+  ModelConfig config_;
+};
+TORCH_MODULE(Spann3rNet);
+
+}  // namespace model
+}  // namespace long3r

@@ -1,0 +1,242 @@
+// Spann3R streaming inference; see include/long3r/spann3r_model.hpp.
+#include "long3r/spann3r_model.hpp"
+
+#include <ATen/ATen.h>
+#include <c10/core/InferenceMode.h>
+
+#include <chrono>
+#include <stdexcept>
+
+#include "long3r/checkpoint.hpp"
+#include "long3r/model/modules.hpp"
+#include "long3r/safetensors.hpp"
+
+namespace long3r {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+LayerNormParams norm_params(const torch::nn::LayerNorm& n) {
+  return {n->weight, n->bias, n->options.eps()};
+}
+
+}  // namespace
+
+Spann3rMemoryConfig spann3r_memory_config(const ModelConfig& config) {
+  const SpatialMemoryConfig& s = config.spatial_memory;
+  Spann3rMemoryConfig m;
+  m.long_mem_size = s.long_mem_size;
+  m.work_mem_size = s.work_mem_size;
+  m.attn_thresh = s.attn_thresh;
+  m.sim_thresh = s.sim_thresh;
+  m.num_patches = s.num_patches;
+  m.top_k = s.top_k;
+  return m;
+}
+
+struct Spann3rModel::Impl {
+  explicit Impl(const ModelConfig& c) : config(c), net(c) {
+    for (auto& p : net->parameters()) p.set_requires_grad(false);
+    net->eval();
+    new_memory();
+  }
+
+  void new_memory() {
+    memory = std::make_unique<Spann3rMemory>(
+        GatingNorms{norm_params(net->norm_q), norm_params(net->norm_k), norm_params(net->norm_v)},
+        spann3r_memory_config(config));
+  }
+
+  void reset() {
+    frames = 0;
+    first_image = at::Tensor();
+    feat2 = feat_k2 = at::Tensor();
+    last_dec2.clear();
+    memory->reset();
+  }
+
+  at::Device device() const { return net->value_out->weight.device(); }
+
+  ModelConfig config;
+  model::Spann3rNet net;
+  std::unique_ptr<Spann3rMemory> memory;
+  Trace trace;
+
+  // Stream state.
+  int64_t frames = 0;
+  int64_t H = 0, W = 0, batch = 0;
+  at::Tensor first_image;           // frame 0 until frame 1 arrives
+  at::Tensor feat2;                 // encoder features of the newest frame
+  at::Tensor feat_k2;               // query of the next memory read
+  model::DecoderOutputs last_dec2;  // coarse branch of the last step (for flush)
+};
+
+Spann3rModel::Spann3rModel(const ModelConfig& config) {
+  if (config.kind != ModelKind::kSpann3r) {
+    throw ModelConfigError(std::string("Spann3rModel needs a Spann3R config, got ") +
+                           model_kind_name(config.kind));
+  }
+  validate_model_config(config);
+  impl_ = std::make_unique<Impl>(config);
+}
+
+Spann3rModel::~Spann3rModel() = default;
+
+std::unique_ptr<Spann3rModel> Spann3rModel::from_file(const std::string& path) {
+  const TensorFile file = load_safetensors(path);
+  auto model = std::make_unique<Spann3rModel>(model_config_from_metadata(file.metadata, path));
+  model->load_weights(file.tensors, path);
+  return model;
+}
+
+void Spann3rModel::load_weights(const TensorMap& tensors, const std::string& source_name,
+                                const std::string& strip_prefix) {
+  load_module_strict(*impl_->net, tensors, source_name, strip_prefix);
+}
+
+const ModelConfig& Spann3rModel::config() const { return impl_->config; }
+
+void Spann3rModel::to(const at::Device& device) {
+  impl_->net->to(device);
+  impl_->new_memory();
+  impl_->reset();
+}
+
+at::Device Spann3rModel::device() const { return impl_->device(); }
+
+torch::nn::Module& Spann3rModel::module() { return *impl_->net; }
+
+const Spann3rMemory& Spann3rModel::memory() const { return *impl_->memory; }
+
+void Spann3rModel::set_trace(const Trace& trace) { impl_->trace = trace; }
+
+int64_t Spann3rModel::frames_pushed() const { return impl_->frames; }
+
+void Spann3rModel::reset() { impl_->reset(); }
+
+std::optional<StreamOutput> Spann3rModel::push(const at::Tensor& image) {
+  Impl& s = *impl_;
+  if (image.dim() != 4 || image.size(1) != 3) {
+    throw std::invalid_argument("Spann3rModel::push: expected a [B, 3, H, W] image");
+  }
+  model::Dust3rNet& dust3r = s.net->dust3r;
+  if (s.frames == 0) {
+    dust3r->grid(image.size(2), image.size(3));  // validates the size
+    s.H = image.size(2);
+    s.W = image.size(3);
+    s.batch = image.size(0);
+  } else if (image.size(2) != s.H || image.size(3) != s.W || image.size(0) != s.batch) {
+    throw std::invalid_argument("Spann3rModel::push: all frames of a stream need one shape");
+  }
+  c10::InferenceMode guard;
+  const auto t0 = Clock::now();
+  const at::Tensor img = image.to(s.device(), at::kFloat);
+  if (s.frames == 0) {
+    s.first_image = img;
+    s.frames = 1;
+    return std::nullopt;
+  }
+
+  const int64_t k = s.frames - 1;  // step k: pair (frame k, frame k+1)
+  const Trace trace = s.trace.child("step" + std::to_string(k) + ".");
+  const int64_t B = img.size(0);
+  const auto g = dust3r->grid(s.H, s.W);
+
+  at::Tensor feat1, feat2;
+  if (k == 0) {
+    // Official encode_image_pairs: both frames in one batch.
+    TensorMap records;
+    const at::Tensor f =
+        dust3r->encode(at::cat({s.first_image, img}), trace.enabled() ? Trace(&records) : Trace());
+    for (const auto& kv : records) {
+      trace.put("img1." + kv.first, kv.second.narrow(0, 0, B));
+      trace.put("img2." + kv.first, kv.second.narrow(0, B, B));
+    }
+    feat1 = f.narrow(0, 0, B);
+    feat2 = f.narrow(0, B, B);
+    s.first_image = at::Tensor();
+  } else {
+    feat1 = s.feat2;
+    feat2 = dust3r->encode(img, trace.child("img2."));
+  }
+  StreamOutput out;
+  out.frame_index = k;
+  out.stats.encode_ms = ms_since(t0);
+
+  const auto t1 = Clock::now();
+  at::Tensor feat_fuse = feat1;
+  if (k > 0) {
+    feat_fuse = s.memory->read(s.feat_k2, /*residual=*/true, /*keep_attention=*/trace.enabled());
+    trace.put("feat_fuse", feat_fuse);
+  }
+  auto dec = dust3r->decode(feat_fuse, g, feat2, g, trace);
+  const at::Tensor feat_k1 = s.net->feat_key(1, feat1, dec.first.back());
+  s.feat_k2 = s.net->feat_key(2, feat2, dec.second.back());
+  model::HeadOutput res1 = dust3r->head(1, dec.first, s.H, s.W, trace.child("head1."));
+  out.stats.decode_ms = ms_since(t1);
+
+  const auto t2 = Clock::now();
+  const at::Tensor cur_v = s.net->cur_value(res1.pts3d, dec.first.back(), g.first, g.second);
+  s.memory->add_mem_check(feat_k1, cur_v + feat_k1);
+  out.stats.memory_ms = ms_since(t2);
+  if (trace.enabled()) {
+    trace.put("feat_k1", feat_k1);
+    trace.put("feat_k2", s.feat_k2);
+    trace.put("cur_v", cur_v);
+    trace.put("pts3d", res1.pts3d);
+    if (res1.conf.defined()) trace.put("conf", res1.conf);
+  }
+
+  s.feat2 = feat2;
+  // Only the layers head 2 reads are needed for flush().
+  s.last_dec2 = std::move(dec.second);
+  std::vector<bool> hooked(s.last_dec2.size(), false);
+  for (int64_t h : s.config.dust3r.dpt.hooks) hooked.at(static_cast<std::size_t>(h)) = true;
+  for (std::size_t i = 0; i < hooked.size(); ++i) {
+    if (!hooked[i]) s.last_dec2[i] = at::Tensor();
+  }
+  s.frames += 1;
+
+  const Spann3rMemory& m = *s.memory;
+  const int64_t working = m.working_frames() * m.num_patches();
+  out.stats.mem_short_tokens = std::min(working, m.size());
+  out.stats.mem_long_tokens = m.size() - out.stats.mem_short_tokens;
+  out.stats.memory_write_skipped = m.last_add().skipped;
+  out.pts3d = std::move(res1.pts3d);
+  out.conf = std::move(res1.conf);
+  return out;
+}
+
+std::optional<StreamOutput> Spann3rModel::flush() {
+  Impl& s = *impl_;
+  if (s.frames < 2) {
+    s.reset();
+    return std::nullopt;
+  }
+  c10::InferenceMode guard;
+  const auto t0 = Clock::now();
+  const Trace trace = s.trace.child("flush.");
+  model::HeadOutput res2 = s.net->dust3r->head(2, s.last_dec2, s.H, s.W, trace.child("head2."));
+  StreamOutput out;
+  out.frame_index = s.frames - 1;
+  out.from_coarse_head = true;
+  out.stats.decode_ms = ms_since(t0);
+  const Spann3rMemory& m = *s.memory;
+  out.stats.mem_short_tokens = std::min(m.working_frames() * m.num_patches(), m.size());
+  out.stats.mem_long_tokens = m.size() - out.stats.mem_short_tokens;
+  if (trace.enabled()) {
+    trace.put("pts3d", res2.pts3d);
+    if (res2.conf.defined()) trace.put("conf", res2.conf);
+  }
+  out.pts3d = std::move(res2.pts3d);
+  out.conf = std::move(res2.conf);
+  s.reset();
+  return out;
+}
+
+}  // namespace long3r
