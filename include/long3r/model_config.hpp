@@ -28,7 +28,9 @@ class ModelConfigError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-enum class ModelKind { kDust3r, kSpann3r };
+// kLong3r: Spann3R's encoders and memory key/value encoders with LONG3R's
+// memory-gated joint decoder and 3D spatio-temporal memory.
+enum class ModelKind { kDust3r, kSpann3r, kLong3r };
 // Point-map regression (official reg_dense_depth): pts = xyz/|xyz| * f(|xyz|).
 enum class DepthMode { kLinear, kSquare, kExp };
 // Confidence (official reg_dense_conf): exp: vmin + min(exp(c), vmax - vmin);
@@ -106,11 +108,23 @@ struct SpatialMemoryConfig {
   int64_t num_patches = 0;  // tokens per frame; 0 = taken from the first frame
 };
 
+// LONG3R memory settings (JSON section "long3r"; spec "3D spatio-temporal
+// memory"). The decoder layout is fixed by the spec: odd layers of the refined
+// branch are pairwise blocks, even layers memory blocks.
+struct Long3rConfig {
+  int64_t short_term_frames = 10;       // K
+  int64_t long_term_capacity = 3000;    // L, tokens
+  double tau = 5e-4;                    // gating threshold (inference)
+  std::string voxel_statistic = "min";  // "min" (the paper) or "percentile"
+  double voxel_percentile = 5.0;        // with "percentile", in [0, 100]
+};
+
 struct ModelConfig {
   ModelKind kind = ModelKind::kDust3r;
   Dust3rConfig dust3r;
-  Spann3rConfig spann3r;               // kSpann3r only
+  Spann3rConfig spann3r;               // kSpann3r and kLong3r (memory encoders)
   SpatialMemoryConfig spatial_memory;  // kSpann3r only
+  Long3rConfig long3r;                 // kLong3r only
 
   // Width of the memory tokens (C_m) of a Spann3R model.
   int64_t memory_dim() const { return spann3r.value_encoder.out_dim; }
@@ -133,5 +147,22 @@ ModelConfig model_config_from_metadata(const std::map<std::string, std::string>&
 void validate_model_config(const ModelConfig& config);
 
 const char* model_kind_name(ModelKind kind);
+
+// JSON text of a configuration, in the layout parse_model_config reads
+// (parse_model_config(model_config_to_json(c)) gives c back); what a
+// checkpoint stores as metadata "config".
+std::string model_config_to_json(const ModelConfig& config);
+
+// Built-in LONG3R configurations (kind kLong3r):
+//   "long3r_paper": the paper's model: ViT-L encoder 1024 x 24 (16 heads),
+//     decoder 768 x 12 (12 heads), value encoder 6 x 1024, C_m 1024, K 10,
+//     L 3000, tau 5e-4, the official DPT widths.
+//   "long3r_small": a CPU-sized model of the same structure (encoder 192 x 6
+//     (3 heads), decoder 128 x 6 (4 heads), value encoder 2 x 192, C_m 192,
+//     DPT 64/32 with layer widths 48..384, K 10, L 3000).
+//   "long3r_tiny": for tests (encoder 32 x 1, decoder 32 x 4, value encoder
+//     1 x 32, DPT 16/8, K 2, L 64).
+// Throws ModelConfigError for other names.
+ModelConfig named_model_config(const std::string& name);
 
 }  // namespace long3r

@@ -328,6 +328,18 @@ void parse_spatial_memory(const json::Value& m, SpatialMemoryConfig& c) {
   }
 }
 
+void parse_long3r(const json::Value& m, Long3rConfig& c) {
+  const std::string path = "long3r";
+  check_keys(
+      m, path,
+      {"short_term_frames", "long_term_capacity", "tau", "voxel_statistic", "voxel_percentile"});
+  c.short_term_frames = get_int(m, "short_term_frames", c.short_term_frames, path);
+  c.long_term_capacity = get_int(m, "long_term_capacity", c.long_term_capacity, path);
+  c.tau = get_double(m, "tau", c.tau, path);
+  c.voxel_statistic = get_string(m, "voxel_statistic", c.voxel_statistic, path);
+  c.voxel_percentile = get_double(m, "voxel_percentile", c.voxel_percentile, path);
+}
+
 void require(bool ok, const std::string& path, const std::string& what) {
   if (!ok) fail(path, what);
 }
@@ -348,7 +360,15 @@ void validate_heads(int64_t dim, int64_t heads, bool rope, const std::string& di
 }  // namespace
 
 const char* model_kind_name(ModelKind kind) {
-  return kind == ModelKind::kSpann3r ? "Spann3R" : "AsymmetricCroCo3DStereo";
+  switch (kind) {
+    case ModelKind::kSpann3r:
+      return "Spann3R";
+    case ModelKind::kLong3r:
+      return "LONG3R";
+    case ModelKind::kDust3r:
+      break;
+  }
+  return "AsymmetricCroCo3DStereo";
 }
 
 void validate_model_config(const ModelConfig& config) {
@@ -395,7 +415,7 @@ void validate_model_config(const ModelConfig& config) {
           "must be " + std::to_string(channels) + " (xyz" +
               (channels == 4 ? " + confidence)" : ", no confidence)"));
 
-  if (config.kind != ModelKind::kSpann3r) return;
+  if (config.kind == ModelKind::kDust3r) return;
   const Spann3rConfig& s = config.spann3r;
   const ValueEncoderConfig& e = s.value_encoder;
   const std::string vp = "spann3r.value_encoder";
@@ -415,6 +435,19 @@ void validate_model_config(const ModelConfig& config) {
           "must equal dust3r.enc_embed_dim (" + std::to_string(d.enc_embed_dim) + "), got " +
               std::to_string(e.out_dim));
   require(s.norm_qkv_eps > 0, "spann3r.norm_qkv", "eps must be positive");
+
+  if (config.kind == ModelKind::kLong3r) {
+    const Long3rConfig& l = config.long3r;
+    require(l.short_term_frames >= 0, "long3r.short_term_frames", "must not be negative");
+    require(l.long_term_capacity >= 0, "long3r.long_term_capacity", "must not be negative");
+    require(l.tau >= 0 && l.tau < 1, "long3r.tau", "must lie in [0, 1)");
+    require(l.voxel_statistic == "min" || l.voxel_statistic == "percentile",
+            "long3r.voxel_statistic",
+            "must be \"min\" or \"percentile\", got \"" + l.voxel_statistic + "\"");
+    require(l.voxel_percentile >= 0 && l.voxel_percentile <= 100, "long3r.voxel_percentile",
+            "must lie in [0, 100]");
+    return;
+  }
 
   const SpatialMemoryConfig& m = config.spatial_memory;
   const std::string mp = "spatial_memory";
@@ -438,13 +471,15 @@ ModelConfig parse_model_config(const json::Value& config) {
       out.kind = ModelKind::kDust3r;
     } else if (model == "Spann3R") {
       out.kind = ModelKind::kSpann3r;
+    } else if (model == "LONG3R") {
+      out.kind = ModelKind::kLong3r;
     } else if (model.empty()) {
       out.kind = member(config, "spann3r") != nullptr ? ModelKind::kSpann3r : ModelKind::kDust3r;
     } else {
-      fail("model", "unknown model \"" + model + "\" (AsymmetricCroCo3DStereo, Spann3R)");
+      fail("model", "unknown model \"" + model + "\" (AsymmetricCroCo3DStereo, Spann3R, LONG3R)");
     }
     parse_dust3r(object_at(config, "dust3r", ""), out.dust3r);
-    if (out.kind == ModelKind::kSpann3r) {
+    if (out.kind != ModelKind::kDust3r) {
       // Official Spann3R defaults: the memory encoders follow the encoder width.
       ValueEncoderConfig& e = out.spann3r.value_encoder;
       e.embed_dim = out.dust3r.enc_embed_dim;
@@ -454,8 +489,16 @@ ModelConfig parse_model_config(const json::Value& config) {
         parse_spann3r(*s, out.dust3r, out.spann3r);
       }
       if (const json::Value* m = member(config, "spatial_memory")) {
+        if (out.kind == ModelKind::kLong3r) {
+          fail("spatial_memory", "Spann3R memory settings; LONG3R reads the \"long3r\" section");
+        }
         if (!m->is_object()) fail("spatial_memory", "expected an object");
         parse_spatial_memory(*m, out.spatial_memory);
+      }
+      if (const json::Value* m = member(config, "long3r")) {
+        if (out.kind != ModelKind::kLong3r) fail("long3r", "only for \"model\": \"LONG3R\"");
+        if (!m->is_object()) fail("long3r", "expected an object");
+        parse_long3r(*m, out.long3r);
       }
     }
   } catch (const json::Error& e) {
@@ -486,6 +529,169 @@ ModelConfig model_config_from_metadata(const std::map<std::string, std::string>&
   } catch (const ModelConfigError& e) {
     throw ModelConfigError(source + ": " + e.what());
   }
+}
+
+namespace {
+
+// Shortest text that reads back as the same double (as json dumps it).
+std::string number_text(double v) { return json::Value(v).dump(); }
+
+json::Value number_or_inf_value(double v) {
+  if (std::isinf(v)) return json::Value(v > 0 ? "inf" : "-inf");
+  return json::Value(v);
+}
+
+std::string layer_norm_text(double eps) { return "LayerNorm(eps=" + number_text(eps) + ")"; }
+
+json::Value int_list(const std::vector<int64_t>& v) {
+  json::Array a;
+  for (int64_t x : v) a.emplace_back(x);
+  return json::Value(std::move(a));
+}
+
+const char* depth_mode_name(DepthMode m) {
+  switch (m) {
+    case DepthMode::kLinear:
+      return "linear";
+    case DepthMode::kSquare:
+      return "square";
+    case DepthMode::kExp:
+      break;
+  }
+  return "exp";
+}
+
+}  // namespace
+
+std::string model_config_to_json(const ModelConfig& config) {
+  const Dust3rConfig& d = config.dust3r;
+  json::Value dust3r{json::Object{}};
+  dust3r.set("patch_size", d.patch_size);
+  dust3r.set("img_size", int_list(d.img_size));
+  dust3r.set("enc_embed_dim", d.enc_embed_dim);
+  dust3r.set("enc_depth", d.enc_depth);
+  dust3r.set("enc_num_heads", d.enc_num_heads);
+  dust3r.set("dec_embed_dim", d.dec_embed_dim);
+  dust3r.set("dec_depth", d.dec_depth);
+  dust3r.set("dec_num_heads", d.dec_num_heads);
+  dust3r.set("mlp_ratio", d.mlp_ratio);
+  dust3r.set("norm_layer", layer_norm_text(d.norm_eps));
+  dust3r.set("norm_im2_in_dec", d.norm_im2_in_dec);
+  dust3r.set("pos_embed", "RoPE" + number_text(d.rope_freq));
+  dust3r.set("depth_mode", json::Value(json::Array{json::Value(depth_mode_name(d.depth_mode)),
+                                                   json::Value("-inf"), json::Value("inf")}));
+  if (d.conf_mode == ConfMode::kNone) {
+    dust3r.set("conf_mode", json::Value());
+  } else {
+    dust3r.set("conf_mode",
+               json::Value(json::Array{
+                   json::Value(d.conf_mode == ConfMode::kExp ? "exp" : "sigmoid"),
+                   number_or_inf_value(d.conf_vmin), number_or_inf_value(d.conf_vmax)}));
+  }
+  dust3r.set("landscape_only", d.landscape_only);
+  dust3r.set("patch_embed_cls",
+             d.patch_embed == PatchEmbedKind::kManyAR ? "ManyAR_PatchEmbed" : "PatchEmbedDust3R");
+  json::Value dpt{json::Object{}};
+  dpt.set("feature_dim", d.dpt.feature_dim);
+  dpt.set("last_dim", d.dpt.last_dim);
+  dpt.set("layer_dims", int_list(d.dpt.layer_dims));
+  dpt.set("hooks", int_list(d.dpt.hooks));
+  dpt.set("dim_tokens", int_list(d.dpt.dim_tokens));
+  dpt.set("num_channels", d.dpt.num_channels);
+  dust3r.set("dpt_head", std::move(dpt));
+
+  json::Value root{json::Object{}};
+  root.set("model", model_kind_name(config.kind));
+  root.set("dust3r", std::move(dust3r));
+  if (config.kind != ModelKind::kDust3r) {
+    const Spann3rConfig& s = config.spann3r;
+    const ValueEncoderConfig& e = s.value_encoder;
+    json::Value ve{json::Object{}};
+    ve.set("depth", e.depth);
+    ve.set("embed_dim", e.embed_dim);
+    ve.set("num_heads", e.num_heads);
+    ve.set("mlp_ratio", e.mlp_ratio);
+    ve.set("qkv_bias", e.qkv_bias);
+    ve.set("norm_layer", layer_norm_text(e.norm_eps));
+    ve.set("out_dim", e.out_dim);
+    if (s.mem_pos_enc) ve.set("rope", "RoPE" + number_text(d.rope_freq));
+    json::Value sp{json::Object{}};
+    sp.set("use_feat", s.use_feat);
+    sp.set("mem_pos_enc", s.mem_pos_enc);
+    sp.set("norm_qkv", layer_norm_text(s.norm_qkv_eps));
+    sp.set("value_encoder", std::move(ve));
+    root.set("spann3r", std::move(sp));
+  }
+  if (config.kind == ModelKind::kSpann3r) {
+    const SpatialMemoryConfig& m = config.spatial_memory;
+    json::Value sm{json::Object{}};
+    sm.set("long_mem_size", m.long_mem_size);
+    sm.set("top_k", m.top_k);
+    sm.set("work_mem_size", m.work_mem_size);
+    sm.set("attn_thresh", m.attn_thresh);
+    sm.set("sim_thresh", m.sim_thresh);
+    sm.set("num_patches", m.num_patches);
+    root.set("spatial_memory", std::move(sm));
+  }
+  if (config.kind == ModelKind::kLong3r) {
+    const Long3rConfig& l = config.long3r;
+    json::Value lm{json::Object{}};
+    lm.set("short_term_frames", l.short_term_frames);
+    lm.set("long_term_capacity", l.long_term_capacity);
+    lm.set("tau", l.tau);
+    lm.set("voxel_statistic", l.voxel_statistic);
+    lm.set("voxel_percentile", l.voxel_percentile);
+    root.set("long3r", std::move(lm));
+  }
+  return root.dump();
+}
+
+namespace {
+
+ModelConfig long3r_config(int64_t enc_dim, int64_t enc_depth, int64_t enc_heads, int64_t dec_dim,
+                          int64_t dec_depth, int64_t dec_heads, int64_t value_depth,
+                          int64_t value_heads, int64_t feature_dim, int64_t last_dim,
+                          const std::vector<int64_t>& layer_dims, int64_t K, int64_t L) {
+  ModelConfig c;
+  c.kind = ModelKind::kLong3r;
+  Dust3rConfig& d = c.dust3r;
+  d.img_size = {224, 224};
+  d.enc_embed_dim = enc_dim;
+  d.enc_depth = enc_depth;
+  d.enc_num_heads = enc_heads;
+  d.dec_embed_dim = dec_dim;
+  d.dec_depth = dec_depth;
+  d.dec_num_heads = dec_heads;
+  d.dpt.feature_dim = feature_dim;
+  d.dpt.last_dim = last_dim;
+  d.dpt.layer_dims = layer_dims;
+  d.dpt.hooks = {0, dec_depth * 2 / 4, dec_depth * 3 / 4, dec_depth};
+  d.dpt.dim_tokens = {enc_dim, dec_dim, dec_dim, dec_dim};
+  ValueEncoderConfig& v = c.spann3r.value_encoder;
+  v.depth = value_depth;
+  v.embed_dim = enc_dim;
+  v.num_heads = value_heads;
+  v.out_dim = enc_dim;  // C_m = C_e: the read-out is added to F^I
+  c.long3r.short_term_frames = K;
+  c.long3r.long_term_capacity = L;
+  validate_model_config(c);
+  return c;
+}
+
+}  // namespace
+
+ModelConfig named_model_config(const std::string& name) {
+  if (name == "long3r_paper") {
+    return long3r_config(1024, 24, 16, 768, 12, 12, 6, 16, 256, 128, {96, 192, 384, 768}, 10, 3000);
+  }
+  if (name == "long3r_small") {
+    return long3r_config(192, 6, 3, 128, 6, 4, 2, 3, 64, 32, {48, 96, 192, 384}, 10, 3000);
+  }
+  if (name == "long3r_tiny") {
+    return long3r_config(32, 1, 2, 32, 4, 2, 1, 2, 16, 8, {8, 16, 32, 32}, 2, 64);
+  }
+  throw ModelConfigError("unknown model configuration \"" + name +
+                         "\" (long3r_paper, long3r_small, long3r_tiny)");
 }
 
 }  // namespace long3r

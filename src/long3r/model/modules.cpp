@@ -179,9 +179,9 @@ BlockImpl::BlockImpl(int64_t dim, int64_t heads, int64_t mlp_hidden, bool qkv_bi
 }
 
 at::Tensor BlockImpl::forward(const at::Tensor& x, const RopeTable& rope) {
-  at::Tensor out = x + attn(norm1(x), rope);
-  out.add_(mlp(norm2(out)));
-  return out;
+  // Out of place: the LayerNorms keep their input for autograd (training).
+  const at::Tensor out = x + attn(norm1(x), rope);
+  return out + mlp(norm2(out));
 }
 
 DecoderBlockImpl::DecoderBlockImpl(int64_t dim, int64_t heads, int64_t mlp_hidden, double eps,
@@ -199,9 +199,9 @@ at::Tensor DecoderBlockImpl::forward(const at::Tensor& x, const at::Tensor& y,
                                      const RopeTable& xrope, const RopeTable& yrope) {
   at::Tensor out = x + attn(norm1(x), xrope);
   const at::Tensor y_ = norm_y ? norm_y(y) : y;
-  out.add_(cross_attn(norm2(out), y_, y_, xrope, yrope));
-  out.add_(mlp(norm3(out)));
-  return out;
+  // Out of place: the LayerNorms keep their input for autograd (training).
+  out = out + cross_attn(norm2(out), y_, y_, xrope, yrope);
+  return out + mlp(norm3(out));
 }
 
 PatchEmbedImpl::PatchEmbedImpl(int64_t in_channels, int64_t dim, int64_t p) : patch(p) {
@@ -328,11 +328,12 @@ HeadOutput postprocess(const at::Tensor& raw, const Dust3rConfig& c) {
   if (c.conf_mode != ConfMode::kNone) {
     const at::Tensor logit = fmap.select(-1, 3);
     if (c.conf_mode == ConfMode::kExp) {
+      // Out of place: exp and sigmoid keep their result for autograd.
       at::Tensor e = logit.exp();
-      if (std::isfinite(c.conf_vmax)) e.clamp_max_(c.conf_vmax - c.conf_vmin);
-      out.conf = e.add_(c.conf_vmin);
+      if (std::isfinite(c.conf_vmax)) e = e.clamp_max(c.conf_vmax - c.conf_vmin);
+      out.conf = e + c.conf_vmin;
     } else {
-      out.conf = at::sigmoid(logit).mul_(c.conf_vmax - c.conf_vmin).add_(c.conf_vmin);
+      out.conf = at::sigmoid(logit) * (c.conf_vmax - c.conf_vmin) + c.conf_vmin;
     }
   }
   return out;

@@ -1,0 +1,130 @@
+// LONG3R modules; see long3r_modules.hpp.
+#include "long3r/model/long3r_modules.hpp"
+
+#include <ATen/ATen.h>
+
+#include <cmath>
+#include <limits>
+
+namespace long3r {
+namespace model {
+
+namespace {
+
+torch::nn::LayerNorm layer_norm(int64_t dim, double eps) {
+  return torch::nn::LayerNorm(torch::nn::LayerNormOptions({dim}).eps(eps));
+}
+
+}  // namespace
+
+MemoryCrossAttentionImpl::MemoryCrossAttentionImpl(int64_t dim, int64_t mem_dim, int64_t heads)
+    : num_heads(heads) {
+  projq = register_module("projq", torch::nn::Linear(dim, dim));
+  projk = register_module("projk", torch::nn::Linear(mem_dim, dim));
+  projv = register_module("projv", torch::nn::Linear(mem_dim, dim));
+  proj = register_module("proj", torch::nn::Linear(dim, dim));
+}
+
+at::Tensor MemoryCrossAttentionImpl::forward(const at::Tensor& query, const at::Tensor& key,
+                                             const at::Tensor& value, const at::Tensor& valid) {
+  const int64_t B = query.size(0), N = query.size(1), C = projq->weight.size(0);
+  const int64_t R = key.size(1), Dh = C / num_heads;
+  const at::Tensor q = projq(query).view({B, N, num_heads, Dh}).permute({0, 2, 1, 3});
+  const at::Tensor k = projk(key).view({B, R, num_heads, Dh}).permute({0, 2, 1, 3});
+  const at::Tensor v = projv(value).view({B, R, num_heads, Dh}).permute({0, 2, 1, 3});
+  at::Tensor out;
+  if (!valid.defined()) {
+    out = attend(q, k, v);
+  } else {
+    at::Tensor a = at::matmul(q, k.transpose(-2, -1)).mul(std::pow(static_cast<double>(Dh), -0.5));
+    // Finite fill: a stream whose entries are all masked gets a uniform (not
+    // NaN) row, zeroed below, so gradients stay finite.
+    const at::Tensor masked = valid.logical_not().view({B, 1, 1, R});
+    a = a.masked_fill(masked, std::numeric_limits<float>::lowest());
+    a = at::softmax(a, -1).masked_fill(masked, 0.0);
+    out = at::matmul(a, v);
+  }
+  return proj(out.transpose(1, 2).reshape({B, N, C}));
+}
+
+MemoryBlockImpl::MemoryBlockImpl(int64_t dim, int64_t mem_dim, int64_t heads, int64_t mlp_hidden,
+                                 double eps, double mem_eps) {
+  norm1 = register_module("norm1", layer_norm(dim, eps));
+  attn = register_module("attn", Attention(dim, heads, /*qkv_bias=*/true));
+  norm2 = register_module("norm2", layer_norm(dim, eps));
+  norm_mem_k = register_module("norm_mem_k", layer_norm(mem_dim, mem_eps));
+  norm_mem_v = register_module("norm_mem_v", layer_norm(mem_dim, mem_eps));
+  cross_attn = register_module("cross_attn", MemoryCrossAttention(dim, mem_dim, heads));
+  norm3 = register_module("norm3", layer_norm(dim, eps));
+  mlp = register_module("mlp", Mlp(dim, mlp_hidden));
+}
+
+at::Tensor MemoryBlockImpl::forward(const at::Tensor& x, const RopeTable& xrope,
+                                    const at::Tensor& keys, const at::Tensor& values,
+                                    const at::Tensor& valid) {
+  at::Tensor out = x + attn(norm1(x), xrope);
+  if (keys.defined() && keys.size(1) > 0) {
+    at::Tensor r = cross_attn(norm2(out), norm_mem_k(keys), norm_mem_v(values), valid);
+    // Without relevant memory the block reads nothing (proj's bias included).
+    if (valid.defined()) r = r * valid.any(1).to(r.scalar_type()).view({-1, 1, 1});
+    out = out + r;
+  }
+  return out + mlp(norm3(out));
+}
+
+Long3rNetImpl::Long3rNetImpl(const ModelConfig& c) : Spann3rNetImpl(c) {
+  const Dust3rConfig& d = c.dust3r;
+  Dust3rNetImpl& net = *dust3r;
+  // Replace the refined branch: pairwise blocks at odd layers, memory blocks at
+  // even layers, under the same ModuleList name.
+  torch::nn::ModuleList blocks;
+  refined_pair.assign(static_cast<std::size_t>(d.dec_depth), DecoderBlock(nullptr));
+  refined_memory.assign(static_cast<std::size_t>(d.dec_depth), MemoryBlock(nullptr));
+  for (int64_t i = 0; i < d.dec_depth; ++i) {
+    const bool memory_layer = (i + 1) % 2 == 0;
+    if (memory_layer) {
+      refined_memory[i] = MemoryBlock(d.dec_embed_dim, c.memory_dim(), d.dec_num_heads,
+                                      d.mlp_hidden(d.dec_embed_dim), d.norm_eps, d.norm_eps);
+      blocks->push_back(refined_memory[i]);
+    } else {
+      refined_pair[i] = DecoderBlock(d.dec_embed_dim, d.dec_num_heads,
+                                     d.mlp_hidden(d.dec_embed_dim), d.norm_eps, d.norm_im2_in_dec);
+      blocks->push_back(refined_pair[i]);
+    }
+  }
+  net.dec_blocks = net.replace_module("dec_blocks", blocks);
+  net.dec1.clear();  // Dust3rNet::decode does not apply to this tree
+}
+
+JointDecoderOutputs Long3rNetImpl::decode_joint(const at::Tensor& fused, const at::Tensor& next,
+                                                Grid grid, const RelevantMemory& memory) {
+  Dust3rNetImpl& net = *dust3r;
+  TORCH_CHECK(fused.dim() == 3 && next.sizes() == fused.sizes() &&
+                  fused.size(1) == grid.first * grid.second,
+              "LONG3R decoder: expected two [B, N, C] token sets on the patch grid, got ",
+              fused.sizes(), " and ", next.sizes());
+  const RopeTable r = net.dec_rope(grid.first, grid.second, fused);
+  JointDecoderOutputs out;
+  out.refined = {fused};
+  out.coarse = {next};
+  const std::size_t depth = refined_pair.size();
+  at::Tensor x = net.decoder_embed(fused), y = net.decoder_embed(next);
+  for (std::size_t i = 0; i < depth; ++i) {
+    at::Tensor ny = net.dec2[i](y, x, r, r);
+    at::Tensor nx = !refined_pair[i].is_empty()
+                        ? refined_pair[i](x, y, r, r)
+                        : refined_memory[i](x, r, memory.keys, memory.values, memory.valid);
+    x = std::move(nx);
+    y = std::move(ny);
+    if (i + 1 < depth) {
+      out.refined.push_back(x);
+      out.coarse.push_back(y);
+    }
+  }
+  out.refined.push_back(net.dec_norm(x));
+  out.coarse.push_back(net.dec_norm(y));
+  return out;
+}
+
+}  // namespace model
+}  // namespace long3r
