@@ -1,0 +1,141 @@
+// long3r_make_random_model: writes a small Spann3R checkpoint with random
+// (default-initialised, seeded) weights and its configuration in the
+// metadata, flagged random_weights=true. A placeholder so that the pipeline,
+// CLI and ROS node run end to end before trained weights exist; its outputs
+// are meaningless.
+//
+// Sizes (measured at 224 x 224 on 2 shared CPU cores: tiny ~10 FPS, small ~1 FPS):
+//   tiny:  encoder 32 wide x 2 blocks (2 heads), decoder 16 x 2 (2 heads),
+//          DPT 12/8, value encoder 1 block;
+//   small: encoder 128 x 4 (4 heads), decoder 64 x 4 (4 heads), DPT 64/32,
+//          value encoder 2 blocks.
+// Head widths stay multiples of 4 (2D RoPE).
+#include <torch/torch.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <iostream>
+#include <map>
+#include <sstream>
+#include <string>
+
+#include "long3r/model_config.hpp"
+#include "long3r/reconstruction.hpp"
+#include "long3r/safetensors.hpp"
+#include "long3r/spann3r_model.hpp"
+
+namespace {
+
+void usage() {
+  std::fprintf(stderr,
+               "usage: long3r_make_random_model --out FILE [--variant spann3r] "
+               "[--size tiny|small] [--img-size N] [--seed N]\n");
+}
+
+std::string config_json(const std::string& size, int img) {
+  int enc = 32, enc_depth = 2, enc_heads = 2, dec = 16, dec_depth = 2, dec_heads = 2;
+  int feat = 12, last = 8, value_depth = 1;
+  std::string layers = "[8, 12, 16, 16]";
+  if (size == "small") {
+    enc = 128, enc_depth = 4, enc_heads = 4, dec = 64, dec_depth = 4, dec_heads = 4;
+    feat = 64, last = 32, value_depth = 2, layers = "[32, 48, 64, 64]";
+  }
+  std::ostringstream s;
+  s << "{\"model\": \"Spann3R\", \"note\": \"random weights (long3r_make_random_model --size "
+    << size << ")\", \"dust3r\": {\"img_size\": [" << img << ", " << img
+    << "], \"patch_size\": 16, \"enc_embed_dim\": " << enc << ", \"enc_depth\": " << enc_depth
+    << ", \"enc_num_heads\": " << enc_heads << ", \"dec_embed_dim\": " << dec
+    << ", \"dec_depth\": " << dec_depth << ", \"dec_num_heads\": " << dec_heads
+    << ", \"landscape_only\": true, \"depth_mode\": [\"exp\", \"-inf\", \"inf\"], "
+       "\"conf_mode\": [\"exp\", 1, \"inf\"], \"dpt_head\": {\"feature_dim\": "
+    << feat << ", \"last_dim\": " << last << ", \"layer_dims\": " << layers
+    << "}}, \"spann3r\": {\"use_feat\": false, \"mem_pos_enc\": false, \"value_encoder\": "
+       "{\"depth\": "
+    << value_depth << ", \"embed_dim\": " << enc << ", \"num_heads\": " << enc_heads
+    << ", \"out_dim\": " << enc
+    << "}}, \"spatial_memory\": {\"long_mem_size\": 2000, \"top_k\": 2000, "
+       "\"work_mem_size\": 5}}";
+  return s.str();
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string out, variant = "spann3r", size = "tiny";
+  int img = 224;
+  long long seed = 0;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto next = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "long3r_make_random_model: %s needs a value\n", a.c_str());
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (a == "--out") {
+      out = next();
+    } else if (a == "--variant") {
+      variant = next();
+    } else if (a == "--size") {
+      size = next();
+    } else if (a == "--img-size") {
+      img = std::atoi(next().c_str());
+    } else if (a == "--seed") {
+      seed = std::atoll(next().c_str());
+    } else if (a == "-h" || a == "--help") {
+      usage();
+      return 0;
+    } else {
+      std::fprintf(stderr, "long3r_make_random_model: unknown option %s\n", a.c_str());
+      usage();
+      return 2;
+    }
+  }
+  if (out.empty()) {
+    usage();
+    return 2;
+  }
+  if (variant != "spann3r") {
+    std::fprintf(stderr, "long3r_make_random_model: unsupported --variant %s (spann3r)\n",
+                 variant.c_str());
+    return 2;
+  }
+  if (size != "tiny" && size != "small") {
+    std::fprintf(stderr, "long3r_make_random_model: --size must be tiny or small\n");
+    return 2;
+  }
+  if (img <= 0 || img % 16 != 0) {
+    std::fprintf(stderr,
+                 "long3r_make_random_model: --img-size must be a positive multiple of 16\n");
+    return 2;
+  }
+  try {
+    const std::string json = config_json(size, img);
+    const long3r::ModelConfig config = long3r::parse_model_config(json);
+    torch::manual_seed(static_cast<uint64_t>(seed));
+    long3r::Spann3rModel model(config);
+    std::map<std::string, at::Tensor> tensors;
+    int64_t count = 0;
+    for (const auto& kv : model.module().named_parameters(true)) {
+      tensors[kv.key()] = kv.value().detach().contiguous();
+      count += kv.value().numel();
+    }
+    for (const auto& kv : model.module().named_buffers(true)) {
+      tensors[kv.key()] = kv.value().detach().contiguous();
+    }
+    long3r::save_safetensors(out, tensors,
+                             {{"config", json},
+                              {long3r::kRandomWeightsMetadataKey, "true"},
+                              {"seed", std::to_string(seed)}});
+    std::printf("wrote %s: Spann3R %s, %zu tensors, %lld parameters, seed %lld\n", out.c_str(),
+                size.c_str(), tensors.size(), static_cast<long long>(count), seed);
+    std::printf(
+        "WARNING: THE WEIGHTS ARE RANDOM. This checkpoint is a placeholder for testing the "
+        "pipeline; its pointmaps, poses and maps are meaningless.\n");
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "long3r_make_random_model: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}

@@ -1,0 +1,260 @@
+// long3r_reconstruct: offline streaming reconstruction of an image folder, a
+// video file or a TUM RGB-D folder (rgb.txt) with a Spann3R checkpoint.
+//
+// Outputs in --out: map.ply (fused voxel map, world = camera 0), trajectory.txt
+// (TUM "t tx ty tz qx qy qz qw", frames with a good pose), frames.csv (per
+// frame timings, memory tokens, PnP status, RSS); a summary on stdout.
+// Calibration: --calib fx fy cx cy (source pixels) wins; else a TUM folder's
+// calibration.txt; else the focal length is estimated from frame 0.
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/videoio.hpp>
+#include <string>
+#include <vector>
+
+#include "long3r/reconstruction.hpp"
+#include "long3r/threads.hpp"
+#include "long3r/tum_dataset.hpp"
+
+namespace fs = std::filesystem;
+using namespace long3r;
+
+namespace {
+
+void usage() {
+  std::fprintf(stderr,
+               "usage: long3r_reconstruct --model FILE --out DIR INPUT\n"
+               "  INPUT: a folder of images (name order), a video file, or a TUM folder (rgb.txt)\n"
+               "  --stride N            use every N-th frame (default 1)\n"
+               "  --max-frames N        stop after N used frames (default all)\n"
+               "  --conf-threshold C    confidence threshold for PnP and map (default 3)\n"
+               "  --voxel-size M        map voxel size (default 0.02)\n"
+               "  --img-size N          model input size N x N (default 224)\n"
+               "  --threads N           torch threads (default 0 = all)\n"
+               "  --calib fx fy cx cy   source-pixel intrinsics (default: TUM calibration.txt,\n"
+               "                        else estimated from frame 0)\n");
+}
+
+long rss_kb() {
+  std::ifstream f("/proc/self/status");
+  std::string line;
+  while (std::getline(f, line)) {
+    if (line.rfind("VmRSS:", 0) == 0) return std::atol(line.c_str() + 6);
+  }
+  return -1;
+}
+
+// Frames from a folder, TUM folder or video, one at a time.
+struct Source {
+  std::vector<std::string> paths;
+  std::vector<double> stamps;
+  cv::VideoCapture video;
+  bool is_video = false;
+  double fps = 30.0;
+  std::optional<Intrinsics> calib;
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string model_path, out_dir, input;
+  int stride = 1, img = 224, threads = 0;
+  long max_frames = -1;
+  ReconstructionConfig cfg;
+  std::optional<Intrinsics> calib;
+  try {
+    for (int i = 1; i < argc; ++i) {
+      const std::string a = argv[i];
+      auto next = [&]() -> std::string {
+        if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
+        return argv[++i];
+      };
+      if (a == "--model") {
+        model_path = next();
+      } else if (a == "--out") {
+        out_dir = next();
+      } else if (a == "--stride") {
+        stride = std::stoi(next());
+      } else if (a == "--max-frames") {
+        max_frames = std::stol(next());
+      } else if (a == "--conf-threshold") {
+        cfg.conf_threshold = std::stof(next());
+      } else if (a == "--voxel-size") {
+        cfg.map.voxel_size_m = std::stod(next());
+      } else if (a == "--img-size") {
+        img = std::stoi(next());
+      } else if (a == "--threads") {
+        threads = std::stoi(next());
+      } else if (a == "--calib") {
+        Intrinsics k;
+        k.fx = std::stod(next());
+        k.fy = std::stod(next());
+        k.cx = std::stod(next());
+        k.cy = std::stod(next());
+        calib = k;
+      } else if (a == "-h" || a == "--help") {
+        usage();
+        return 0;
+      } else if (!a.empty() && a[0] == '-') {
+        throw std::invalid_argument("unknown option " + a);
+      } else if (input.empty()) {
+        input = a;
+      } else {
+        throw std::invalid_argument("more than one input given");
+      }
+    }
+    if (model_path.empty()) throw std::invalid_argument("--model FILE is required");
+    if (out_dir.empty()) throw std::invalid_argument("--out DIR is required");
+    if (input.empty()) throw std::invalid_argument("no input given");
+    if (stride < 1) throw std::invalid_argument("--stride must be >= 1");
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "long3r_reconstruct: %s\n", e.what());
+    usage();
+    return 2;
+  }
+
+  try {
+    if (!fs::exists(model_path)) throw std::runtime_error("model file not found: " + model_path);
+    if (!fs::exists(input)) throw std::runtime_error("input not found: " + input);
+    Source src;
+    if (fs::is_directory(input)) {
+      if (fs::exists(fs::path(input) / "rgb.txt")) {
+        const TumDataset ds = TumDataset::open(input);
+        for (const TumFrame& f : ds.frames()) {
+          src.paths.push_back(f.rgb_path);
+          src.stamps.push_back(f.stamp);
+        }
+        src.calib = ds.calibration();
+      } else {
+        const ImageFolder folder = ImageFolder::open(input);
+        src.paths = folder.paths();
+        for (size_t i = 0; i < src.paths.size(); ++i) src.stamps.push_back(i / 30.0);
+      }
+      if (src.paths.empty()) throw std::runtime_error("no images in " + input);
+    } else {
+      src.is_video = true;
+      if (!src.video.open(input) || !src.video.isOpened()) {
+        throw std::runtime_error("cannot open video " + input);
+      }
+      const double fps = src.video.get(cv::CAP_PROP_FPS);
+      if (fps > 0) src.fps = fps;
+    }
+    if (!calib) calib = src.calib;
+
+    const auto metadata = read_checkpoint_metadata(model_path);
+    const bool random = has_random_weights(metadata);
+    if (random) {
+      std::fprintf(stderr,
+                   "\n*** WARNING: %s HAS RANDOM WEIGHTS (a placeholder made by "
+                   "long3r_make_random_model). Pointmaps, poses and the map are "
+                   "meaningless. ***\n\n",
+                   model_path.c_str());
+    }
+    const int nthreads = apply_thread_config({threads, 0});
+    cfg.preprocess.width = cfg.preprocess.height = img;
+    Reconstruction rec(load_streaming_model(model_path), cfg);
+    rec.set_calibration(calib);
+    fs::create_directories(out_dir);
+    std::ofstream csv(fs::path(out_dir) / "frames.csv");
+    csv << "frame,stamp,preprocess_ms,model_ms,encode_ms,decode_ms,memory_ms,intrinsics_ms,"
+           "pose_ms,map_ms,total_ms,mem_short,mem_long,mem_relevant,pnp_status,pnp_inliers,"
+           "added_to_map,map_points,rss_kb\n";
+    const bool tty = isatty(fileno(stdout));
+    std::vector<double> frame_ms;
+    long peak_rss = 0;
+    auto record = [&](const FrameResult& r) {
+      const StageTimings& t = r.timings;
+      const long rss = rss_kb();
+      peak_rss = std::max(peak_rss, rss);
+      frame_ms.push_back(t.total_ms);
+      char line[512];
+      std::snprintf(
+          line, sizeof line,
+          "%lld,%.6f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%lld,%lld,%lld,%s,%d,%d,"
+          "%zu,%ld\n",
+          static_cast<long long>(r.frame_index), r.stamp, t.preprocess_ms, t.model_ms, t.encode_ms,
+          t.decode_ms, t.memory_ms, t.intrinsics_ms, t.pose_ms, t.map_ms, t.total_ms,
+          static_cast<long long>(r.memory.short_tokens),
+          static_cast<long long>(r.memory.long_tokens),
+          static_cast<long long>(r.memory.relevant_tokens), to_string(r.pose.status),
+          r.pose.inliers, r.added_to_map ? 1 : 0, r.map_points, rss);
+      csv << line;
+      const double fps = t.total_ms > 0 ? 1000.0 / t.total_ms : 0.0;
+      if (tty) {
+        std::printf("\rframe %lld  %.1f FPS  pose %s  map %zu pts   ",
+                    static_cast<long long>(r.frame_index), fps, to_string(r.pose.status),
+                    r.map_points);
+        std::fflush(stdout);
+      } else {
+        std::printf("frame %lld: %.1f ms, pose %s (%d inliers), map %zu points\n",
+                    static_cast<long long>(r.frame_index), t.total_ms, to_string(r.pose.status),
+                    r.pose.inliers, r.map_points);
+      }
+    };
+
+    long used = 0, skipped = 0;
+    for (size_t i = 0;; ++i) {
+      if (max_frames >= 0 && used >= max_frames) break;
+      cv::Mat bgr;
+      double stamp = 0.0;
+      if (src.is_video) {
+        if (!src.video.read(bgr)) break;
+        stamp = static_cast<double>(i) / src.fps;
+      } else {
+        if (i >= src.paths.size()) break;
+        if (i % stride != 0) continue;
+        bgr = cv::imread(src.paths[i], cv::IMREAD_COLOR);
+        stamp = src.stamps[i];
+        if (bgr.empty()) {
+          std::fprintf(stderr, "\nlong3r_reconstruct: warning: cannot read %s, skipped\n",
+                       src.paths[i].c_str());
+          ++skipped;
+          continue;
+        }
+      }
+      if (src.is_video && i % stride != 0) continue;
+      ++used;
+      if (auto r = rec.push(bgr, "bgr8", stamp)) record(*r);
+    }
+    if (auto r = rec.flush()) record(*r);
+    if (tty) std::printf("\n");
+    if (used == 0) throw std::runtime_error("no readable frames in " + input);
+    csv.close();
+
+    rec.map().save((fs::path(out_dir) / "map.ply").string());
+    PoseTrajectory traj;
+    for (const auto& [t, T] : rec.trajectory()) {
+      traj.stamps.push_back(t);
+      traj.poses.push_back(T);
+    }
+    write_tum_trajectory((fs::path(out_dir) / "trajectory.txt").string(), traj,
+                         "long3r_reconstruct: T_W_C, world = camera 0");
+
+    std::vector<double> sorted = frame_ms;
+    std::sort(sorted.begin(), sorted.end());
+    double sum = 0;
+    for (double m : frame_ms) sum += m;
+    const double mean_fps = frame_ms.empty() || sum <= 0 ? 0 : 1000.0 * frame_ms.size() / sum;
+    const double median_ms = sorted.empty() ? 0 : sorted[sorted.size() / 2];
+    std::printf(
+        "summary: %ld frames used (%ld unreadable skipped), %zu results, %zu with a good pose, "
+        "map %zu points\n"
+        "         mean %.2f FPS, median %.2f FPS, peak RSS %.1f MiB, %d threads\n"
+        "         outputs in %s\n",
+        used, skipped, frame_ms.size(), traj.size(), rec.map().size(), mean_fps,
+        median_ms > 0 ? 1000.0 / median_ms : 0.0, peak_rss / 1024.0, nthreads, out_dir.c_str());
+    if (random)
+      std::printf("WARNING: the model has RANDOM weights; the results are meaningless.\n");
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "long3r_reconstruct: error: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}

@@ -1,0 +1,282 @@
+// Streaming reconstruction pipeline (see reconstruction.hpp).
+#include "long3r/reconstruction.hpp"
+
+#include <ATen/ATen.h>
+#include <c10/core/InferenceMode.h>
+
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <stdexcept>
+
+#include "long3r/long3r_model.hpp"
+#include "long3r/model_config.hpp"
+#include "long3r/safetensors_header.hpp"
+#include "long3r/spann3r_model.hpp"
+
+namespace long3r {
+namespace {
+
+double now_ms() {
+  return std::chrono::duration<double, std::milli>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+ReconstructionConfig effective(ReconstructionConfig c) {
+  if (c.conf_threshold >= 0.0f) {
+    c.pnp.conf_threshold = c.conf_threshold;
+    c.map.conf_threshold = c.conf_threshold;
+  }
+  return c;
+}
+
+// [1, H, W, C] or [H, W, C] float tensor -> cv::Mat of type `type` (a copy).
+cv::Mat to_mat(const at::Tensor& t, int rows, int cols, int type, const char* what) {
+  at::Tensor x = t.dim() == 4 || (t.dim() == 3 && CV_MAT_CN(type) == 1) ? t[0] : t;
+  x = x.to(at::kCPU, at::kFloat).contiguous();
+  if (x.size(0) != rows || x.size(1) != cols) {
+    const bool transposed = x.size(0) == cols && x.size(1) == rows;
+    throw std::runtime_error(
+        std::string("model output ") + what + " is " + std::to_string(x.size(0)) + "x" +
+        std::to_string(x.size(1)) + ", expected " + std::to_string(rows) + "x" +
+        std::to_string(cols) +
+        (transposed ? " (transposed: portrait input to a landscape-only model; use a landscape "
+                      "model input size, width >= height)"
+                    : ""));
+  }
+  return cv::Mat(rows, cols, type, x.data_ptr<float>()).clone();
+}
+
+}  // namespace
+
+std::map<std::string, std::string> read_checkpoint_metadata(const std::string& path) {
+  std::ifstream f(path, std::ios::binary | std::ios::ate);
+  if (!f) throw CheckpointError(path + ": cannot open the checkpoint file");
+  const auto file_size = static_cast<uint64_t>(f.tellg());
+  if (file_size < 8) throw CheckpointError(path + ": too short to be a safetensors file");
+  f.seekg(0);
+  uint8_t len_bytes[8];
+  f.read(reinterpret_cast<char*>(len_bytes), 8);
+  uint64_t n = 0;
+  for (int i = 7; i >= 0; --i) n = (n << 8) | len_bytes[i];
+  if (n > kMaxSafetensorsHeaderBytes || n > file_size - 8) {
+    throw CheckpointError(path + ": bad safetensors header length " + std::to_string(n));
+  }
+  std::vector<uint8_t> head(8 + n);
+  std::copy(len_bytes, len_bytes + 8, head.begin());
+  f.read(reinterpret_cast<char*>(head.data() + 8), static_cast<std::streamsize>(n));
+  if (!f) throw CheckpointError(path + ": cannot read the safetensors header");
+  try {
+    return parse_safetensors_header(head.data(), head.size(), file_size).metadata;
+  } catch (const CheckpointError&) {
+    throw;
+  } catch (const std::exception& e) {
+    throw CheckpointError(path + ": " + e.what());
+  }
+}
+
+bool has_random_weights(const std::map<std::string, std::string>& metadata) {
+  const auto it = metadata.find(kRandomWeightsMetadataKey);
+  return it != metadata.end() && it->second == "true";
+}
+
+std::unique_ptr<StreamingModel> load_streaming_model(const std::string& path) {
+  const auto metadata = read_checkpoint_metadata(path);
+  ModelConfig config;
+  try {
+    config = model_config_from_metadata(metadata, path);
+  } catch (const ModelConfigError& e) {
+    throw CheckpointError(e.what());
+  }
+  if (config.kind == ModelKind::kSpann3r || config.kind == ModelKind::kLong3r) {
+    try {
+      if (config.kind == ModelKind::kLong3r) return Long3rModel::from_file(path);
+      return Spann3rModel::from_file(path);
+    } catch (const ModelConfigError& e) {
+      throw CheckpointError(e.what());
+    }
+  }
+  if (config.kind == ModelKind::kDust3r) {
+    throw CheckpointError(path +
+                          ": a DUSt3R pair model (AsymmetricCroCo3DStereo), not a streaming "
+                          "model; the pipeline needs a Spann3R (or LONG3R) checkpoint");
+  }
+  throw CheckpointError(path + ": model kind \"" + std::string(model_kind_name(config.kind)) +
+                        "\" is not supported by the streaming pipeline yet");
+}
+
+Reconstruction::Reconstruction(std::unique_ptr<StreamingModel> model,
+                               const ReconstructionConfig& config)
+    : model_(std::move(model)),
+      config_(effective(config)),
+      tracker_(config_.pnp),
+      map_(config_.map) {
+  if (!model_) throw std::invalid_argument("Reconstruction: null model");
+  if (config_.preprocess.height > config_.preprocess.width) {
+    // Landscape-only Spann3R returns portrait maps transposed on a scrambled
+    // token grid (as the official model does); refuse rather than mislead.
+    if (const auto* s = dynamic_cast<const Spann3rModel*>(model_.get())) {
+      if (s->config().dust3r.landscape_only) {
+        throw std::invalid_argument("Reconstruction: portrait model input (" +
+                                    std::to_string(config_.preprocess.width) + "x" +
+                                    std::to_string(config_.preprocess.height) +
+                                    ") with a landscape-only Spann3R model; use width >= height");
+      }
+    }
+  }
+}
+
+Reconstruction::~Reconstruction() = default;
+
+void Reconstruction::set_calibration(const std::optional<Intrinsics>& calib) {
+  if (calib && !calib->valid()) {
+    throw std::invalid_argument("set_calibration: fx and fy must be positive");
+  }
+  calibration_ = calib;
+  if (calib) {
+    intrinsics_.reset();  // re-scaled from the calibration at the next result
+    intrinsics_failed_ = false;
+  }
+}
+
+void Reconstruction::reset() {
+  model_->reset();
+  pending_.clear();
+  intrinsics_.reset();
+  intrinsics_failed_ = false;
+  tracker_.reset();
+  map_.clear();
+  trajectory_.clear();
+  frames_pushed_ = 0;
+  source_width_ = source_height_ = 0;
+  flushed_ = false;
+}
+
+std::optional<FrameResult> Reconstruction::push(const cv::Mat& image, const std::string& encoding,
+                                                double stamp_s) {
+  const double t0 = now_ms();
+  const ImageEncoding enc = parse_image_encoding(encoding);  // throws invalid_argument
+  if (image.empty()) throw std::invalid_argument("Reconstruction::push: empty image");
+  if (flushed_) reset();
+  if (frames_pushed_ > 0 && (image.cols != source_width_ || image.rows != source_height_)) {
+    throw std::invalid_argument(
+        "Reconstruction::push: image size changed within a stream (" +
+        std::to_string(source_width_) + "x" + std::to_string(source_height_) + " -> " +
+        std::to_string(image.cols) + "x" + std::to_string(image.rows) + "); call reset() first");
+  }
+  Pending p;
+  p.image = preprocess_image(image, enc, config_.preprocess);
+  p.index = frames_pushed_;
+  p.stamp = stamp_s;
+  const int h = p.image.height, w = p.image.width;
+  // The tensor takes over the chw buffer: no copy, and it lives as long as
+  // the model keeps the input.
+  auto* buffer = new std::vector<float>(std::move(p.image.chw));
+  const at::Tensor input = at::from_blob(
+      buffer->data(), {1, 3, h, w}, [buffer](void*) { delete buffer; },
+      at::TensorOptions().dtype(at::kFloat));
+  p.preprocess_ms = now_ms() - t0;
+
+  const double t_model = now_ms();
+  std::optional<StreamOutput> out;
+  {
+    c10::InferenceMode guard;
+    out = model_->push(input);
+  }
+  const double model_ms = now_ms() - t_model;
+  source_width_ = image.cols;
+  source_height_ = image.rows;
+  ++frames_pushed_;
+  pending_.push_back(std::move(p));
+  if (!out) return std::nullopt;
+  return finish(*out, t_model, model_ms);
+}
+
+std::optional<FrameResult> Reconstruction::flush() {
+  if (pending_.empty()) return std::nullopt;
+  const double t_model = now_ms();
+  std::optional<StreamOutput> out;
+  {
+    c10::InferenceMode guard;
+    out = model_->flush();
+  }
+  const double model_ms = now_ms() - t_model;
+  flushed_ = true;
+  if (!out) {
+    pending_.clear();  // e.g. Spann3R after a single frame: no result
+    return std::nullopt;
+  }
+  FrameResult r = finish(*out, t_model, model_ms);
+  r.from_coarse_head = true;
+  pending_.clear();
+  return r;
+}
+
+FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms, double model_ms) {
+  if (pending_.empty() || pending_.front().index != out.frame_index) {
+    throw std::logic_error("Reconstruction: model returned frame " +
+                           std::to_string(out.frame_index) + " out of order");
+  }
+  Pending p = std::move(pending_.front());
+  pending_.pop_front();
+  const int h = p.image.height, w = p.image.width;
+
+  FrameResult r;
+  r.frame_index = p.index;
+  r.stamp = p.stamp;
+  r.from_coarse_head = out.from_coarse_head;
+  r.points_W = to_mat(out.pts3d, h, w, CV_32FC3, "pts3d");
+  r.conf = to_mat(out.conf, h, w, CV_32FC1, "conf");
+  r.rgb = p.image.rgb;
+  r.timings.preprocess_ms = p.preprocess_ms;
+  r.timings.model_ms = model_ms;
+  r.timings.encode_ms = out.stats.encode_ms;
+  r.timings.decode_ms = out.stats.decode_ms;
+  r.timings.memory_ms = out.stats.memory_ms;
+  r.memory.short_tokens = out.stats.mem_short_tokens;
+  r.memory.long_tokens = out.stats.mem_long_tokens;
+  r.memory.relevant_tokens = out.stats.relevant_tokens;
+  r.memory.voxel_size = out.stats.voxel_size;
+  r.memory.write_skipped = out.stats.memory_write_skipped;
+
+  // Intrinsics: calibration at any frame; an estimate only from frame 0,
+  // whose pointmap is in its own camera frame.
+  double t = now_ms();
+  if (!intrinsics_ && !intrinsics_failed_ && (calibration_ || p.index == 0)) {
+    intrinsics_ = resolve_intrinsics(calibration_, p.image, r.points_W, r.conf, config_.focal);
+    intrinsics_failed_ = !intrinsics_.has_value();
+  }
+  r.timings.intrinsics_ms = now_ms() - t;
+
+  t = now_ms();
+  if (intrinsics_) {
+    r.intrinsics = intrinsics_->intrinsics;
+    r.intrinsics_source = intrinsics_->source;
+  }
+  if (p.index == 0) {
+    r.pose.status = PnpStatus::kOk;  // defines the world frame
+    r.pose.T_W_C = Eigen::Isometry3d::Identity();
+  } else if (intrinsics_) {
+    r.pose = tracker_.track(r.points_W, r.conf, r.intrinsics);
+  } else {
+    r.pose.status = PnpStatus::kSolverFailed;
+    r.pose.message = "no intrinsics: no calibration and the focal estimate on frame 0 failed";
+    r.pose.T_W_C = tracker_.last_good_pose();
+  }
+  if (r.pose.ok()) r.points_C = points_in_camera(r.points_W, r.pose.T_W_C);
+  r.timings.pose_ms = now_ms() - t;
+
+  t = now_ms();
+  if (r.pose.ok()) {
+    map_.integrate(r.points_W, r.conf, r.rgb, r.frame_index);
+    r.added_to_map = true;
+    trajectory_.emplace_back(r.stamp, r.pose.T_W_C);
+  }
+  r.map_points = map_.size();
+  r.timings.map_ms = now_ms() - t;
+  r.timings.total_ms = p.preprocess_ms + (now_ms() - call_start_ms);
+  return r;
+}
+
+}  // namespace long3r
