@@ -53,6 +53,18 @@ if(LONG3R_WITH_ROS)
   foreach(t ${LONG3R_ROSTESTS})
     add_rostest(${t})
   endforeach()
+
+  # Nodelet rostests: a fixture generates the bags and a random-weight model.
+  set(LONG3R_REPLAY_DATA ${PROJECT_BINARY_DIR}/replay_data)
+  add_test(NAME ros_replay_data
+    COMMAND ${PROJECT_SOURCE_DIR}/test/ros/make_replay_data.sh
+            $<TARGET_FILE_DIR:long3r_synth> ${LONG3R_REPLAY_DATA})
+  set_tests_properties(ros_replay_data PROPERTIES FIXTURES_SETUP ros_replay_data)
+  foreach(t replay_normal replay_bad smoke)
+    set_tests_properties(_ctest_${PROJECT_NAME}_rostest_test_ros_${t}.test PROPERTIES
+      FIXTURES_REQUIRED ros_replay_data
+      ENVIRONMENT "LONG3R_REPLAY_DATA=${LONG3R_REPLAY_DATA}")
+  endforeach()
   file(GLOB LONG3R_ROS_GTEST_SRCS CONFIGURE_DEPENDS test/ros/test_*.cpp)
   foreach(src ${LONG3R_ROS_GTEST_SRCS})
     get_filename_component(name ${src} NAME_WE)

@@ -1,10 +1,17 @@
 #!/usr/bin/env bash
-# Builds long3r_ros in a catkin workspace under build/ws (the repository is
-# linked into its src/). Extra arguments go to catkin_make (e.g. a target).
+# Builds long3r_ros in a catkin workspace under build/.ws (the repository is
+# linked into its src/). The folder is hidden because roslaunch looks for
+# launch files by walking the package folder, following links and skipping
+# only dot-folders: a visible workspace would lead it round the link back into
+# the repository, again and again. Extra arguments go to catkin_make.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 
 mkdir -p "$LONG3R_WS/src"
+# catkin snapshots the environment of the test wrapper (env_cached.sh) at
+# configure time and leaves out paths that do not exist yet: without this, a
+# fresh workspace's tests could not import the generated Python messages.
+mkdir -p "$LONG3R_WS/devel/lib/python3/dist-packages"
 ln -sfn "$LONG3R_ROOT" "$LONG3R_WS/src/long3r_ros"
 cd "$LONG3R_WS"
 catkin_make --make-args -j"$LONG3R_JOBS" "$@" -- \

@@ -1,7 +1,7 @@
 # Sourced by the project's scripts: common paths and the Debian pitfalls.
 # shellcheck shell=bash
 LONG3R_ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
-LONG3R_WS=${LONG3R_WS:-$LONG3R_ROOT/build/ws}
+LONG3R_WS=${LONG3R_WS:-$LONG3R_ROOT/build/.ws}
 LONG3R_JOBS=${LONG3R_JOBS:-2}
 # catkin's configure breaks with a python3 other than Debian's (e.g. pyenv's
 # shims first on PATH): put /usr/bin first and pass it explicitly too.

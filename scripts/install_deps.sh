@@ -13,7 +13,10 @@ PACKAGES=(
   libtf2-geometry-msgs-dev libdiagnostic-updater-dev
   libsensor-msgs-dev libgeometry-msgs-dev libnav-msgs-dev libstd-srvs-dev
   ros-message-generation ros-message-runtime
-  python3-rosbag python3-rospy python3-rosservice python3-rostest python3-rosnode python3-rostopic python3-roslaunch
+  python3-rosbag python3-rospy python3-rosservice python3-rostest python3-rosnode
+  python3-rostopic python3-roslaunch
+  # message and TF bindings the Python test and demo nodes import
+  python3-tf2-ros python3-nav-msgs python3-sensor-msgs python3-std-srvs python3-diagnostic-msgs
   python3-genmsg python3-gencpp python3-genpy python3-catkin-pkg python3-empy python3-nose
   image-transport-tools rviz libnodeletlib-tools rosbash rosout ros-core
   # core libraries
@@ -21,6 +24,8 @@ PACKAGES=(
   nlohmann-json3-dev googletest libgtest-dev libgmock-dev
   # python side (checkpoint converter)
   python3-torch python3-numpy
+  # scripts/rviz_snapshot.sh: rviz on a virtual display, PNG capture
+  xvfb python3-pil
 )
 
 SUDO=""

@@ -11,6 +11,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "long3r/reconstruction.hpp"
 #include "long3r/threads.hpp"
 
 namespace long3r_ros {
@@ -35,9 +36,11 @@ struct NodeletConfig {
 
 NodeletConfig readNodeletConfig(const ros::NodeHandle& pnh);
 long3r::ThreadConfig readThreadConfig(const ros::NodeHandle& pnh);
+long3r::ReconstructionConfig readReconstructionConfig(const ros::NodeHandle& pnh);
 
 // One line per parameter, for the start-up log.
 std::string describe(const NodeletConfig& config);
 std::string describe(const long3r::ThreadConfig& config);
+std::string describe(const long3r::ReconstructionConfig& config);
 
 }  // namespace long3r_ros

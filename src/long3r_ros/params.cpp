@@ -67,6 +67,40 @@ long3r::ThreadConfig readThreadConfig(const ros::NodeHandle& pnh) {
   return c;
 }
 
+long3r::ReconstructionConfig readReconstructionConfig(const ros::NodeHandle& pnh) {
+  long3r::ReconstructionConfig c;
+  read(pnh, "model_width", c.preprocess.width);
+  read(pnh, "model_height", c.preprocess.height);
+  double conf = c.conf_threshold;
+  read(pnh, "conf_threshold", conf);
+  read(pnh, "voxel_size_m", c.map.voxel_size_m);
+  int max_points = static_cast<int>(c.map.max_points);
+  read(pnh, "max_map_points", max_points);
+  read(pnh, "pnp_reprojection_error_px", c.pnp.reprojection_error_px);
+  read(pnh, "pnp_min_inliers", c.pnp.min_inliers);
+  read(pnh, "pnp_iterations", c.pnp.iterations);
+  read(pnh, "pnp_max_correspondences", c.pnp.max_correspondences);
+
+  auto multiple_of_16 = [](int v) { return v >= 16 && v <= 4096 && v % 16 == 0; };
+  require(multiple_of_16(c.preprocess.width), pnh, "model_width",
+          "must be a multiple of 16 in [16, 4096]");
+  require(multiple_of_16(c.preprocess.height), pnh, "model_height",
+          "must be a multiple of 16 in [16, 4096]");
+  require(conf >= 1.0, pnh, "conf_threshold", "must be >= 1 (the model's confidence starts at 1)");
+  require(c.map.voxel_size_m > 0.0, pnh, "voxel_size_m", "must be > 0");
+  require(max_points >= 1, pnh, "max_map_points", "must be >= 1");
+  require(c.pnp.reprojection_error_px > 0.0, pnh, "pnp_reprojection_error_px", "must be > 0");
+  require(c.pnp.min_inliers >= 4, pnh, "pnp_min_inliers", "must be >= 4");
+  require(c.pnp.iterations >= 1, pnh, "pnp_iterations", "must be >= 1");
+  require(c.pnp.max_correspondences >= c.pnp.min_inliers, pnh, "pnp_max_correspondences",
+          "must be >= pnp_min_inliers");
+  c.conf_threshold = static_cast<float>(conf);
+  c.map.conf_threshold = c.conf_threshold;
+  c.pnp.conf_threshold = c.conf_threshold;
+  c.map.max_points = static_cast<std::size_t>(max_points);
+  return c;
+}
+
 std::string describe(const NodeletConfig& c) {
   std::ostringstream s;
   s << "model_path: " << (c.model_path.empty() ? "(package default)" : c.model_path)
@@ -84,6 +118,17 @@ std::string describe(const long3r::ThreadConfig& c) {
   s << "torch_threads: " << c.torch_threads << (c.torch_threads == 0 ? " (all cores)" : "")
     << "\nopenblas_threads: " << c.openblas_threads
     << (c.openblas_threads == 0 ? " (from environment)" : "");
+  return s.str();
+}
+
+std::string describe(const long3r::ReconstructionConfig& c) {
+  std::ostringstream s;
+  s << "model_width: " << c.preprocess.width << "\nmodel_height: " << c.preprocess.height
+    << "\nconf_threshold: " << c.conf_threshold << "\nvoxel_size_m: " << c.map.voxel_size_m
+    << "\nmax_map_points: " << c.map.max_points
+    << "\npnp_reprojection_error_px: " << c.pnp.reprojection_error_px
+    << "\npnp_min_inliers: " << c.pnp.min_inliers << "\npnp_iterations: " << c.pnp.iterations
+    << "\npnp_max_correspondences: " << c.pnp.max_correspondences;
   return s.str();
 }
 

@@ -7,6 +7,7 @@
 
 using long3r_ros::ParamError;
 using long3r_ros::readNodeletConfig;
+using long3r_ros::readReconstructionConfig;
 using long3r_ros::readThreadConfig;
 
 namespace {
@@ -22,6 +23,7 @@ class ParamsTest : public ::testing::Test {
     try {
       readNodeletConfig(pnh_);
       readThreadConfig(pnh_);
+      readReconstructionConfig(pnh_);
       FAIL() << "no error for bad " << name;
     } catch (const ParamError& e) {
       EXPECT_NE(std::string(e.what()).find(name), std::string::npos) << e.what();
@@ -92,6 +94,55 @@ TEST_F(ParamsTest, RejectsBoolAsString) {
 TEST_F(ParamsTest, RejectsNegativeThreads) {
   pnh_.setParam("torch_threads", -2);
   expectError("torch_threads");
+}
+
+TEST_F(ParamsTest, ReconstructionDefaultsAndValues) {
+  auto d = readReconstructionConfig(pnh_);
+  EXPECT_EQ(d.preprocess.width, 224);
+  EXPECT_EQ(d.preprocess.height, 224);
+  EXPECT_FLOAT_EQ(d.conf_threshold, 3.0f);
+  pnh_.setParam("model_width", 320);
+  pnh_.setParam("conf_threshold", 2);  // int for a double
+  pnh_.setParam("voxel_size_m", 0.05);
+  pnh_.setParam("max_map_points", 1000);
+  auto c = readReconstructionConfig(pnh_);
+  EXPECT_EQ(c.preprocess.width, 320);
+  EXPECT_FLOAT_EQ(c.conf_threshold, 2.0f);
+  EXPECT_FLOAT_EQ(c.pnp.conf_threshold, 2.0f);  // one threshold for PnP and map
+  EXPECT_FLOAT_EQ(c.map.conf_threshold, 2.0f);
+  EXPECT_DOUBLE_EQ(c.map.voxel_size_m, 0.05);
+  EXPECT_EQ(c.map.max_points, 1000u);
+}
+
+TEST_F(ParamsTest, RejectsModelSizeNotMultipleOf16) {
+  pnh_.setParam("model_height", 200);
+  expectError("model_height");
+}
+
+TEST_F(ParamsTest, RejectsConfidenceBelowOne) {
+  pnh_.setParam("conf_threshold", 0.5);
+  expectError("conf_threshold");
+}
+
+TEST_F(ParamsTest, RejectsZeroVoxelSize) {
+  pnh_.setParam("voxel_size_m", 0.0);
+  expectError("voxel_size_m");
+}
+
+TEST_F(ParamsTest, RejectsVoxelSizeAsString) {
+  pnh_.setParam("voxel_size_m", "small");
+  expectError("voxel_size_m");
+}
+
+TEST_F(ParamsTest, RejectsTooFewPnpInliers) {
+  pnh_.setParam("pnp_min_inliers", 3);
+  expectError("pnp_min_inliers");
+}
+
+TEST_F(ParamsTest, RejectsFewerCorrespondencesThanInliers) {
+  pnh_.setParam("pnp_min_inliers", 100);
+  pnh_.setParam("pnp_max_correspondences", 50);
+  expectError("pnp_max_correspondences");
 }
 
 int main(int argc, char** argv) {
