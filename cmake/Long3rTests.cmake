@@ -45,6 +45,12 @@ foreach(f ${LONG3R_TEST_CMAKE})
   include(${f})
 endforeach()
 
+# Style: every C++ file is clang-formatted (skipped where clang-format is absent).
+find_program(LONG3R_CLANG_FORMAT clang-format)
+if(LONG3R_CLANG_FORMAT)
+  add_test(NAME clang_format COMMAND ${PROJECT_SOURCE_DIR}/scripts/format.sh --check)
+endif()
+
 if(LONG3R_WITH_ROS)
   find_package(rostest REQUIRED)
   find_package(roslaunch REQUIRED)

@@ -18,20 +18,20 @@ namespace long3r {
 
 // Per-step statistics of the memory, for logs, CSVs and diagnostics.
 struct StepStats {
-  int64_t mem_short_tokens = 0;    // short-term / working memory tokens
-  int64_t mem_long_tokens = 0;     // long-term memory tokens
-  int64_t relevant_tokens = -1;    // after memory gating; -1 = the variant has no gating
-  double voxel_size = 0.0;         // LONG3R v_scene (pointmap units); 0 = not applicable
+  int64_t mem_short_tokens = 0;       // short-term / working memory tokens
+  int64_t mem_long_tokens = 0;        // long-term memory tokens
+  int64_t relevant_tokens = -1;       // after memory gating; -1 = the variant has no gating
+  double voxel_size = 0.0;            // LONG3R v_scene (pointmap units); 0 = not applicable
   bool memory_write_skipped = false;  // Spann3R similarity skip
   double encode_ms = 0.0;
-  double decode_ms = 0.0;          // memory read + decoder + heads
-  double memory_ms = 0.0;          // memory write and pruning
+  double decode_ms = 0.0;  // memory read + decoder + heads
+  double memory_ms = 0.0;  // memory write and pruning
 };
 
 struct StreamOutput {
-  int64_t frame_index = 0;  // 0-based index of the frame these outputs belong to
-  at::Tensor pts3d;         // [B, H, W, 3] float32, camera-0 frame
-  at::Tensor conf;          // [B, H, W] float32, >= 1
+  int64_t frame_index = 0;        // 0-based index of the frame these outputs belong to
+  at::Tensor pts3d;               // [B, H, W, 3] float32, camera-0 frame
+  at::Tensor conf;                // [B, H, W] float32, >= 1
   bool from_coarse_head = false;  // true for the frame returned by flush()
   StepStats stats;
 };
