@@ -1,5 +1,5 @@
 // long3r_reconstruct: offline streaming reconstruction of an image folder, a
-// video file or a TUM RGB-D folder (rgb.txt) with a Spann3R checkpoint.
+// video file or a TUM RGB-D folder (rgb.txt) with a LONG3R or Spann3R checkpoint.
 //
 // Outputs in --out: map.ply (fused voxel map, world = camera 0), trajectory.txt
 // (TUM "t tx ty tz qx qy qz qw", frames with a good pose), frames.csv (per
