@@ -221,4 +221,16 @@ cv::Mat plot_error_top_view(const std::vector<Eigen::Vector3f>& pred,
                             const std::vector<float>& gt_errors, const Eigen::Vector3d& up,
                             double max_error, int panel_size = 600);
 
+// One curve of plot_line_chart; colour in OpenCV BGR.
+struct PlotSeries {
+  std::string label;
+  std::vector<double> x, y;  // same length; non-finite points are skipped
+  cv::Scalar colour{0, 0, 0};
+  int thickness = 1;
+};
+// Line chart with axes, ticks, a legend and `title`; log_y plots log10(y)
+// (non-positive values skipped). Empty series give an empty frame.
+cv::Mat plot_line_chart(const std::vector<PlotSeries>& series, const std::string& title,
+                        const std::string& x_label, bool log_y, int width = 900, int height = 560);
+
 }  // namespace long3r

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <optional>
 
 #include "long3r/eval.hpp"
 
@@ -195,6 +196,76 @@ cv::Mat plot_error_top_view(const std::vector<Eigen::Vector3f>& pred,
   cv::putText(img, "0", {bx + 3, by1 + 16}, cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0), 1,
               cv::LINE_AA);
   draw_scale_bar(img, base, pad + 10, img.rows - 12);
+  return img;
+}
+
+cv::Mat plot_line_chart(const std::vector<PlotSeries>& series, const std::string& title,
+                        const std::string& x_label, bool log_y, int width, int height) {
+  cv::Mat img(height, width, CV_8UC3, cv::Scalar(255, 255, 255));
+  const int left = 80, right = 20, top = 40, bottom = 50;
+  const int pw = width - left - right, ph = height - top - bottom;
+  auto value = [&](double y) { return log_y ? std::log10(y) : y; };
+  auto usable = [&](double x, double y) {
+    return std::isfinite(x) && std::isfinite(y) && (!log_y || y > 0.0);
+  };
+  double x_lo = HUGE_VAL, x_hi = -HUGE_VAL, y_lo = HUGE_VAL, y_hi = -HUGE_VAL;
+  for (const PlotSeries& s : series) {
+    for (std::size_t i = 0; i < std::min(s.x.size(), s.y.size()); ++i) {
+      if (!usable(s.x[i], s.y[i])) continue;
+      x_lo = std::min(x_lo, s.x[i]);
+      x_hi = std::max(x_hi, s.x[i]);
+      y_lo = std::min(y_lo, value(s.y[i]));
+      y_hi = std::max(y_hi, value(s.y[i]));
+    }
+  }
+  cv::putText(img, title, {left, 25}, cv::FONT_HERSHEY_SIMPLEX, 0.6, cv::Scalar(0, 0, 0), 1,
+              cv::LINE_AA);
+  cv::rectangle(img, {left, top}, {left + pw, top + ph}, cv::Scalar(0, 0, 0), 1);
+  if (!(x_lo <= x_hi)) return img;  // nothing to draw
+  if (x_hi - x_lo < 1e-12) x_hi = x_lo + 1.0;
+  if (y_hi - y_lo < 1e-12) {
+    y_lo -= 0.5;
+    y_hi += 0.5;
+  }
+  const double y_pad = 0.05 * (y_hi - y_lo);
+  y_lo -= y_pad;
+  y_hi += y_pad;
+  auto to_px = [&](double x, double y) {
+    return cv::Point(left + static_cast<int>(std::lround((x - x_lo) / (x_hi - x_lo) * pw)),
+                     top + ph - static_cast<int>(std::lround((y - y_lo) / (y_hi - y_lo) * ph)));
+  };
+  char buf[64];
+  for (int t = 0; t <= 5; ++t) {  // ticks and grid
+    const double fx = x_lo + (x_hi - x_lo) * t / 5.0, fy = y_lo + (y_hi - y_lo) * t / 5.0;
+    const cv::Point px = to_px(fx, y_lo), py = to_px(x_lo, fy);
+    cv::line(img, {px.x, top}, {px.x, top + ph}, cv::Scalar(225, 225, 225), 1);
+    cv::line(img, {left, py.y}, {left + pw, py.y}, cv::Scalar(225, 225, 225), 1);
+    std::snprintf(buf, sizeof(buf), "%g", std::round(fx * 100.0) / 100.0);
+    cv::putText(img, buf, {px.x - 15, top + ph + 18}, cv::FONT_HERSHEY_SIMPLEX, 0.4,
+                cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+    std::snprintf(buf, sizeof(buf), "%.3g", log_y ? std::pow(10.0, fy) : fy);
+    cv::putText(img, buf, {5, py.y + 4}, cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0), 1,
+                cv::LINE_AA);
+  }
+  cv::putText(img, x_label + (log_y ? "   (log y)" : ""), {left + pw / 2 - 30, height - 10},
+              cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  int legend_y = top + 18;
+  for (const PlotSeries& s : series) {
+    std::optional<cv::Point> prev;
+    std::size_t points = 0;
+    for (std::size_t i = 0; i < std::min(s.x.size(), s.y.size()); ++i) {
+      if (!usable(s.x[i], s.y[i])) continue;
+      const cv::Point p = to_px(s.x[i], value(s.y[i]));
+      if (prev) cv::line(img, *prev, p, s.colour, s.thickness, cv::LINE_AA);
+      prev = p;
+      ++points;
+    }
+    if (points == 1) cv::circle(img, *prev, 3, s.colour, cv::FILLED, cv::LINE_AA);
+    cv::line(img, {left + pw - 170, legend_y - 4}, {left + pw - 145, legend_y - 4}, s.colour, 2);
+    cv::putText(img, s.label, {left + pw - 140, legend_y}, cv::FONT_HERSHEY_SIMPLEX, 0.45,
+                cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+    legend_y += 18;
+  }
   return img;
 }
 

@@ -687,11 +687,16 @@ ModelConfig named_model_config(const std::string& name) {
   if (name == "long3r_small") {
     return long3r_config(192, 6, 3, 128, 6, 4, 2, 3, 64, 32, {48, 96, 192, 384}, 10, 3000);
   }
+  if (name == "long3r_ship") {
+    // The model shipped in models/: sized for >= 5 FPS end to end at 224x224
+    // on two CPU cores (docs/training.md), head width 32 throughout.
+    return long3r_config(128, 4, 4, 96, 4, 3, 2, 4, 48, 24, {24, 48, 96, 192}, 10, 1000);
+  }
   if (name == "long3r_tiny") {
     return long3r_config(32, 1, 2, 32, 4, 2, 1, 2, 16, 8, {8, 16, 32, 32}, 2, 64);
   }
   throw ModelConfigError("unknown model configuration \"" + name +
-                         "\" (long3r_paper, long3r_small, long3r_tiny)");
+                         "\" (long3r_paper, long3r_small, long3r_ship, long3r_tiny)");
 }
 
 }  // namespace long3r

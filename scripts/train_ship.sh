@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# The recipe of the shipped model (docs/model_card.md): builds the core
+# without ROS, trains stage 1 at 160 x 160 and stage 2 at 224 x 224 from it,
+# scores the result on held-out generated sequences and, with --install,
+# copies it to models/default.safetensors.
+#   bash scripts/train_ship.sh [RUN_DIR] [--device cpu|cuda] [--threads N] [--install]
+# A run that stops can be continued with the same command (each stage resumes
+# from its last checkpoint).
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
+
+run="$LONG3R_ROOT/build/train_ship"
+device=cpu
+threads=$(nproc)
+install=0
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --device) device=$2; shift 2 ;;
+    --threads) threads=$2; shift 2 ;;
+    --install) install=1; shift ;;
+    -*) echo "unknown option $1" >&2; exit 2 ;;
+    *) run=$1; shift ;;
+  esac
+done
+
+build="$LONG3R_ROOT/build/core"
+cmake -S "$LONG3R_ROOT" -B "$build" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
+cmake --build "$build" -j "$LONG3R_JOBS" --target long3r_train long3r_model_eval
+
+stage() {  # name config [extra args]
+  local name=$1 config=$2; shift 2
+  local out="$run/$name"
+  if [ -f "$out/done" ]; then echo "== $name: done before"; return; fi
+  local resume=()
+  [ -f "$out/checkpoint/latest" ] && resume=(--resume)
+  echo "== $name ($config)"
+  "$build/long3r_train" --config "$LONG3R_ROOT/config/$config" --out "$out" --device "$device" \
+    --threads "$threads" --seed 1 "${resume[@]}" "$@"
+  touch "$out/done"
+}
+stage stage1 train_ship_stage1.json
+stage stage2 train_ship_stage2.json --init-dust3r "$run/stage1/model.safetensors"
+
+echo "== held-out evaluation"
+"$build/long3r_model_eval" --model "$run/stage2/model.safetensors" --frames 50 --sequences 3 \
+  --threads "$threads" --json "$run/eval_50.json"
+if [ "$install" = 1 ]; then
+  cp "$run/stage2/model.safetensors" "$LONG3R_ROOT/models/default.safetensors.tmp"
+  mv "$LONG3R_ROOT/models/default.safetensors.tmp" "$LONG3R_ROOT/models/default.safetensors"
+  echo "installed models/default.safetensors"
+fi

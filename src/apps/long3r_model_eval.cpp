@@ -1,0 +1,268 @@
+// long3r_model_eval: scores a LONG3R checkpoint (or a baseline) on held-out
+// generated sequences with the evaluation metrics (Acc / Comp / NC after a
+// Sim(3) alignment, ATE / RPE of the PnP poses). docs/model_card.md and the
+// shipped model's test use it.
+#include <ATen/ATen.h>
+#include <ATen/Parallel.h>
+
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "long3r/checkpoint.hpp"
+#include "long3r/json.hpp"
+#include "long3r/model_config.hpp"
+#include "long3r/safetensors.hpp"
+#include "long3r/threads.hpp"
+#include "long3r/train.hpp"
+
+namespace {
+
+void usage() {
+  std::puts(
+      "usage: long3r_model_eval (--model FILE | --untrained CONFIG | --baseline constant-depth)\n"
+      "  --model FILE             LONG3R safetensors checkpoint\n"
+      "  --untrained CONFIG       randomly initialised model of a named config / JSON file\n"
+      "  --baseline constant-depth  every pixel at the same depth, no camera motion\n"
+      "  --long-term-capacity L   override the model's L (0: no long-term memory)\n"
+      "  --short-term-frames K    override the model's K\n"
+      "  --frames N               frames per sequence (default 50)\n"
+      "  --sequences S            held-out scenes (default 3)\n"
+      "  --stride D               trajectory frames between used frames (default 2)\n"
+      "  --seed-begin N           first scene seed (default 2000000; training uses\n"
+      "                           1000.., validation 1000000..)\n"
+      "  --img-size N             model input N x N (default 224)\n"
+      "  --pixel-step N           cloud subsampling for the metrics (default 2)\n"
+      "  --no-normals             skip NC\n"
+      "  --picture FILE.png       top views of the first sequence (prediction vs GT)\n"
+      "  --json FILE              write the per-sequence and mean metrics\n"
+      "  --threads N              torch threads (default: all cores)\n"
+      "  --seed N                 initialisation seed of --untrained (default 0)");
+}
+
+// JSON has no NaN: a metric that could not be computed is null.
+long3r::json::Value num(double v) {
+  return std::isfinite(v) ? long3r::json::Value(v) : long3r::json::Value(nullptr);
+}
+
+double mean_finite(const std::vector<double>& v) {
+  double s = 0.0;
+  int n = 0;
+  for (double x : v) {
+    if (std::isfinite(x)) {
+      s += x;
+      ++n;
+    }
+  }
+  return n > 0 ? s / n : std::nan("");
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string model_path, untrained, baseline, picture, json_path;
+  int64_t frames = 50, sequences = 3, stride = 2, img_size = 224, lt_capacity = -1, st_frames = -1;
+  uint64_t seed_begin = 2000000, seed = 0;
+  int pixel_step = 2;
+  bool normals = true;
+  int threads = static_cast<int>(std::thread::hardware_concurrency());
+  try {
+    for (int i = 1; i < argc; ++i) {
+      const std::string a = argv[i];
+      auto next = [&]() -> std::string {
+        if (i + 1 >= argc) throw std::invalid_argument("missing value after " + a);
+        return argv[++i];
+      };
+      if (a == "--model")
+        model_path = next();
+      else if (a == "--untrained")
+        untrained = next();
+      else if (a == "--baseline")
+        baseline = next();
+      else if (a == "--long-term-capacity")
+        lt_capacity = std::stoll(next());
+      else if (a == "--short-term-frames")
+        st_frames = std::stoll(next());
+      else if (a == "--frames")
+        frames = std::stoll(next());
+      else if (a == "--sequences")
+        sequences = std::stoll(next());
+      else if (a == "--stride")
+        stride = std::stoll(next());
+      else if (a == "--seed-begin")
+        seed_begin = std::stoull(next());
+      else if (a == "--img-size")
+        img_size = std::stoll(next());
+      else if (a == "--pixel-step")
+        pixel_step = std::stoi(next());
+      else if (a == "--no-normals")
+        normals = false;
+      else if (a == "--picture")
+        picture = next();
+      else if (a == "--json")
+        json_path = next();
+      else if (a == "--threads")
+        threads = std::stoi(next());
+      else if (a == "--seed")
+        seed = std::stoull(next());
+      else if (a == "-h" || a == "--help") {
+        usage();
+        return 0;
+      } else {
+        throw std::invalid_argument("unknown option " + a);
+      }
+    }
+    const int sources = !model_path.empty() + !untrained.empty() + !baseline.empty();
+    if (sources != 1) {
+      throw std::invalid_argument("give exactly one of --model, --untrained, --baseline");
+    }
+    if (!baseline.empty() && baseline != "constant-depth") {
+      throw std::invalid_argument("unknown baseline \"" + baseline + "\" (constant-depth)");
+    }
+    if (frames < 2 || sequences < 1 || stride < 1 || pixel_step < 1 || threads < 1) {
+      throw std::invalid_argument(
+          "--frames >= 2, --sequences, --stride, --pixel-step, --threads >= 1");
+    }
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "long3r_model_eval: %s\n", e.what());
+    usage();
+    return 2;
+  }
+  try {
+    long3r::ThreadConfig tc;
+    tc.torch_threads = threads;
+    tc.openblas_threads = threads;
+    long3r::apply_thread_config(tc);
+
+    std::unique_ptr<long3r::Long3rModel> model;
+    std::string what;
+    if (baseline.empty()) {
+      long3r::ModelConfig mc;
+      long3r::TensorMap weights;
+      if (!model_path.empty()) {
+        long3r::TensorFile f = long3r::load_safetensors(model_path);
+        mc = long3r::model_config_from_metadata(f.metadata, model_path);
+        if (mc.kind != long3r::ModelKind::kLong3r) {
+          throw std::runtime_error(model_path + " is not a LONG3R checkpoint");
+        }
+        weights = std::move(f.tensors);
+        what = model_path;
+      } else {
+        mc = long3r::resolve_model_config(untrained);
+        what = "untrained " + untrained;
+      }
+      if (lt_capacity >= 0) mc.long3r.long_term_capacity = lt_capacity;
+      if (st_frames >= 0) mc.long3r.short_term_frames = st_frames;
+      long3r::validate_model_config(mc);
+      at::manual_seed(seed);
+      model = std::make_unique<long3r::Long3rModel>(mc);
+      if (!weights.empty()) model->load_weights(weights, model_path);
+      if (img_size % mc.dust3r.patch_size != 0) {
+        throw std::invalid_argument("--img-size must be a multiple of the patch size");
+      }
+      what += " (K " + std::to_string(mc.long3r.short_term_frames) + ", L " +
+              std::to_string(mc.long3r.long_term_capacity) + ")";
+    } else {
+      what = "baseline constant-depth";
+    }
+
+    long3r::DataConfig dc;
+    dc.synth.val_seed_begin = seed_begin;
+    dc.synth.train_scenes = 0;
+    dc.synth.trajectory_frames = (frames - 1) * stride + 1;
+    long3r::SequenceSampler sampler(dc, static_cast<int>(img_size), 0, threads);
+
+    std::printf("%s: %lld sequences x %lld frames (stride %lld) at %lld x %lld, seeds %llu..\n",
+                what.c_str(), static_cast<long long>(sequences), static_cast<long long>(frames),
+                static_cast<long long>(stride), static_cast<long long>(img_size),
+                static_cast<long long>(img_size), static_cast<unsigned long long>(seed_begin));
+    std::printf("%8s %8s %8s %8s %8s %8s %8s %8s %8s %7s %7s\n", "seed", "Acc", "Acc_med", "Comp",
+                "Comp_med", "NC", "NC_med", "ATE_m", "RPE_m", "posed", "fps");
+    long3r::json::Value per_seq{long3r::json::Array{}};
+    std::vector<std::vector<double>> cols(11);
+    for (int64_t s = 0; s < sequences; ++s) {
+      const long3r::SequenceSample sample = sampler.validation_sequence(s, frames, stride);
+      long3r::SequencePrediction pred;
+      if (model) {
+        pred = long3r::predict_sequence(*model, sample);
+      } else {
+        // The plane at the median GT depth of frame 0 (generous: it knows the scale).
+        const at::Tensor z = sample.pts[0].select(-1, 2).masked_select(sample.valid[0]);
+        pred = long3r::constant_depth_prediction(sample,
+                                                 z.numel() > 0 ? z.median().item<double>() : 1.0);
+      }
+      long3r::PredictionMetricsOptions po;
+      po.pixel_step = pixel_step;
+      po.normals = normals;
+      if (s == 0) po.picture_path = picture;
+      const long3r::PredictionMetrics m = long3r::evaluate_prediction(pred, sample, po);
+      const double fps =
+          pred.seconds > 0 ? static_cast<double>(frames) / pred.seconds : std::nan("");
+      const std::vector<double> row = {m.acc_mean,
+                                       m.acc_median,
+                                       m.comp_mean,
+                                       m.comp_median,
+                                       m.nc_mean,
+                                       m.nc_median,
+                                       m.ate_rmse,
+                                       m.rpe_trans_rmse,
+                                       m.rpe_rot_rmse_deg,
+                                       static_cast<double>(m.posed),
+                                       fps};
+      for (std::size_t c = 0; c < row.size(); ++c) cols[c].push_back(row[c]);
+      std::printf("%8llu %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %7lld %7.2f\n",
+                  static_cast<unsigned long long>(seed_begin + static_cast<uint64_t>(s)),
+                  m.acc_mean, m.acc_median, m.comp_mean, m.comp_median, m.nc_mean, m.nc_median,
+                  m.ate_rmse, m.rpe_trans_rmse, static_cast<long long>(m.posed), fps);
+      std::fflush(stdout);
+      long3r::json::Value o{long3r::json::Object{}};
+      o.set("seed", static_cast<int64_t>(seed_begin + static_cast<uint64_t>(s)));
+      o.set("frames", m.frames);
+      o.set("posed", m.posed);
+      o.set("acc_mean_m", num(m.acc_mean));
+      o.set("acc_median_m", num(m.acc_median));
+      o.set("comp_mean_m", num(m.comp_mean));
+      o.set("comp_median_m", num(m.comp_median));
+      o.set("nc_mean", num(m.nc_mean));
+      o.set("nc_median", num(m.nc_median));
+      o.set("pointmap_error_m", num(m.pointmap_error));
+      o.set("ate_rmse_m", num(m.ate_rmse));
+      o.set("rpe_trans_rmse_m", num(m.rpe_trans_rmse));
+      o.set("rpe_rot_rmse_deg", num(m.rpe_rot_rmse_deg));
+      o.set("fps", num(fps));
+      per_seq.push_back(o);
+    }
+    const char* names[] = {"acc_mean_m",       "acc_median_m", "comp_mean_m", "comp_median_m",
+                           "nc_mean",          "nc_median",    "ate_rmse_m",  "rpe_trans_rmse_m",
+                           "rpe_rot_rmse_deg", "posed",        "fps"};
+    long3r::json::Value mean{long3r::json::Object{}};
+    for (std::size_t c = 0; c < cols.size(); ++c) mean.set(names[c], num(mean_finite(cols[c])));
+    std::printf("%8s %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %7.1f %7.2f\n", "mean",
+                mean_finite(cols[0]), mean_finite(cols[1]), mean_finite(cols[2]),
+                mean_finite(cols[3]), mean_finite(cols[4]), mean_finite(cols[5]),
+                mean_finite(cols[6]), mean_finite(cols[7]), mean_finite(cols[9]),
+                mean_finite(cols[10]));
+    if (!json_path.empty()) {
+      long3r::json::Value root{long3r::json::Object{}};
+      root.set("what", what);
+      root.set("frames", frames);
+      root.set("stride", stride);
+      root.set("img_size", img_size);
+      root.set("seed_begin", static_cast<int64_t>(seed_begin));
+      root.set("sequences", per_seq);
+      root.set("mean", mean);
+      std::ofstream out(json_path);
+      out << root.dump(2) << "\n";
+      if (!out) throw std::runtime_error("cannot write " + json_path);
+    }
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "long3r_model_eval: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}

@@ -1,0 +1,189 @@
+// Held-out evaluation of a model or a baseline on generated sequences: the
+// numbers of docs/model_card.md and of the shipped model's regression test.
+#include <ATen/ATen.h>
+#include <ATen/Parallel.h>
+#include <c10/core/InferenceMode.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include "long3r/eval.hpp"
+#include "long3r/pose.hpp"
+#include "long3r/train.hpp"
+
+namespace long3r {
+
+namespace {
+
+cv::Mat mat3(const at::Tensor& t) {  // [H, W, 3] float CPU, shares memory
+  return cv::Mat(static_cast<int>(t.size(0)), static_cast<int>(t.size(1)), CV_32FC3,
+                 t.data_ptr<float>());
+}
+cv::Mat mat1(const at::Tensor& t) {  // [H, W] float CPU, shares memory
+  return cv::Mat(static_cast<int>(t.size(0)), static_cast<int>(t.size(1)), CV_32FC1,
+                 t.data_ptr<float>());
+}
+
+double nan() { return std::numeric_limits<double>::quiet_NaN(); }
+
+}  // namespace
+
+SequencePrediction predict_sequence(Long3rModel& model, const SequenceSample& sample) {
+  const bool was_training = model.training();
+  model.set_training(false);
+  SequencePrediction p;
+  const auto t0 = std::chrono::steady_clock::now();
+  try {
+    c10::InferenceMode guard;
+    std::vector<at::Tensor> frames;
+    for (const at::Tensor& f : sample.images) frames.push_back(f.unsqueeze(0).to(model.device()));
+    const std::vector<StreamOutput> out = model.forward_sequence(frames);
+    for (const StreamOutput& o : out) {
+      p.pts.push_back(o.pts3d[0].to(at::kCPU, at::kFloat).contiguous());
+      p.conf.push_back(o.conf[0].to(at::kCPU, at::kFloat).contiguous());
+    }
+  } catch (...) {
+    model.set_training(was_training);
+    throw;
+  }
+  model.set_training(was_training);
+  p.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return p;
+}
+
+SequencePrediction constant_depth_prediction(const SequenceSample& sample, double depth_m) {
+  if (!(depth_m > 0.0)) throw std::invalid_argument("constant_depth_prediction: depth must be > 0");
+  SequencePrediction p;
+  for (std::size_t i = 0; i < sample.images.size(); ++i) {
+    const int64_t H = sample.images[i].size(1), W = sample.images[i].size(2);
+    const PinholeIntrinsics& k = sample.intrinsics[i];
+    const at::Tensor u = at::arange(W, at::kFloat).view({1, W}).expand({H, W});
+    const at::Tensor v = at::arange(H, at::kFloat).view({H, 1}).expand({H, W});
+    const float z = static_cast<float>(depth_m);
+    p.pts.push_back(at::stack({(u - static_cast<float>(k.cx)) * (z / static_cast<float>(k.fx)),
+                               (v - static_cast<float>(k.cy)) * (z / static_cast<float>(k.fy)),
+                               at::full({H, W}, z)},
+                              -1)
+                        .contiguous());
+    p.conf.push_back(at::ones({H, W}, at::kFloat));
+  }
+  return p;
+}
+
+PredictionMetrics evaluate_prediction(const SequencePrediction& prediction,
+                                      const SequenceSample& sample,
+                                      const PredictionMetricsOptions& options) {
+  const std::size_t n = prediction.pts.size();
+  if (n == 0 || n != sample.images.size() || prediction.conf.size() != n) {
+    throw std::invalid_argument("evaluate_prediction: prediction and sequence lengths differ");
+  }
+  if (options.pixel_step < 1) throw std::invalid_argument("evaluate_prediction: pixel_step < 1");
+  PredictionMetrics m;
+  m.frames = static_cast<int64_t>(n);
+
+  // Corresponding valid pixels: one Sim(3) for the whole sequence.
+  std::vector<Eigen::Vector3f> pred_pts, gt_pts;
+  for (std::size_t i = 0; i < n; ++i) {
+    const at::Tensor p = prediction.pts[i].to(at::kFloat).contiguous();
+    const at::Tensor g = sample.pts[static_cast<int64_t>(i)].contiguous();
+    const at::Tensor v = sample.valid[static_cast<int64_t>(i)].contiguous();
+    if (p.sizes() != g.sizes()) throw std::invalid_argument("evaluate_prediction: pointmap sizes");
+    const int64_t H = p.size(0), W = p.size(1);
+    const float* pp = p.data_ptr<float>();
+    const float* gp = g.data_ptr<float>();
+    const bool* vp = v.data_ptr<bool>();
+    for (int64_t y = 0; y < H; y += options.pixel_step) {
+      for (int64_t x = 0; x < W; x += options.pixel_step) {
+        const int64_t k = y * W + x;
+        if (!vp[k] || !std::isfinite(pp[3 * k]) || !std::isfinite(pp[3 * k + 1]) ||
+            !std::isfinite(pp[3 * k + 2])) {
+          continue;
+        }
+        pred_pts.emplace_back(pp[3 * k], pp[3 * k + 1], pp[3 * k + 2]);
+        gt_pts.emplace_back(gp[3 * k], gp[3 * k + 1], gp[3 * k + 2]);
+      }
+    }
+  }
+  if (pred_pts.size() < 3) throw std::runtime_error("evaluate_prediction: too few valid points");
+  const Sim3 align = align_correspondences(pred_pts, gt_pts, true);
+  std::vector<Eigen::Vector3f> aligned(pred_pts.size());
+  double err = 0.0;
+  for (std::size_t i = 0; i < pred_pts.size(); ++i) {
+    aligned[i] = (align * pred_pts[i].cast<double>()).cast<float>();
+    err += (aligned[i] - gt_pts[i]).norm();
+  }
+  m.pointmap_error = err / static_cast<double>(pred_pts.size());
+  ReconstructionMetricsOptions ro;
+  ro.normals = options.normals;
+  ro.keep_errors = !options.picture_path.empty();
+  ro.threads = std::max(1, at::get_num_threads());
+  const ReconstructionMetrics rm = reconstruction_metrics(aligned, gt_pts, ro);
+  if (!options.picture_path.empty()) {
+    const cv::Mat img =
+        plot_error_top_view(aligned, rm.accuracy_errors, gt_pts, rm.completion_errors,
+                            estimate_up_axis(sample.T_C0_C), options.picture_max_error_m);
+    if (!cv::imwrite(options.picture_path, img)) {
+      throw std::runtime_error("cannot write " + options.picture_path);
+    }
+  }
+  m.acc_mean = rm.accuracy_mean;
+  m.acc_median = rm.accuracy_median;
+  m.comp_mean = rm.completion_mean;
+  m.comp_median = rm.completion_median;
+  m.nc_mean = rm.nc_mean;
+  m.nc_median = rm.nc_median;
+
+  // Poses as the pipeline estimates them.
+  PoseTrajectory ref, est;
+  PnpConfig pc;
+  pc.conf_threshold = 0.0f;
+  for (std::size_t i = 0; i < n; ++i) {
+    const at::Tensor p = prediction.pts[i].to(at::kFloat).contiguous();
+    const at::Tensor c = prediction.conf[i].to(at::kFloat).contiguous();
+    const PoseResult pr = estimate_pose_pnp(mat3(p), mat1(c), sample.intrinsics[i], pc);
+    if (!pr.ok()) continue;
+    ref.stamps.push_back(static_cast<double>(i));
+    ref.poses.push_back(sample.T_C0_C[i]);
+    est.stamps.push_back(static_cast<double>(i));
+    est.poses.push_back(pr.T_W_C);
+  }
+  m.posed = static_cast<int64_t>(est.size());
+  m.ate_rmse = m.rpe_trans_rmse = m.rpe_rot_rmse_deg = nan();
+  if (est.size() < 3) return m;
+  Eigen::Vector3d mean_est = Eigen::Vector3d::Zero(), mean_ref = Eigen::Vector3d::Zero();
+  for (std::size_t i = 0; i < est.size(); ++i) {
+    mean_est += est.poses[i].translation();
+    mean_ref += ref.poses[i].translation();
+  }
+  mean_est /= static_cast<double>(est.size());
+  mean_ref /= static_cast<double>(ref.size());
+  double spread_est = 0.0, spread_ref = 0.0;
+  for (std::size_t i = 0; i < est.size(); ++i) {
+    spread_est += (est.poses[i].translation() - mean_est).squaredNorm();
+    spread_ref += (ref.poses[i].translation() - mean_ref).squaredNorm();
+  }
+  if (spread_est <= 1e-12 * std::max(1.0, spread_ref)) {
+    // No motion at all: see the header.
+    m.ate_rmse = std::sqrt(spread_ref / static_cast<double>(ref.size()));
+    TrajectoryEvalOptions to;
+    to.align = false;
+    const TrajectoryMetrics tm = evaluate_trajectory(ref, est, to);
+    m.rpe_trans_rmse = tm.rpe_translation.rmse;
+    m.rpe_rot_rmse_deg = tm.rpe_rotation_deg.rmse;
+    return m;
+  }
+  try {
+    const TrajectoryMetrics tm = evaluate_trajectory(ref, est);
+    m.ate_rmse = tm.ate.rmse;
+    m.rpe_trans_rmse = tm.rpe_translation.rmse;
+    m.rpe_rot_rmse_deg = tm.rpe_rotation_deg.rmse;
+  } catch (const std::invalid_argument&) {
+    // Degenerate (e.g. collinear) estimate: no trajectory numbers.
+  }
+  return m;
+}
+
+}  // namespace long3r

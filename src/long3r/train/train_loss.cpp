@@ -1,0 +1,194 @@
+// The training loss (paper 3.5), initialisation from DUSt3R-family
+// checkpoints, and validation.
+#include <ATen/ATen.h>
+#include <ATen/Parallel.h>
+#include <torch/nn/module.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include "long3r/eval.hpp"
+#include "long3r/pose.hpp"
+#include "long3r/safetensors.hpp"
+#include "long3r/train.hpp"
+
+namespace long3r {
+
+at::Tensor average_distance(const at::Tensor& pts, const at::Tensor& valid) {
+  const int64_t B = pts.size(0);
+  const at::Tensor m = valid.to(pts.scalar_type());
+  const at::Tensor dist = at::linalg_vector_norm(pts, 2, {-1}) * m;
+  const at::Tensor count = m.reshape({B, -1}).sum(1).clamp_min(1.0);
+  // Clipped like DUSt3R's get_norm_factor so that an empty or degenerate
+  // prediction does not divide by zero.
+  return (dist.reshape({B, -1}).sum(1) / count).clamp_min(1e-8);
+}
+
+std::pair<at::Tensor, at::Tensor> confidence_regression(const at::Tensor& pred_n,
+                                                        const at::Tensor& gt_n,
+                                                        const at::Tensor& conf,
+                                                        const at::Tensor& valid, double alpha) {
+  const at::Tensor m = valid.to(pred_n.scalar_type());
+  const at::Tensor count = m.sum().clamp_min(1.0);
+  const at::Tensor err = at::linalg_vector_norm(pred_n - gt_n, 2, {-1});
+  // Masking after the fact keeps invalid pixels out of values and gradients.
+  const at::Tensor term = (conf * err - alpha * at::log(conf)) * m;
+  return {term.sum() / count, (err * m).sum() / count};
+}
+
+LossTerms sequence_loss(const std::vector<StreamOutput>& outputs,
+                        const std::vector<StreamOutput>& coarse, const at::Tensor& gt_pts,
+                        const at::Tensor& gt_valid, const LossConfig& config) {
+  const int64_t N = static_cast<int64_t>(outputs.size());
+  if (N < 2 || gt_pts.dim() != 5 || gt_pts.size(1) != N || gt_valid.size(1) != N) {
+    throw std::invalid_argument("sequence_loss: need N >= 2 outputs and [B, N, H, W, 3] targets");
+  }
+  if (config.coarse && static_cast<int64_t>(coarse.size()) != N - 1) {
+    throw std::invalid_argument("sequence_loss: coarse supervision needs N - 1 coarse outputs");
+  }
+  const int64_t B = gt_pts.size(0);
+  std::vector<at::Tensor> pred_list;
+  for (const StreamOutput& o : outputs) pred_list.push_back(o.pts3d.to(at::kFloat));
+  const at::Tensor pred = at::stack(pred_list, 1);  // [B, N, H, W, 3]
+  const at::Tensor gt = gt_pts.to(at::kFloat);
+  // Normalisation factors over the whole sequence, each cloud by its own.
+  const at::Tensor pred_scale = average_distance(pred, gt_valid);
+  const at::Tensor gt_scale = average_distance(gt, gt_valid);
+  const at::Tensor pf = pred_scale.view({B, 1, 1, 1});
+  const at::Tensor gf = gt_scale.view({B, 1, 1, 1});
+
+  std::vector<at::Tensor> terms, errs;
+  auto add = [&](const StreamOutput& o, int64_t frame) {
+    const at::Tensor gt_n = gt.select(1, frame) / gf;
+    const at::Tensor pred_n = o.pts3d.to(at::kFloat) / pf;
+    at::Tensor conf =
+        o.conf.defined() ? o.conf.to(at::kFloat) : at::ones_like(pred_n.select(-1, 0));
+    auto [t, e] =
+        confidence_regression(pred_n, gt_n, conf, gt_valid.select(1, frame), config.alpha);
+    terms.push_back(t);
+    errs.push_back(e);
+  };
+  if (config.coarse) {
+    // As Spann3R: head 1 for frames 0..N-2, head 2 (next-frame prediction
+    // from the previous step) for frames 1..N-1; output N-1 is coarse[N-2].
+    for (int64_t i = 0; i + 1 < N; ++i) add(outputs[static_cast<std::size_t>(i)], i);
+    for (int64_t j = 0; j + 1 < N; ++j) add(coarse[static_cast<std::size_t>(j)], j + 1);
+  } else {
+    for (int64_t i = 0; i < N; ++i) add(outputs[static_cast<std::size_t>(i)], i);
+  }
+  LossTerms r;
+  r.conf_loss = at::stack(terms).mean();
+  // Spann3R's factor loss: only the items whose predicted scale exceeds the
+  // GT's are penalised, by the excess, averaged over those items.
+  const at::Tensor over = (pred_scale > gt_scale).detach();
+  const int64_t n_over = over.sum().item<int64_t>();
+  r.scale_loss = n_over > 0 ? (pred_scale - gt_scale).masked_select(over).mean()
+                            : at::zeros({}, pred.options());
+  r.total = r.conf_loss + config.scale_weight * r.scale_loss;
+  r.regression = at::stack(errs).mean().item<double>();
+  r.pred_scale = pred_scale.mean().item<double>();
+  r.gt_scale = gt_scale.mean().item<double>();
+  return r;
+}
+
+bool is_encoder_parameter(const std::string& name) {
+  for (const char* p : {"dust3r.patch_embed.", "dust3r.enc_blocks.", "dust3r.enc_norm."}) {
+    if (name.rfind(p, 0) == 0) return true;
+  }
+  return false;
+}
+
+InitReport init_from_checkpoint(Long3rModel& model, const std::string& path) {
+  const TensorFile file = load_safetensors(path);
+  std::map<std::string, at::Tensor> targets;
+  for (const auto& kv : model.module().named_parameters()) targets[kv.key()] = kv.value();
+  for (const auto& kv : model.module().named_buffers()) targets[kv.key()] = kv.value();
+  InitReport r;
+  std::map<std::string, bool> done;
+  torch::NoGradGuard no_grad;
+  for (const auto& kv : file.tensors) {
+    std::string name = kv.first;
+    if (name.rfind("module.", 0) == 0) name = name.substr(7);  // DistributedDataParallel
+    // DUSt3R names lack Spann3R's "dust3r." prefix; LONG3R / Spann3R files
+    // match as they are.
+    auto it = targets.find(name);
+    if (it == targets.end()) it = targets.find("dust3r." + name);
+    if (it == targets.end()) {
+      ++r.unused;
+      continue;
+    }
+    if (it->second.sizes() != kv.second.sizes() || !kv.second.is_floating_point()) {
+      ++r.shape_mismatch;
+      r.mismatched_names.push_back(it->first);
+      continue;
+    }
+    it->second.copy_(kv.second);
+    done[it->first] = true;
+    ++r.loaded;
+  }
+  r.fresh = static_cast<int64_t>(targets.size()) - static_cast<int64_t>(done.size());
+  return r;
+}
+
+ValidationMetrics validate(Long3rModel& model, const std::vector<SequenceSample>& sequences,
+                           const LossConfig& loss_config, const ValidationConfig& config) {
+  const bool was_training = model.training();
+  model.set_training(false);
+  ValidationMetrics m;
+  double ate_sum = 0.0;
+  int64_t ate_n = 0;
+  try {
+    for (const SequenceSample& s : sequences) {
+      std::vector<at::Tensor> frames;
+      for (const at::Tensor& f : s.images) frames.push_back(f.unsqueeze(0).to(model.device()));
+      std::vector<StreamOutput> coarse;
+      const std::vector<StreamOutput> out =
+          model.forward_sequence(frames, loss_config.coarse ? &coarse : nullptr);
+      const at::Tensor gt = s.pts.unsqueeze(0).to(model.device());
+      const at::Tensor valid = s.valid.unsqueeze(0).to(model.device());
+      const LossTerms lt = sequence_loss(out, coarse, gt, valid, loss_config);
+      m.loss += lt.total.item<double>();
+      m.regression += lt.regression;
+
+      SequencePrediction pred;
+      for (const StreamOutput& o : out) {
+        pred.pts.push_back(o.pts3d[0].to(at::kCPU, at::kFloat).contiguous());
+        pred.conf.push_back(o.conf[0].to(at::kCPU, at::kFloat).contiguous());
+      }
+      PredictionMetricsOptions po;
+      po.pixel_step = config.pixel_step;
+      po.normals = config.normals;
+      const PredictionMetrics pm = evaluate_prediction(pred, s, po);
+      m.pointmap_error += pm.pointmap_error;
+      m.acc_mean += pm.acc_mean;
+      m.acc_median += pm.acc_median;
+      m.comp_mean += pm.comp_mean;
+      m.comp_median += pm.comp_median;
+      m.nc_mean += pm.nc_mean;
+      m.nc_median += pm.nc_median;
+      if (std::isfinite(pm.ate_rmse)) {
+        ate_sum += pm.ate_rmse;
+        ++ate_n;
+      }
+      ++m.sequences;
+    }
+  } catch (...) {
+    model.set_training(was_training);
+    throw;
+  }
+  model.set_training(was_training);
+  if (m.sequences > 0) {
+    const double n = static_cast<double>(m.sequences);
+    for (double* v : {&m.loss, &m.regression, &m.pointmap_error, &m.acc_mean, &m.acc_median,
+                      &m.comp_mean, &m.comp_median, &m.nc_mean, &m.nc_median}) {
+      *v /= n;
+    }
+  }
+  m.ate_rmse =
+      ate_n > 0 ? ate_sum / static_cast<double>(ate_n) : std::numeric_limits<double>::quiet_NaN();
+  return m;
+}
+
+}  // namespace long3r
