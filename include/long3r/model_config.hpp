@@ -117,6 +117,10 @@ struct Long3rConfig {
   double tau = 5e-4;                    // gating threshold (inference)
   std::string voxel_statistic = "min";  // "min" (the paper) or "percentile"
   double voxel_percentile = 5.0;        // with "percentile", in [0, 100]
+  // "voxel" (the paper's 3D spatio-temporal memory) or "spann3r" (ablation:
+  // Spann3R's attention-per-age pruning and similarity skip instead).
+  std::string long_term_policy = "voxel";
+  double sim_thresh = 0.95;  // "spann3r" only
 };
 
 struct ModelConfig {

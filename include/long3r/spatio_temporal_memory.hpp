@@ -36,12 +36,26 @@ enum class VoxelStatistic {
   kPercentile,  // the given percentile of d_i, linear interpolation (numpy default)
 };
 
+// How long-term memory is kept bounded.
+enum class LongTermPolicy {
+  kVoxel,    // the paper: one token per adaptive voxel, then the L most attended
+  kSpann3r,  // ablation: Spann3R's rules instead (no voxels): the L tokens with the
+             // highest cumulative attention per frame of age (a_s / age_s, age in
+             // frames since the token's frame, >= 1; ties: newer), and a frame
+             // whose keys are too similar to a short-term frame's is not added
+};
+
 struct SpatioTemporalMemoryConfig {
   int64_t short_term_frames = 10;     // K (0: every frame goes straight to long-term)
   int64_t long_term_capacity = 3000;  // L, in tokens
   double tau = 5e-4;                  // gating threshold used by read()
   VoxelStatistic voxel_statistic = VoxelStatistic::kMin;
   double voxel_percentile = 5.0;  // in [0, 100]; used with kPercentile only
+  LongTermPolicy long_term_policy = LongTermPolicy::kVoxel;
+  // kSpann3r only: a frame is skipped when the mean over its P tokens of the
+  // cosine similarity between its key and a short-term frame's key exceeds
+  // this for some short-term frame (max over the batch, as Spann3R). 1 = off.
+  double sim_thresh = 0.95;
 };
 
 class SpatioTemporalMemory {
@@ -85,6 +99,8 @@ class SpatioTemporalMemory {
 
   int64_t batch_size() const { return batch_; }  // 0 before the first frame
   int64_t frames_added() const { return frames_added_; }
+  // kSpann3r: whether the last add_frame() skipped its frame (similarity).
+  bool last_frame_skipped() const { return last_skipped_; }
   int64_t short_frames() const { return static_cast<int64_t>(short_frame_sizes_.size()); }
   int64_t short_size() const;                // tokens in short-term (same for all streams)
   std::vector<int64_t> long_sizes() const;   // long-term tokens per stream
@@ -131,6 +147,8 @@ class SpatioTemporalMemory {
   int64_t channels_ = 0;
   int64_t frames_added_ = 0;
   int64_t next_order_ = 0;
+  bool last_skipped_ = false;
+  int64_t frame_of_last_add_ = 0;
   Tokens short_term_;  // batched [B, N, ...]; frame/order [N]
   std::deque<int64_t> short_frame_sizes_;
   std::vector<Stream> streams_;

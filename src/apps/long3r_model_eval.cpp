@@ -31,6 +31,7 @@ void usage() {
       "  --baseline constant-depth  every pixel at the same depth, no camera motion\n"
       "  --long-term-capacity L   override the model's L (0: no long-term memory)\n"
       "  --short-term-frames K    override the model's K\n"
+      "  --long-term-policy P     override: voxel (the paper) | spann3r (ablation)\n"
       "  --frames N               frames per sequence (default 50)\n"
       "  --sequences S            held-out scenes (default 3)\n"
       "  --stride D               trajectory frames between used frames (default 2)\n"
@@ -65,7 +66,7 @@ double mean_finite(const std::vector<double>& v) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string model_path, untrained, baseline, picture, json_path;
+  std::string model_path, untrained, baseline, picture, json_path, policy;
   int64_t frames = 50, sequences = 3, stride = 2, img_size = 224, lt_capacity = -1, st_frames = -1;
   uint64_t seed_begin = 2000000, seed = 0;
   int pixel_step = 2;
@@ -88,6 +89,8 @@ int main(int argc, char** argv) {
         lt_capacity = std::stoll(next());
       else if (a == "--short-term-frames")
         st_frames = std::stoll(next());
+      else if (a == "--long-term-policy")
+        policy = next();
       else if (a == "--frames")
         frames = std::stoll(next());
       else if (a == "--sequences")
@@ -158,6 +161,7 @@ int main(int argc, char** argv) {
       }
       if (lt_capacity >= 0) mc.long3r.long_term_capacity = lt_capacity;
       if (st_frames >= 0) mc.long3r.short_term_frames = st_frames;
+      if (!policy.empty()) mc.long3r.long_term_policy = policy;
       long3r::validate_model_config(mc);
       at::manual_seed(seed);
       model = std::make_unique<long3r::Long3rModel>(mc);
@@ -166,7 +170,8 @@ int main(int argc, char** argv) {
         throw std::invalid_argument("--img-size must be a multiple of the patch size");
       }
       what += " (K " + std::to_string(mc.long3r.short_term_frames) + ", L " +
-              std::to_string(mc.long3r.long_term_capacity) + ")";
+              std::to_string(mc.long3r.long_term_capacity) + ", " + mc.long3r.long_term_policy +
+              " long-term memory)";
     } else {
       what = "baseline constant-depth";
     }

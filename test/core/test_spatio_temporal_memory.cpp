@@ -536,3 +536,64 @@ TEST(SpatioTemporalMemory, TrainingKeepsGraphInferenceDetaches) {
   EXPECT_EQ(mem.long_sizes(), (std::vector<int64_t>{3}));
   EXPECT_EQ(mem.short_size(), 4);
 }
+
+// Ablation policy: Spann3R's rules instead of voxels: the long-term tokens
+// with the highest attention per frame of age are kept.
+TEST(SpatioTemporalMemory, Spann3rPolicyKeepsAttentionPerAgeWithoutVoxels) {
+  SpatioTemporalMemoryConfig cfg;
+  cfg.short_term_frames = 1;
+  cfg.long_term_capacity = 4;  // two frames of P = 2 tokens
+  cfg.long_term_policy = long3r::LongTermPolicy::kSpann3r;
+  cfg.sim_thresh = 1.0;  // no skip: keys are random here anyway
+  SpatioTemporalMemory mem(cfg);
+  const at::Tensor pos = at::zeros({1, 2, 3});
+  at::manual_seed(3);
+  // Frame 0 gets attention 3 per token, frame 1 gets 1, frame 2 gets 1.5.
+  const double given[] = {3.0, 1.0, 1.5};
+  for (int64_t f = 0; f < 3; ++f) {
+    mem.add_frame(at::randn({1, 2, 8}), at::randn({1, 2, 8}), pos, f, {2, 1});
+    // The newest frame is the short-term window, first in the layout.
+    at::Tensor inc = at::zeros({1, mem.padded_size()});
+    inc[0][0] = given[f];
+    inc[0][1] = given[f];
+    mem.add_attention(inc);
+  }
+  // Frame 3 pushes frame 2 out: long-term holds frames 0, 1, 2 before the prune.
+  // At frame 3 the scores are 3/3 = 1, 1/2 = .5, 1.5/1 = 1.5: frames 2 and 0 stay.
+  mem.add_frame(at::randn({1, 2, 8}), at::randn({1, 2, 8}), pos, 3, {2, 1});
+  ASSERT_EQ(mem.long_sizes(), (std::vector<int64_t>{4}));
+  const at::Tensor frames = mem.frame_indices()[0].narrow(0, mem.short_size(), 4);
+  std::set<int64_t> kept;
+  for (int64_t i = 0; i < 4; ++i) kept.insert(frames[i].item<int64_t>());
+  EXPECT_EQ(kept, (std::set<int64_t>{0, 2}));
+}
+
+TEST(SpatioTemporalMemory, Spann3rPolicySkipsFramesSimilarToShortTerm) {
+  SpatioTemporalMemoryConfig cfg;
+  cfg.short_term_frames = 2;
+  cfg.long_term_policy = long3r::LongTermPolicy::kSpann3r;
+  cfg.sim_thresh = 0.95;
+  SpatioTemporalMemory mem(cfg);
+  at::manual_seed(5);
+  const at::Tensor k = at::randn({1, 4, 8});
+  const at::Tensor pos = at::rand({1, 4, 3});
+  mem.add_frame(k, at::randn({1, 4, 8}), pos, 0, {2, 2});
+  EXPECT_FALSE(mem.last_frame_skipped());
+  // Same keys up to scale: cosine similarity 1 -> skipped, nothing added.
+  mem.add_frame(k * 2.0, at::randn({1, 4, 8}), pos, 1, {2, 2});
+  EXPECT_TRUE(mem.last_frame_skipped());
+  EXPECT_EQ(mem.frames_added(), 1);
+  EXPECT_EQ(mem.short_size(), 4);
+  // Unrelated keys are added.
+  mem.add_frame(at::randn({1, 4, 8}), at::randn({1, 4, 8}), pos, 2, {2, 2});
+  EXPECT_FALSE(mem.last_frame_skipped());
+  EXPECT_EQ(mem.short_size(), 8);
+  // The paper's policy never skips.
+  SpatioTemporalMemoryConfig paper;
+  paper.short_term_frames = 2;
+  SpatioTemporalMemory pm(paper);
+  pm.add_frame(k, at::randn({1, 4, 8}), pos, 0, {2, 2});
+  pm.add_frame(k, at::randn({1, 4, 8}), pos, 1, {2, 2});
+  EXPECT_FALSE(pm.last_frame_skipped());
+  EXPECT_EQ(pm.short_size(), 8);
+}

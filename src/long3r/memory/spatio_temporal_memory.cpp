@@ -179,6 +179,8 @@ SpatioTemporalMemory::SpatioTemporalMemory(SpatioTemporalMemoryConfig config) : 
   TORCH_CHECK(config_.tau >= 0.0, "SpatioTemporalMemory: tau must be >= 0");
   TORCH_CHECK(config_.voxel_percentile >= 0.0 && config_.voxel_percentile <= 100.0,
               "SpatioTemporalMemory: voxel_percentile must be in [0, 100]");
+  TORCH_CHECK(config_.sim_thresh > -1.0 && config_.sim_thresh <= 1.0,
+              "SpatioTemporalMemory: sim_thresh must be in (-1, 1]");
 }
 
 void SpatioTemporalMemory::reset() {
@@ -186,6 +188,7 @@ void SpatioTemporalMemory::reset() {
   channels_ = 0;
   frames_added_ = 0;
   next_order_ = 0;
+  last_skipped_ = false;
   short_term_ = Tokens();
   short_frame_sizes_.clear();
   streams_.clear();
@@ -231,6 +234,30 @@ void SpatioTemporalMemory::add_frame(const at::Tensor& keys, const at::Tensor& v
   TORCH_CHECK(batch == batch_ && channels == channels_,
               "add_frame: batch size and channels are fixed until reset()");
 
+  last_skipped_ = false;
+  if (config_.long_term_policy == LongTermPolicy::kSpann3r && config_.sim_thresh < 1.0 &&
+      !short_frame_sizes_.empty()) {
+    // Spann3R's similarity skip against every short-term frame of the same size.
+    auto unit = [](const at::Tensor& t) {
+      const at::Tensor f = t.detach().to(at::kFloat);
+      return f / f.norm(2, -1, true).clamp_min(1e-12);
+    };
+    const at::Tensor k = unit(keys);
+    int64_t offset = 0;
+    double best = -1.0;
+    for (const int64_t n : short_frame_sizes_) {
+      if (n == tokens) {
+        const at::Tensor f = unit(short_term_.keys.narrow(1, offset, n));
+        best = std::max(best, (k * f).sum(-1).mean(1).max().item<double>());
+      }
+      offset += n;
+    }
+    if (best > config_.sim_thresh) {
+      last_skipped_ = true;
+      return;
+    }
+  }
+
   const std::vector<double> v_img =
       image_voxel_size(positions, grid_hw, config_.voxel_statistic, config_.voxel_percentile);
   for (int64_t b = 0; b < batch_; ++b) {
@@ -255,6 +282,7 @@ void SpatioTemporalMemory::add_frame(const at::Tensor& keys, const at::Tensor& v
   next_order_ += tokens;
   short_frame_sizes_.push_back(tokens);
   ++frames_added_;
+  frame_of_last_add_ = frame_index;
   layout_valid_ = false;
 
   while (short_frames() > config_.short_term_frames) move_oldest_frame_to_long_term();
@@ -275,8 +303,17 @@ void SpatioTemporalMemory::move_oldest_frame_to_long_term() {
     lt.order = at::cat({lt.order, short_term_.order.narrow(0, 0, n)});
 
     const at::Tensor kept =
-        select_long_term_tokens(lt.positions, lt.attention, lt.frame, lt.order,
-                                scene[static_cast<size_t>(b)], config_.long_term_capacity);
+        config_.long_term_policy == LongTermPolicy::kSpann3r
+            // No voxels (NaN size): the L greatest by attention per frame of age.
+            ? select_long_term_tokens(lt.positions,
+                                      lt.attention.detach().to(at::kDouble) /
+                                          (frame_of_last_add_ - lt.frame)
+                                              .clamp_min(1)
+                                              .to(lt.attention.device(), at::kDouble),
+                                      lt.frame, lt.order, std::numeric_limits<double>::quiet_NaN(),
+                                      config_.long_term_capacity)
+            : select_long_term_tokens(lt.positions, lt.attention, lt.frame, lt.order,
+                                      scene[static_cast<size_t>(b)], config_.long_term_capacity);
     if (kept.size(0) < lt.frame.size(0)) {
       lt.keys = lt.keys.index_select(0, kept.to(lt.keys.device()));
       lt.values = lt.values.index_select(0, kept.to(lt.values.device()));

@@ -39,6 +39,9 @@ SpatioTemporalMemoryConfig long3r_memory_config(const ModelConfig& config) {
   m.voxel_statistic =
       l.voxel_statistic == "percentile" ? VoxelStatistic::kPercentile : VoxelStatistic::kMin;
   m.voxel_percentile = l.voxel_percentile;
+  m.long_term_policy =
+      l.long_term_policy == "spann3r" ? LongTermPolicy::kSpann3r : LongTermPolicy::kVoxel;
+  m.sim_thresh = l.sim_thresh;
   return m;
 }
 

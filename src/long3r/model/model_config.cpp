@@ -330,14 +330,16 @@ void parse_spatial_memory(const json::Value& m, SpatialMemoryConfig& c) {
 
 void parse_long3r(const json::Value& m, Long3rConfig& c) {
   const std::string path = "long3r";
-  check_keys(
-      m, path,
-      {"short_term_frames", "long_term_capacity", "tau", "voxel_statistic", "voxel_percentile"});
+  check_keys(m, path,
+             {"short_term_frames", "long_term_capacity", "tau", "voxel_statistic",
+              "voxel_percentile", "long_term_policy", "sim_thresh"});
   c.short_term_frames = get_int(m, "short_term_frames", c.short_term_frames, path);
   c.long_term_capacity = get_int(m, "long_term_capacity", c.long_term_capacity, path);
   c.tau = get_double(m, "tau", c.tau, path);
   c.voxel_statistic = get_string(m, "voxel_statistic", c.voxel_statistic, path);
   c.voxel_percentile = get_double(m, "voxel_percentile", c.voxel_percentile, path);
+  c.long_term_policy = get_string(m, "long_term_policy", c.long_term_policy, path);
+  c.sim_thresh = get_double(m, "sim_thresh", c.sim_thresh, path);
 }
 
 void require(bool ok, const std::string& path, const std::string& what) {
@@ -446,6 +448,10 @@ void validate_model_config(const ModelConfig& config) {
             "must be \"min\" or \"percentile\", got \"" + l.voxel_statistic + "\"");
     require(l.voxel_percentile >= 0 && l.voxel_percentile <= 100, "long3r.voxel_percentile",
             "must lie in [0, 100]");
+    require(l.long_term_policy == "voxel" || l.long_term_policy == "spann3r",
+            "long3r.long_term_policy",
+            "must be \"voxel\" or \"spann3r\", got \"" + l.long_term_policy + "\"");
+    require(l.sim_thresh > -1 && l.sim_thresh <= 1, "long3r.sim_thresh", "must be in (-1, 1]");
     return;
   }
 
@@ -641,6 +647,8 @@ std::string model_config_to_json(const ModelConfig& config) {
     lm.set("tau", l.tau);
     lm.set("voxel_statistic", l.voxel_statistic);
     lm.set("voxel_percentile", l.voxel_percentile);
+    lm.set("long_term_policy", l.long_term_policy);
+    lm.set("sim_thresh", l.sim_thresh);
     root.set("long3r", std::move(lm));
   }
   return root.dump();
