@@ -45,6 +45,7 @@ echo "== held-out evaluation"
 "$build/long3r_model_eval" --model "$run/stage2/model.safetensors" --frames 50 --sequences 3 \
   --threads "$threads" --json "$run/eval_50.json"
 if [ "$install" = 1 ]; then
+  mkdir -p "$LONG3R_ROOT/models"
   cp "$run/stage2/model.safetensors" "$LONG3R_ROOT/models/default.safetensors.tmp"
   mv "$LONG3R_ROOT/models/default.safetensors.tmp" "$LONG3R_ROOT/models/default.safetensors"
   echo "installed models/default.safetensors"

@@ -1,8 +1,10 @@
 #!/usr/bin/python3
 """The shipped model (models/default.safetensors) reconstructs held-out
-generated sequences far better than the constant-depth baseline: ATE and Acc
-below the baseline's by the margins measured for docs/model_card.md (with
-headroom), and every frame posed."""
+generated sequences better than the constant-depth baseline: completion far
+below the baseline's, ATE and Acc below it, every frame posed. The bounds are
+the ratios measured on these sequences (docs/model_card.md) plus a margin for
+thread-count and platform float differences; the model's advantage in ATE and
+Acc is small, and the test holds it to what it measured, no more and no less."""
 import argparse
 import json
 import os
@@ -10,10 +12,12 @@ import subprocess
 import sys
 import tempfile
 
-# Measured on the held-out scenes below (docs/model_card.md); the test asks
-# for a clear fraction of the baseline, not for the exact figures.
-MAX_ATE_RATIO = None
-MAX_ACC_RATIO = None
+# Measured (30 frames x 2 held-out sequences, stride 2, every fourth pixel):
+# model / baseline = ATE 0.260 / 0.289 m (0.90), Acc 0.246 / 0.260 m (0.95),
+# Comp 0.215 / 0.538 m (0.40).
+MAX_ATE_RATIO = 0.97
+MAX_ACC_RATIO = 0.99
+MAX_COMP_RATIO = 0.55
 
 
 def run_eval(exe, source, workdir, name, frames, sequences):
@@ -59,6 +63,9 @@ def main():
     check(model['acc_mean_m'] < MAX_ACC_RATIO * base['acc_mean_m'],
           'Acc %.4f m < %.2f x baseline %.4f m' % (model['acc_mean_m'], MAX_ACC_RATIO,
                                                   base['acc_mean_m']))
+    check(model['comp_mean_m'] < MAX_COMP_RATIO * base['comp_mean_m'],
+          'Comp %.4f m < %.2f x baseline %.4f m' % (model['comp_mean_m'], MAX_COMP_RATIO,
+                                                   base['comp_mean_m']))
     sys.exit(0 if ok else 1)
 
 

@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# The held-out numbers of docs/model_card.md: the shipped model, its
+# inference-time ablations, the untrained model and the constant-depth plane,
+# on generated scenes never used in training (seeds 2000000..), 50- and
+# 200-frame sequences. Writes one JSON per row and column into OUT_DIR.
+#   bash scripts/model_card_eval.sh [OUT_DIR] [--model FILE] [--threads N]
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
+
+out="$LONG3R_ROOT/build/model_card"
+model="$LONG3R_ROOT/models/default.safetensors"
+threads=$(nproc)
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --model) model=$2; shift 2 ;;
+    --threads) threads=$2; shift 2 ;;
+    -*) echo "unknown option $1" >&2; exit 2 ;;
+    *) out=$1; shift ;;
+  esac
+done
+build="$LONG3R_ROOT/build/core"
+cmake -S "$LONG3R_ROOT" -B "$build" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
+cmake --build "$build" -j "$LONG3R_JOBS" --target long3r_model_eval
+mkdir -p "$out"
+
+row() {  # name args...
+  local name=$1; shift
+  # 200-frame clouds are scored on every fourth pixel: the nearest-neighbour
+  # and normal estimation on every second one takes tens of minutes per row.
+  for spec in "50 3 2" "200 1 4"; do
+    local frames seqs step
+    read -r frames seqs step <<<"$spec"
+    if [ -f "$out/${name}_${frames}.json" ]; then echo "== $name, $frames frames: done before"; continue; fi
+    echo "== $name, $frames frames"
+    "$build/long3r_model_eval" "$@" --frames "$frames" --sequences "$seqs" --stride 2 \
+      --pixel-step "$step" \
+      --threads "$threads" --json "$out/${name}_${frames}.json" \
+      --picture "$out/${name}_${frames}.png"
+  done
+}
+row long3r --model "$model"
+row no_long_term --model "$model" --long-term-capacity 0
+row spann3r_memory --model "$model" --long-term-policy spann3r
+row untrained --untrained long3r_ship
+row constant_depth --baseline constant-depth
