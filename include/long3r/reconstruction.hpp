@@ -38,9 +38,11 @@ struct ReconstructionConfig {
   PnpConfig pnp;
   VoxelMapConfig map;
   FocalEstimationOptions focal;  // its own conf_threshold (default 0: all pixels, as DUSt3R)
-  // When >= 0 (the default 3), replaces pnp.conf_threshold and
-  // map.conf_threshold; set it negative to use theirs as given.
-  float conf_threshold = 3.0f;
+  // When >= 0, replaces pnp.conf_threshold and map.conf_threshold; set it
+  // negative to use theirs as given. The default 1 keeps every pixel: the
+  // shipped model's confidence stays within about [1, 1.1] (docs/model_card.md)
+  // and says little; 3 suits the official DUSt3R / Spann3R checkpoints.
+  float conf_threshold = 1.0f;
 };
 
 // Loads a checkpoint and builds the right StreamingModel variant from its

@@ -29,17 +29,19 @@ using namespace long3r;
 namespace {
 
 void usage() {
-  std::fprintf(stderr,
-               "usage: long3r_reconstruct --model FILE --out DIR INPUT\n"
-               "  INPUT: a folder of images (name order), a video file, or a TUM folder (rgb.txt)\n"
-               "  --stride N            use every N-th frame (default 1)\n"
-               "  --max-frames N        stop after N used frames (default all)\n"
-               "  --conf-threshold C    confidence threshold for PnP and map (default 3)\n"
-               "  --voxel-size M        map voxel size (default 0.02)\n"
-               "  --img-size N          model input size N x N (default 224)\n"
-               "  --threads N           torch threads (default 0 = all)\n"
-               "  --calib fx fy cx cy   source-pixel intrinsics (default: TUM calibration.txt,\n"
-               "                        else estimated from frame 0)\n");
+  std::fprintf(
+      stderr,
+      "usage: long3r_reconstruct --model FILE --out DIR INPUT\n"
+      "  INPUT: a folder of images (name order), a video file, or a TUM folder (rgb.txt)\n"
+      "  --stride N            use every N-th frame (default 1)\n"
+      "  --max-frames N        stop after N used frames (default all)\n"
+      "  --conf-threshold C    confidence threshold for PnP and map (default 1: every pixel;\n"
+      "                        3 for official DUSt3R / Spann3R checkpoints)\n"
+      "  --voxel-size M        map voxel size (default 0.02)\n"
+      "  --img-size N          model input size N x N (default 224)\n"
+      "  --threads N           torch threads (default 0 = all)\n"
+      "  --calib fx fy cx cy   source-pixel intrinsics (default: TUM calibration.txt,\n"
+      "                        else estimated from frame 0)\n");
 }
 
 long rss_kb() {

@@ -100,7 +100,7 @@ TEST_F(ParamsTest, ReconstructionDefaultsAndValues) {
   auto d = readReconstructionConfig(pnh_);
   EXPECT_EQ(d.preprocess.width, 224);
   EXPECT_EQ(d.preprocess.height, 224);
-  EXPECT_FLOAT_EQ(d.conf_threshold, 3.0f);
+  EXPECT_FLOAT_EQ(d.conf_threshold, 1.0f);
   pnh_.setParam("model_width", 320);
   pnh_.setParam("conf_threshold", 2);  // int for a double
   pnh_.setParam("voxel_size_m", 0.05);
