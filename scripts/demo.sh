@@ -54,6 +54,7 @@ roslaunch long3r_ros demo.launch bag:="$out/sequence.bag" model_path:="$model" \
 [ -s "$out/map.ply" ] && [ -f "$out/trajectory.txt" ] || { echo "demo failed: see $out/roslaunch.log" >&2; exit 1; }
 
 echo "== scoring against the ground truth"
+# The bag's stamps start at 1000 s (tum_to_bag.py --time-offset above).
 "$bin/long3r_eval" --gt "$out/sequence" --est-traj "$out/trajectory.txt" --est-map "$out/map.ply" \
-  --out "$out/eval" || echo "(evaluation needs at least 3 estimated poses)"
+  --offset -1000 --out "$out/eval" || echo "(evaluation needs at least 3 estimated poses)"
 echo "== done: $out/map.ply, $out/trajectory.txt, $out/eval/"
