@@ -30,7 +30,6 @@ row() {  # name args...
   for spec in "50 3 2" "200 1 4"; do
     local frames seqs step
     read -r frames seqs step <<<"$spec"
-    if [ -f "$out/${name}_${frames}.json" ]; then echo "== $name, $frames frames: done before"; continue; fi
     echo "== $name, $frames frames"
     "$build/long3r_model_eval" "$@" --frames "$frames" --sequences "$seqs" --stride 2 \
       --pixel-step "$step" \
