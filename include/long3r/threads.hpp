@@ -8,8 +8,12 @@
 namespace long3r {
 
 struct ThreadConfig {
-  int torch_threads = 0;     // intra-op threads; 0 = all hardware threads
-  int openblas_threads = 0;  // 0 = leave OpenBLAS as the environment set it
+  int torch_threads = 0;  // intra-op threads; 0 = all hardware threads
+  // 0 = leave OpenBLAS as the environment set it. 1 by default because
+  // torch's OpenMP pool and OpenBLAS's own pthread pool both busy-wait
+  // between calls: with both at the core count they fight over the cores, and
+  // a 2-core machine measured 2 to 2.5x slower per frame (docs/performance.md).
+  int openblas_threads = 1;
 };
 
 // Applies the config; returns the intra-op thread count now in effect.

@@ -138,8 +138,7 @@ int main(int argc, char** argv) {
   }
   try {
     long3r::ThreadConfig tc;
-    tc.torch_threads = threads;
-    tc.openblas_threads = threads;
+    tc.torch_threads = threads;  // OpenBLAS at its default of 1: see threads.hpp
     long3r::apply_thread_config(tc);
 
     std::unique_ptr<long3r::Long3rModel> model;

@@ -40,6 +40,7 @@ void usage() {
       "  --voxel-size M        map voxel size (default 0.02)\n"
       "  --img-size N          model input size N x N (default 224)\n"
       "  --threads N           torch threads (default 0 = all)\n"
+      "  --openblas-threads N  OpenBLAS threads (default 1; 0 = OPENBLAS_NUM_THREADS)\n"
       "  --calib fx fy cx cy   source-pixel intrinsics (default: TUM calibration.txt,\n"
       "                        else estimated from frame 0)\n");
 }
@@ -67,7 +68,7 @@ struct Source {
 
 int main(int argc, char** argv) {
   std::string model_path, out_dir, input;
-  int stride = 1, img = 224, threads = 0;
+  int stride = 1, img = 224, threads = 0, openblas_threads = ThreadConfig().openblas_threads;
   long max_frames = -1;
   ReconstructionConfig cfg;
   std::optional<Intrinsics> calib;
@@ -94,6 +95,8 @@ int main(int argc, char** argv) {
         img = std::stoi(next());
       } else if (a == "--threads") {
         threads = std::stoi(next());
+      } else if (a == "--openblas-threads") {
+        openblas_threads = std::stoi(next());
       } else if (a == "--calib") {
         Intrinsics k;
         k.fx = std::stod(next());
@@ -159,7 +162,10 @@ int main(int argc, char** argv) {
                    "meaningless. ***\n\n",
                    model_path.c_str());
     }
-    const int nthreads = apply_thread_config({threads, 0});
+    ThreadConfig tc;
+    tc.torch_threads = threads;
+    tc.openblas_threads = openblas_threads;
+    const int nthreads = apply_thread_config(tc);
     cfg.preprocess.width = cfg.preprocess.height = img;
     Reconstruction rec(load_streaming_model(model_path), cfg);
     rec.set_calibration(calib);

@@ -27,10 +27,11 @@ namespace {
 
 void usage() {
   std::cerr << "usage: long3r_bench --config long3r_small|long3r_tiny|long3r_paper [--frames N]\n"
-               "                    [--size S] [--threads T] [--seed N]\n"
+               "                    [--size S] [--threads T] [--openblas-threads T] [--seed N]\n"
                "Streams N synthetic S x S frames (plus one, for the one-frame latency) through\n"
                "a random model; prints latency and memory tokens at frames 10, 50, 100, 500,\n"
-               "1000 (those <= N); latency = wall time of the push that returns the frame.\n";
+               "1000 (those <= N); latency = wall time of the push that returns the frame.\n"
+               "--openblas-threads: default 1 (see long3r/threads.hpp); 0 = environment.\n";
 }
 
 at::Tensor synthetic_frame(int64_t t, int64_t H, int64_t W) {
@@ -57,7 +58,7 @@ double median_window(const std::vector<double>& v, std::size_t end, std::size_t 
 int main(int argc, char** argv) {
   std::string config_name;
   int64_t frames = 100, size = 224;
-  int threads = 2;
+  int threads = 2, openblas_threads = -1;
   uint64_t seed = 0;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -76,6 +77,8 @@ int main(int argc, char** argv) {
       size = std::stoll(next());
     } else if (a == "--threads") {
       threads = std::stoi(next());
+    } else if (a == "--openblas-threads") {
+      openblas_threads = std::stoi(next());
     } else if (a == "--seed") {
       seed = std::stoull(next());
     } else {
@@ -90,7 +93,7 @@ int main(int argc, char** argv) {
   try {
     long3r::ThreadConfig tc;
     tc.torch_threads = threads;
-    tc.openblas_threads = threads;
+    if (openblas_threads >= 0) tc.openblas_threads = openblas_threads;
     const int used = long3r::apply_thread_config(tc);
     at::manual_seed(seed);
     const long3r::ModelConfig config = long3r::named_model_config(config_name);
