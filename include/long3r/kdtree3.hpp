@@ -33,12 +33,21 @@ class KdTree3 {
 
  private:
   struct Node {
-    // Leaf: [begin, end) in order_. Inner: split axis/value, children.
+    // Leaf: [begin, end) in order_. Inner: split axis, children.
     int32_t begin = 0, end = 0;
     int32_t left = -1, right = -1;
     int32_t axis = -1;
-    float split = 0.0f;
+    // Leaf whose points all coincide (its order_ range is sorted by index):
+    // a query need only look at the first k of them.
+    bool coincident = false;
+    // Tight bounding box of the node's points. Pruning by the distance to
+    // the box (not to the split plane alone) keeps queries far from the
+    // cloud cheap: with plane bounds alone they visit nearly every node.
+    Eigen::Vector3f lo = Eigen::Vector3f::Zero(), hi = Eigen::Vector3f::Zero();
   };
+  float box_distance2(const Node& n, const Eigen::Vector3f& q) const {
+    return (n.lo - q).cwiseMax(q - n.hi).cwiseMax(0.0f).squaredNorm();
+  }
   int32_t build_node(int32_t begin, int32_t end);
 
   std::vector<Eigen::Vector3f> points_;

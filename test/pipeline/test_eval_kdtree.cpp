@@ -44,3 +44,38 @@ TEST(EvalKdTree, EmptyAndSmall) {
   EXPECT_EQ(idx[0], 1);
   EXPECT_EQ(idx[1], 0);
 }
+
+// A degenerate prediction (an untrained model collapses to a blob) queried
+// from far away, and a cloud of coincident points: results must stay exact.
+TEST(EvalKdTree, FarQueriesAndCoincidentPoints) {
+  std::mt19937_64 rng(11);
+  std::normal_distribution<float> n(0.0f, 0.01f);
+  std::vector<Eigen::Vector3f> pts;
+  for (int i = 0; i < 2000; ++i) pts.emplace_back(n(rng), n(rng), 1.0f + n(rng));
+  const Eigen::Vector3f same(0.5f, 0.5f, 0.5f);
+  for (int i = 0; i < 500; ++i) pts.push_back(same);
+  const long3r::KdTree3 tree(pts);
+  std::uniform_real_distribution<float> u(-20.0f, 20.0f);
+  std::vector<int> idx;
+  std::vector<float> d2;
+  for (int q = 0; q < 200; ++q) {
+    const Eigen::Vector3f query = q % 4 == 0
+                                      ? Eigen::Vector3f(same + Eigen::Vector3f(0.3f, 0.0f, 0.0f))
+                                      : Eigen::Vector3f(u(rng), u(rng), u(rng));
+    std::vector<std::pair<float, int>> brute;
+    for (size_t i = 0; i < pts.size(); ++i)
+      brute.emplace_back((pts[i] - query).squaredNorm(), static_cast<int>(i));
+    std::sort(brute.begin(), brute.end());
+    float best;
+    const int i = tree.nearest(query, &best);
+    EXPECT_EQ(best, brute[0].first);
+    ASSERT_GE(i, 0);
+    EXPECT_EQ((pts[i] - query).squaredNorm(), best);
+    tree.knn(query, 9, &idx, &d2);
+    ASSERT_EQ(idx.size(), 9u);
+    for (int k = 0; k < 9; ++k) {
+      EXPECT_EQ(d2[k], brute[k].first) << "rank " << k;
+      EXPECT_EQ((pts[idx[k]] - query).squaredNorm(), d2[k]);
+    }
+  }
+}

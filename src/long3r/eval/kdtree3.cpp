@@ -52,27 +52,34 @@ void KdTree3::build(const std::vector<Eigen::Vector3f>& points) {
 int32_t KdTree3::build_node(int32_t begin, int32_t end) {
   const int32_t id = static_cast<int32_t>(nodes_.size());
   nodes_.emplace_back();
-  nodes_[id].begin = begin;
-  nodes_[id].end = end;
-  if (end - begin <= kLeafSize) return id;
-
   Eigen::Vector3f lo = points_[order_[begin]], hi = lo;
   for (int32_t i = begin + 1; i < end; ++i) {
     lo = lo.cwiseMin(points_[order_[i]]);
     hi = hi.cwiseMax(points_[order_[i]]);
   }
+  Node& node = nodes_[id];
+  node.begin = begin;
+  node.end = end;
+  node.lo = lo;
+  node.hi = hi;
+  if (end - begin <= kLeafSize) return id;
+
   int axis = 0;
   (hi - lo).maxCoeff(&axis);
-  if (!(hi(axis) > lo(axis))) return id;  // all points equal: keep as a leaf
+  if (!(hi(axis) > lo(axis))) {
+    // All points equal: one leaf, lowest index first (the tie-break of nearest).
+    std::sort(order_.begin() + begin, order_.begin() + end);
+    node.coincident = true;
+    return id;
+  }
 
   const int32_t mid = begin + (end - begin) / 2;
   std::nth_element(order_.begin() + begin, order_.begin() + mid, order_.begin() + end,
                    [&](int32_t a, int32_t b) { return points_[a](axis) < points_[b](axis); });
-  const float split = points_[order_[mid]](axis);
   const int32_t left = build_node(begin, mid);
   const int32_t right = build_node(mid, end);
+  // nodes_ may have reallocated: index again.
   nodes_[id].axis = axis;
-  nodes_[id].split = split;
   nodes_[id].left = left;
   nodes_[id].right = right;
   return id;
@@ -92,13 +99,14 @@ int KdTree3::nearest(const Eigen::Vector3f& query, float* squared_distance) cons
   };
   Item stack[128];
   int top = 0;
-  stack[top++] = {0, 0.0f};
+  stack[top++] = {0, box_distance2(nodes_[0], query)};
   while (top > 0) {
     const Item item = stack[--top];
     if (item.bound >= best_d2) continue;
     const Node& n = nodes_[item.node];
     if (n.axis < 0) {
-      for (int32_t i = n.begin; i < n.end; ++i) {
+      const int32_t end = n.coincident ? n.begin + 1 : n.end;
+      for (int32_t i = n.begin; i < end; ++i) {
         const int32_t p = order_[i];
         const float d2 = (points_[p] - query).squaredNorm();
         if (d2 < best_d2 || (d2 == best_d2 && p < best)) {
@@ -108,12 +116,13 @@ int KdTree3::nearest(const Eigen::Vector3f& query, float* squared_distance) cons
       }
       continue;
     }
-    const float diff = query(n.axis) - n.split;
-    const int32_t near = diff < 0.0f ? n.left : n.right;
-    const int32_t far = diff < 0.0f ? n.right : n.left;
+    const float dl = box_distance2(nodes_[n.left], query);
+    const float dr = box_distance2(nodes_[n.right], query);
+    const int32_t near = dl <= dr ? n.left : n.right;
+    const int32_t far = dl <= dr ? n.right : n.left;
     // Far side first so the near side is popped (and searched) next.
-    stack[top++] = {far, std::max(item.bound, diff * diff)};
-    stack[top++] = {near, item.bound};
+    stack[top++] = {far, std::max(dl, dr)};
+    stack[top++] = {near, std::min(dl, dr)};
   }
   if (squared_distance) *squared_distance = best_d2;
   return best;
@@ -132,23 +141,25 @@ void KdTree3::knn(const Eigen::Vector3f& query, int k, std::vector<int>* indices
   };
   Item stack[128];
   int top = 0;
-  stack[top++] = {0, 0.0f};
+  stack[top++] = {0, box_distance2(nodes_[0], query)};
   while (top > 0) {
     const Item item = stack[--top];
     if (item.bound >= best.worst()) continue;
     const Node& n = nodes_[item.node];
     if (n.axis < 0) {
-      for (int32_t i = n.begin; i < n.end; ++i) {
+      const int32_t end = n.coincident ? std::min(n.end, n.begin + k) : n.end;
+      for (int32_t i = n.begin; i < end; ++i) {
         const int32_t p = order_[i];
         best.offer(p, (points_[p] - query).squaredNorm());
       }
       continue;
     }
-    const float diff = query(n.axis) - n.split;
-    const int32_t near = diff < 0.0f ? n.left : n.right;
-    const int32_t far = diff < 0.0f ? n.right : n.left;
-    stack[top++] = {far, std::max(item.bound, diff * diff)};
-    stack[top++] = {near, item.bound};
+    const float dl = box_distance2(nodes_[n.left], query);
+    const float dr = box_distance2(nodes_[n.right], query);
+    const int32_t near = dl <= dr ? n.left : n.right;
+    const int32_t far = dl <= dr ? n.right : n.left;
+    stack[top++] = {far, std::max(dl, dr)};
+    stack[top++] = {near, std::min(dl, dr)};
   }
   *indices = std::move(best.idx_);
   if (squared_distances) *squared_distances = std::move(best.d2_);
