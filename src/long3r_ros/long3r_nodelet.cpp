@@ -364,11 +364,18 @@ void Long3rNodelet::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) 
 
 void Long3rNodelet::shutdown() {
   if (!running_.exchange(false)) return;
+  // Every way into this object from the manager's callback threads is closed
+  // (and waited for: roscpp blocks until a running callback returns) before
+  // the worker stops and members start to be destroyed; a service or timer
+  // callback running into a half-destroyed nodelet is undefined behaviour.
   image_sub_.shutdown();
   camera_info_sub_.shutdown();
+  reset_srv_.shutdown();
+  save_map_srv_.shutdown();
   map_timer_.stop();
   if (queue_) queue_->close();
   if (worker_.joinable()) worker_.join();
+  diagnostics_.reset();
 }
 
 }  // namespace long3r_ros
