@@ -55,6 +55,13 @@ if(LONG3R_WITH_ROS)
   find_package(rostest REQUIRED)
   find_package(roslaunch REQUIRED)
   roslaunch_add_file_check(launch/long3r.launch)
+  roslaunch_add_file_check(launch/replay.launch bag:=replay.bag)
+  # Users start the launch files by package and name; two files of one name
+  # anywhere in the package make that fail ("multiple files named ...").
+  foreach(l long3r replay)
+    add_test(NAME launch_by_name_${l}
+      COMMAND ${CATKIN_ENV} roslaunch --nodes long3r_ros ${l}.launch bag:=replay.bag)
+  endforeach()
   file(GLOB LONG3R_ROSTESTS CONFIGURE_DEPENDS test/ros/*.test)
   foreach(t ${LONG3R_ROSTESTS})
     add_rostest(${t})

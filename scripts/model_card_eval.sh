@@ -25,8 +25,7 @@ mkdir -p "$out"
 
 row() {  # name args...
   local name=$1; shift
-  # 200-frame clouds are scored on every fourth pixel: the nearest-neighbour
-  # and normal estimation on every second one takes tens of minutes per row.
+  # 200-frame clouds are scored on every fourth pixel, as in the card's tables.
   for spec in "50 3 2" "200 1 4"; do
     local frames seqs step
     read -r frames seqs step <<<"$spec"

@@ -37,7 +37,9 @@ cleanup() {
 }
 trap cleanup EXIT
 
+expected=0  # pointmaps to wait for; 0 = until the node goes quiet
 if [ -z "$bag" ]; then
+  expected=$frames
   "$bin/long3r_synth" --out "$work/sequence" --frames "$frames" --seed 7 --quiet
   /usr/bin/python3 "$LONG3R_ROOT/scripts/tum_to_bag.py" "$work/sequence" "$work/sequence.bag" \
     --time-offset 1000 >/dev/null
@@ -55,20 +57,22 @@ pids+=($!)
 export DISPLAY=":$display" LIBGL_ALWAYS_SOFTWARE=1
 for _ in $(seq 50); do [ -e "/tmp/.X11-unix/X$display" ] && break; sleep 0.1; done
 
-# The demo's queue keeps every frame, so the picture shows the whole sequence.
-roslaunch long3r_ros replay.launch bag:="$bag" model_path:="$model" rviz:=true \
-  queue_size:=1000 start_delay_s:=6 >"$work/roslaunch.log" 2>&1 &
+# The queue keeps every frame, so the picture shows the whole sequence; the
+# delay lets rviz (slow to start with software rendering) subscribe first.
+roslaunch "$LONG3R_ROOT/launch/replay.launch" bag:="$bag" model_path:="$model" rviz:=true \
+  queue_size:=1000 start_delay_s:=30 >"$work/roslaunch.log" 2>&1 &
 pids+=($!)
 
-# Wait (wall time) until no pointmap arrived for a while after the first one,
-# give rviz a moment to draw, then grab the screen.
-if ! /usr/bin/python3 - "$out" "$DISPLAY" <<'EOF'
+# Wait (wall time) for every pointmap of a generated bag, or until none arrived
+# for 30 s after the first one (rviz rendering in software shares the cores
+# with the model), give rviz a moment to draw, then grab the screen.
+if ! /usr/bin/python3 - "$out" "$DISPLAY" "$expected" <<'EOF'
 import os, sys, time
 import rospy
 from PIL import ImageGrab
 from long3r_ros.msg import Pointmap
 
-out, display = sys.argv[1], sys.argv[2]
+out, display, expected = sys.argv[1], sys.argv[2], int(sys.argv[3])
 rospy.init_node('rviz_snapshot', anonymous=True, disable_signals=True)
 state = {'n': 0, 'last': time.time()}
 def cb(_):
@@ -78,18 +82,28 @@ rospy.Subscriber('/long3r/pointmap', Pointmap, cb, queue_size=100)
 start = time.time()
 while time.time() - start < 1800:
     time.sleep(0.5)
-    if state['n'] > 0 and time.time() - state['last'] > 8.0:
+    if expected > 0 and state['n'] >= expected:
+        break
+    if state['n'] > 0 and time.time() - state['last'] > 30.0:
         break
 else:
     sys.exit('rviz_snapshot: no pointmaps within 30 minutes')
 time.sleep(3.0)
+for _ in range(30):
+    img = ImageGrab.grab(xdisplay=display)
+    if not all(lo == hi for lo, hi in img.getextrema()):
+        break
+    time.sleep(2.0)
+else:
+    sys.exit('rviz_snapshot: the screen stayed blank (rviz did not start?)')
 tmp = out + '.tmp.png'
-ImageGrab.grab(xdisplay=display).save(tmp)
+img.save(tmp)
 os.replace(tmp, out)
 print('rviz_snapshot: %d frames, wrote %s' % (state['n'], out))
 EOF
 then
-  echo "rviz_snapshot failed; roslaunch log:" >&2
+  cp "$work/roslaunch.log" "${out%.png}.log"
+  echo "rviz_snapshot failed; roslaunch log (all of it in ${out%.png}.log):" >&2
   tail -n 30 "$work/roslaunch.log" >&2
   exit 1
 fi
