@@ -49,6 +49,10 @@ class KdTree3 {
     return (n.lo - q).cwiseMax(q - n.hi).cwiseMax(0.0f).squaredNorm();
   }
   int32_t build_node(int32_t begin, int32_t end);
+  // Depth-first search, nearer child first, skipping nodes whose box is no
+  // closer than current_bound(); visit_leaf(node) scores a leaf's points.
+  template <typename BoundFn, typename LeafFn>
+  void traverse(const Eigen::Vector3f& query, BoundFn current_bound, LeafFn visit_leaf) const;
 
   std::vector<Eigen::Vector3f> points_;
   std::vector<int32_t> order_;

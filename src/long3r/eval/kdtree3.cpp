@@ -85,14 +85,10 @@ int32_t KdTree3::build_node(int32_t begin, int32_t end) {
   return id;
 }
 
-int KdTree3::nearest(const Eigen::Vector3f& query, float* squared_distance) const {
-  if (points_.empty()) {
-    if (squared_distance) *squared_distance = std::numeric_limits<float>::infinity();
-    return -1;
-  }
-  int best = -1;
-  float best_d2 = std::numeric_limits<float>::infinity();
-  // Explicit stack of (node, lower bound on squared distance to its region).
+template <typename BoundFn, typename LeafFn>
+void KdTree3::traverse(const Eigen::Vector3f& query, BoundFn current_bound,
+                       LeafFn visit_leaf) const {
+  // Explicit stack of (node, squared distance from the query to its box).
   struct Item {
     int32_t node;
     float bound;
@@ -102,28 +98,40 @@ int KdTree3::nearest(const Eigen::Vector3f& query, float* squared_distance) cons
   stack[top++] = {0, box_distance2(nodes_[0], query)};
   while (top > 0) {
     const Item item = stack[--top];
-    if (item.bound >= best_d2) continue;
+    if (item.bound >= current_bound()) continue;
     const Node& n = nodes_[item.node];
     if (n.axis < 0) {
-      const int32_t end = n.coincident ? n.begin + 1 : n.end;
-      for (int32_t i = n.begin; i < end; ++i) {
-        const int32_t p = order_[i];
-        const float d2 = (points_[p] - query).squaredNorm();
-        if (d2 < best_d2 || (d2 == best_d2 && p < best)) {
-          best_d2 = d2;
-          best = p;
-        }
-      }
+      visit_leaf(n);
       continue;
     }
     const float dl = box_distance2(nodes_[n.left], query);
     const float dr = box_distance2(nodes_[n.right], query);
-    const int32_t near = dl <= dr ? n.left : n.right;
-    const int32_t far = dl <= dr ? n.right : n.left;
     // Far side first so the near side is popped (and searched) next.
-    stack[top++] = {far, std::max(dl, dr)};
-    stack[top++] = {near, std::min(dl, dr)};
+    stack[top++] = {dl <= dr ? n.right : n.left, std::max(dl, dr)};
+    stack[top++] = {dl <= dr ? n.left : n.right, std::min(dl, dr)};
   }
+}
+
+int KdTree3::nearest(const Eigen::Vector3f& query, float* squared_distance) const {
+  if (points_.empty()) {
+    if (squared_distance) *squared_distance = std::numeric_limits<float>::infinity();
+    return -1;
+  }
+  int best = -1;
+  float best_d2 = std::numeric_limits<float>::infinity();
+  traverse(
+      query, [&] { return best_d2; },
+      [&](const Node& n) {
+        const int32_t end = n.coincident ? n.begin + 1 : n.end;
+        for (int32_t i = n.begin; i < end; ++i) {
+          const int32_t p = order_[i];
+          const float d2 = (points_[p] - query).squaredNorm();
+          if (d2 < best_d2 || (d2 == best_d2 && p < best)) {
+            best_d2 = d2;
+            best = p;
+          }
+        }
+      });
   if (squared_distance) *squared_distance = best_d2;
   return best;
 }
@@ -135,32 +143,15 @@ void KdTree3::knn(const Eigen::Vector3f& query, int k, std::vector<int>* indices
   k = std::min<int>(k, static_cast<int>(points_.size()));
   if (k <= 0) return;
   BestK best(k);
-  struct Item {
-    int32_t node;
-    float bound;
-  };
-  Item stack[128];
-  int top = 0;
-  stack[top++] = {0, box_distance2(nodes_[0], query)};
-  while (top > 0) {
-    const Item item = stack[--top];
-    if (item.bound >= best.worst()) continue;
-    const Node& n = nodes_[item.node];
-    if (n.axis < 0) {
-      const int32_t end = n.coincident ? std::min(n.end, n.begin + k) : n.end;
-      for (int32_t i = n.begin; i < end; ++i) {
-        const int32_t p = order_[i];
-        best.offer(p, (points_[p] - query).squaredNorm());
-      }
-      continue;
-    }
-    const float dl = box_distance2(nodes_[n.left], query);
-    const float dr = box_distance2(nodes_[n.right], query);
-    const int32_t near = dl <= dr ? n.left : n.right;
-    const int32_t far = dl <= dr ? n.right : n.left;
-    stack[top++] = {far, std::max(dl, dr)};
-    stack[top++] = {near, std::min(dl, dr)};
-  }
+  traverse(
+      query, [&] { return best.worst(); },
+      [&](const Node& n) {
+        const int32_t end = n.coincident ? std::min(n.end, n.begin + k) : n.end;
+        for (int32_t i = n.begin; i < end; ++i) {
+          const int32_t p = order_[i];
+          best.offer(p, (points_[p] - query).squaredNorm());
+        }
+      });
   *indices = std::move(best.idx_);
   if (squared_distances) *squared_distances = std::move(best.d2_);
 }
