@@ -58,7 +58,7 @@ double median_window(const std::vector<double>& v, std::size_t end, std::size_t 
 int main(int argc, char** argv) {
   std::string config_name;
   int64_t frames = 100, size = 224;
-  int threads = 2, openblas_threads = -1;
+  int threads = 2, openblas_threads = long3r::ThreadConfig().openblas_threads;
   uint64_t seed = 0;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -93,7 +93,7 @@ int main(int argc, char** argv) {
   try {
     long3r::ThreadConfig tc;
     tc.torch_threads = threads;
-    if (openblas_threads >= 0) tc.openblas_threads = openblas_threads;
+    tc.openblas_threads = openblas_threads;
     const int used = long3r::apply_thread_config(tc);
     at::manual_seed(seed);
     const long3r::ModelConfig config = long3r::named_model_config(config_name);

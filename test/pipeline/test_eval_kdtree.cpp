@@ -5,6 +5,18 @@
 
 #include "long3r/kdtree3.hpp"
 
+namespace {
+// The reference: (squared distance, index) of every point, closest first.
+std::vector<std::pair<float, int>> by_distance(const std::vector<Eigen::Vector3f>& pts,
+                                               const Eigen::Vector3f& query) {
+  std::vector<std::pair<float, int>> out;
+  for (size_t i = 0; i < pts.size(); ++i)
+    out.emplace_back((pts[i] - query).squaredNorm(), static_cast<int>(i));
+  std::sort(out.begin(), out.end());
+  return out;
+}
+}  // namespace
+
 TEST(EvalKdTree, MatchesBruteForce) {
   std::mt19937_64 rng(5);
   std::uniform_real_distribution<float> u(-2.0f, 2.0f);
@@ -18,10 +30,7 @@ TEST(EvalKdTree, MatchesBruteForce) {
   std::vector<float> d2;
   for (int q = 0; q < 300; ++q) {
     const Eigen::Vector3f query(u(rng) * 1.3f, u(rng) * 1.3f, u(rng));
-    std::vector<std::pair<float, int>> brute;
-    for (size_t i = 0; i < pts.size(); ++i)
-      brute.emplace_back((pts[i] - query).squaredNorm(), static_cast<int>(i));
-    std::sort(brute.begin(), brute.end());
+    const auto brute = by_distance(pts, query);
     float best;
     const int n = tree.nearest(query, &best);
     EXPECT_EQ(best, brute[0].first);
@@ -62,10 +71,7 @@ TEST(EvalKdTree, FarQueriesAndCoincidentPoints) {
     const Eigen::Vector3f query = q % 4 == 0
                                       ? Eigen::Vector3f(same + Eigen::Vector3f(0.3f, 0.0f, 0.0f))
                                       : Eigen::Vector3f(u(rng), u(rng), u(rng));
-    std::vector<std::pair<float, int>> brute;
-    for (size_t i = 0; i < pts.size(); ++i)
-      brute.emplace_back((pts[i] - query).squaredNorm(), static_cast<int>(i));
-    std::sort(brute.begin(), brute.end());
+    const auto brute = by_distance(pts, query);
     float best;
     const int i = tree.nearest(query, &best);
     EXPECT_EQ(best, brute[0].first);
