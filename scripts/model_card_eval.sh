@@ -4,16 +4,23 @@
 # on generated scenes never used in training (seeds 2000000..), 50- and
 # 200-frame sequences. Writes one JSON per row and column into OUT_DIR.
 #   bash scripts/model_card_eval.sh [OUT_DIR] [--model FILE] [--threads N]
+#                                   [--retrained DIR] [--only-retrained]
+# --retrained: also score the retrained ablations of scripts/train_ablations.sh
+# found in DIR (default build/train_ablations); --only-retrained: only those.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 
 out="$LONG3R_ROOT/build/model_card"
 model="$LONG3R_ROOT/models/default.safetensors"
 threads=$(nproc)
+retrained="$LONG3R_ROOT/build/train_ablations"
+only_retrained=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --model) model=$2; shift 2 ;;
     --threads) threads=$2; shift 2 ;;
+    --retrained) retrained=$2; shift 2 ;;
+    --only-retrained) only_retrained=1; shift ;;
     -*) echo "unknown option $1" >&2; exit 2 ;;
     *) out=$1; shift ;;
   esac
@@ -36,8 +43,19 @@ row() {  # name args...
       --picture "$out/${name}_${frames}.png"
   done
 }
-row long3r --model "$model"
-row no_long_term --model "$model" --long-term-capacity 0
-row spann3r_memory --model "$model" --long-term-policy spann3r
-row untrained --untrained long3r_ship
-row constant_depth --baseline constant-depth
+if [ "$only_retrained" = 0 ]; then
+  row long3r --model "$model"
+  row no_long_term --model "$model" --long-term-capacity 0
+  row spann3r_memory --model "$model" --long-term-policy spann3r
+  row untrained --untrained long3r_ship
+  row constant_depth --baseline constant-depth
+fi
+for name in no_long_term spann3r_memory; do
+  # Each retrained model carries its own memory config in its metadata.
+  trained="$retrained/$name/stage2/model.safetensors"
+  if [ -f "$retrained/$name/stage2/done" ]; then
+    row "${name}_retrained" --model "$trained"
+  else
+    echo "== ${name}_retrained: no finished run in $retrained/$name, skipped"
+  fi
+done

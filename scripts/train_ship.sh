@@ -4,6 +4,11 @@
 # scores the result on held-out generated sequences and, with --install,
 # copies it to models/default.safetensors.
 #   bash scripts/train_ship.sh [RUN_DIR] [--device cpu|cuda] [--threads N] [--install]
+#                              [--model-config FILE] [--stage1-from DIR]
+# --model-config trains another model config (JSON, e.g. the ablations in
+# config/model_ship_*.json) with the same recipe; --stage1-from starts stage 2
+# from a finished stage 1 (DIR/model.safetensors) instead of training one
+# (scripts/train_ablations.sh: where stage 1 cannot differ).
 # A run that stops can be continued with the same command (each stage resumes
 # from its last checkpoint).
 set -euo pipefail
@@ -13,11 +18,15 @@ run="$LONG3R_ROOT/build/train_ship"
 device=cpu
 threads=$(nproc)
 install=0
+model_config=()
+stage1_from=
 while [ $# -gt 0 ]; do
   case "$1" in
     --device) device=$2; shift 2 ;;
     --threads) threads=$2; shift 2 ;;
     --install) install=1; shift ;;
+    --model-config) model_config=(--model-config "$2"); shift 2 ;;
+    --stage1-from) stage1_from=$2; shift 2 ;;
     -*) echo "unknown option $1" >&2; exit 2 ;;
     *) run=$1; shift ;;
   esac
@@ -35,11 +44,17 @@ stage() {  # name config [extra args]
   [ -f "$out/checkpoint/latest" ] && resume=(--resume)
   echo "== $name ($config)"
   "$build/long3r_train" --config "$LONG3R_ROOT/config/$config" --out "$out" --device "$device" \
-    --threads "$threads" --seed 1 "${resume[@]}" "$@"
+    --threads "$threads" --seed 1 "${model_config[@]}" "${resume[@]}" "$@"
   touch "$out/done"
 }
-stage stage1 train_ship_stage1.json
-stage stage2 train_ship_stage2.json --init-dust3r "$run/stage1/model.safetensors"
+if [ -n "$stage1_from" ]; then
+  [ -f "$stage1_from/done" ] || { echo "no finished stage 1 in $stage1_from" >&2; exit 1; }
+  stage1_model="$stage1_from/model.safetensors"
+else
+  stage stage1 train_ship_stage1.json
+  stage1_model="$run/stage1/model.safetensors"
+fi
+stage stage2 train_ship_stage2.json --init-dust3r "$stage1_model"
 
 echo "== held-out evaluation"
 "$build/long3r_model_eval" --model "$run/stage2/model.safetensors" --frames 50 --sequences 3 \

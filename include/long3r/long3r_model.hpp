@@ -68,6 +68,15 @@ class Long3rModel : public StreamingModel {
   void set_training(bool training);
   bool training() const;
 
+  // Inference only (training always recomputes): each memory token's projected
+  // key and value for every memory block are computed once, when the token is
+  // written, and kept with it in the memory, instead of being recomputed for
+  // the relevant tokens at every step. The outputs agree to float rounding;
+  // the cost that grows with the memory is then the gating and the attention
+  // only. On by default; the off path is the reference. Resets the stream.
+  void set_memory_projection_cache(bool on);
+  bool memory_projection_cache() const;
+
   // StreamingModel. image: [B, 3, H, W] float, (rgb - 0.5) / 0.5, H and W
   // multiples of the patch size, one size and batch for the whole stream.
   // flush() after a single frame returns nothing (the model needs a pair).

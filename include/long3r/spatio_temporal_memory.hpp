@@ -75,8 +75,13 @@ class SpatioTemporalMemory {
   // Updates v_img / v_scene from this frame, then while more than K frames are in
   // short-term moves the oldest frame's tokens to long-term and prunes it.
   // B and C are fixed by the first frame until reset(); P may vary per frame.
+  //   payload [B,P,D] (optional): per-token data derived from the key and value
+  //   that travels with the token (the model keeps each memory block's projected
+  //   key and value there so that they are computed once per token, not once
+  //   per read). Given with every frame or with none until reset().
   void add_frame(const at::Tensor& keys, const at::Tensor& values, const at::Tensor& positions,
-                 int64_t frame_index, at::IntArrayRef grid_hw);
+                 int64_t frame_index, at::IntArrayRef grid_hw,
+                 const at::Tensor& payload = at::Tensor());
 
   // Padded batch of the whole memory in the layout above. Undefined tensors
   // before the first frame.
@@ -91,6 +96,12 @@ class SpatioTemporalMemory {
   // entries are ignored). increment: [B,S] with S = padded_size(), e.g.
   // GatingResult::attention_increment of a gating over keys()/values().
   void add_attention(const at::Tensor& increment);
+
+  // Payload of the tokens index [B,R] (positions in the layout above; entries of
+  // padded rows may point at any valid token, e.g. 0) -> [B,R,D]. Reads only the
+  // R selected rows, without assembling the whole memory. Needs a payload.
+  at::Tensor gather_payload(const at::Tensor& index) const;
+  bool has_payload() const { return payload_dim_ > 0; }
 
   // memory_gating() over the whole memory with config().tau and training(), then
   // add_attention() with its increment. With an empty memory: fused = features.
@@ -124,6 +135,7 @@ class SpatioTemporalMemory {
     at::Tensor attention;  // [.., N] float32
     at::Tensor frame;      // [N] int64
     at::Tensor order;      // [N] int64 insertion counter (tie-break among equal frames)
+    at::Tensor payload;    // [.., N, D]; undefined without a payload
   };
   struct Stream {
     Tokens long_term;  // unbatched [N, ...]
@@ -145,6 +157,7 @@ class SpatioTemporalMemory {
   bool training_ = false;
   int64_t batch_ = 0;
   int64_t channels_ = 0;
+  int64_t payload_dim_ = 0;  // D, 0 = no payload
   int64_t frames_added_ = 0;
   int64_t next_order_ = 0;
   bool last_skipped_ = false;

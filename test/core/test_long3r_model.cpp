@@ -229,6 +229,74 @@ TEST(Long3rModel, ResetAndRepeatGiveIdenticalOutputs) {
   expect_same(first, run_stream(model, 7));
 }
 
+// The memory projection cache (each token's projected key/value computed once,
+// when it is written) against the reference that projects the relevant tokens
+// at every step: same outputs to float rounding over a stream long enough for
+// long-term memory, pruning and a changing relevant set, for B = 1 and B = 2.
+TEST(Long3rModel, MemoryProjectionCacheMatchesRecomputation) {
+  at::manual_seed(11);
+  long3r::ModelConfig c = tiny();
+  c.long3r.short_term_frames = 2;
+  c.long3r.long_term_capacity = 20;
+  long3r::Long3rModel model(c);
+  randomize_norms(model.module());
+  EXPECT_TRUE(model.memory_projection_cache());
+  const int64_t n = 30;
+  for (const bool batched : {false, true}) {
+    auto run = [&](bool cache) {
+      model.set_memory_projection_cache(cache);
+      std::vector<long3r::StreamOutput> out;
+      std::vector<int64_t> relevant;
+      for (int64_t t = 0; t < n; ++t) {
+        const at::Tensor img = batched ? at::cat({frame(t), frame(t, 64, 64, 2.0)}) : frame(t);
+        auto o = model.push(img);
+        if (!o) continue;
+        EXPECT_EQ(model.memory().has_payload(), cache);
+        relevant.push_back(o->stats.relevant_tokens);
+        out.push_back(*o);
+      }
+      out.push_back(*model.flush());
+      return std::make_pair(out, relevant);
+    };
+    const auto cached = run(true);
+    const auto reference = run(false);
+    ASSERT_EQ(cached.first.size(), reference.first.size());
+    EXPECT_EQ(cached.second, reference.second);
+    for (std::size_t i = 0; i < cached.first.size(); ++i) {
+      EXPECT_TRUE(at::allclose(cached.first[i].pts3d, reference.first[i].pts3d, 1e-4, 1e-5))
+          << "frame " << i << (batched ? " (B = 2)" : "");
+      EXPECT_TRUE(at::allclose(cached.first[i].conf, reference.first[i].conf, 1e-4, 1e-5))
+          << "frame " << i << (batched ? " (B = 2)" : "");
+    }
+    // The stream reached long-term memory and read from it.
+    EXPECT_GT(cached.second.back(), 2 * 16);
+  }
+  // Training always recomputes: nothing cached.
+  model.set_training(true);
+  model.push(frame(0));
+  model.push(frame(1));
+  model.push(frame(2));
+  EXPECT_FALSE(model.memory().has_payload());
+}
+
+// A model that streamed in inference first (so its cached RoPE tables were
+// made under InferenceMode) can then train: back-propagation must not meet an
+// inference tensor.
+TEST(Long3rModel, TrainsAfterInference) {
+  at::manual_seed(12);
+  long3r::Long3rModel model(tiny());
+  run_stream(model, 4);
+  model.set_training(true);
+  const std::vector<at::Tensor> frames = {frame(0), frame(1), frame(2)};
+  const auto outs = model.forward_sequence(frames);
+  at::Tensor loss = at::zeros({});
+  for (const auto& o : outs) loss = loss + o.pts3d.abs().mean();
+  ASSERT_NO_THROW(loss.backward());
+  const at::Tensor& g = model.module().named_parameters()["dust3r.patch_embed.proj.weight"].grad();
+  ASSERT_TRUE(g.defined());
+  EXPECT_TRUE(g.isfinite().all().item<bool>());
+}
+
 // Two different streams batched give what each gives alone (long-term
 // memories differ per stream, so this exercises the padding masks).
 TEST(Long3rModel, BatchOfStreamsEqualsSingleStreams) {

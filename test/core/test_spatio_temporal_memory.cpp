@@ -6,10 +6,13 @@
 #include <c10/core/InferenceMode.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <set>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -249,6 +252,65 @@ TEST(SpatioTemporalMemory, PruningCapacityTiesKeepNewer) {
   EXPECT_EQ(kept(1, at::tensor({0, 9, 2, 3, 4}).to(at::kLong)), (std::vector<int64_t>{1}));
 }
 
+// The pruning rule against a brute-force reference on random clouds: one small
+// enough for the packed voxel key, one spread so far (voxel indices up to the
+// int64 clamp) that the rows must be compared whole, and non-finite tokens.
+TEST(SpatioTemporalMemory, PruningMatchesBruteForceAtAnyScale) {
+  at::manual_seed(13);
+  const int64_t n = 400;
+  for (const double spread : {3.0, 1e30}) {
+    at::Tensor pos = (at::rand({n, 3}, at::kDouble) - 0.5) * spread;
+    pos[7][1] = std::numeric_limits<double>::quiet_NaN();
+    pos[9][2] = std::numeric_limits<double>::infinity();
+    // Duplicated positions so that many voxels hold several tokens.
+    pos.narrow(0, 200, 100).copy_(pos.narrow(0, 0, 100));
+    const at::Tensor pos_f = pos.to(at::kFloat);
+    const at::Tensor att = at::randint(0, 5, {n}).to(at::kFloat);
+    const at::Tensor frame = at::randint(0, 20, {n}, at::kLong);
+    const at::Tensor order = at::randperm(n, at::kLong);
+    const double voxel = 0.25;
+    // Reference: the greatest token per voxel by (attention, frame, order).
+    auto greater = [&](int64_t a, int64_t b) {
+      const auto key = [&](int64_t i) {
+        return std::make_tuple(att[i].item<float>(), frame[i].item<int64_t>(),
+                               order[i].item<int64_t>());
+      };
+      return key(a) > key(b);
+    };
+    std::map<std::array<int64_t, 3>, int64_t> best;
+    std::vector<int64_t> winners;
+    for (int64_t i = 0; i < n; ++i) {
+      const at::Tensor p = pos_f[i].to(at::kDouble);
+      if (!p.isfinite().all().item<bool>()) {
+        winners.push_back(i);
+        continue;
+      }
+      std::array<int64_t, 3> v{};
+      for (int d = 0; d < 3; ++d) {
+        v[d] = static_cast<int64_t>(
+            std::clamp(std::floor(p[d].item<double>() / voxel), -4.0e18, 4.0e18));
+      }
+      const auto it = best.find(v);
+      if (it == best.end() || greater(i, it->second)) best[v] = i;
+    }
+    for (const auto& kv : best) winners.push_back(kv.second);
+    for (const int64_t capacity : {int64_t{1000}, int64_t{50}}) {
+      std::vector<int64_t> want = winners;
+      if (static_cast<int64_t>(want.size()) > capacity) {
+        std::sort(want.begin(), want.end(), greater);
+        want.resize(static_cast<std::size_t>(capacity));
+      }
+      std::sort(want.begin(), want.end());
+      const at::Tensor k =
+          long3r::select_long_term_tokens(pos_f, att, frame, order, voxel, capacity);
+      const std::vector<int64_t> got(k.data_ptr<int64_t>(), k.data_ptr<int64_t>() + k.numel());
+      EXPECT_EQ(got, want) << "spread " << spread << ", capacity " << capacity;
+    }
+    // The duplicates did merge.
+    EXPECT_LT(best.size(), static_cast<std::size_t>(n - 2 - 100 + 1));
+  }
+}
+
 // ---------------------------------------------------------------------------
 // The memory class.
 // ---------------------------------------------------------------------------
@@ -468,6 +530,50 @@ TEST(SpatioTemporalMemory, BatchStreamsAreIndependent) {
     both.add_attention(inc);
   }
   EXPECT_TRUE(saw_padding);
+}
+
+// A payload travels with its token through the short-term window, the move to
+// long-term, voxel pruning and the capacity: with payload = [key, value] every
+// gathered row equals the token's key and value, per stream, padding included.
+TEST(SpatioTemporalMemory, PayloadTravelsWithItsToken) {
+  SpatioTemporalMemoryConfig cfg;
+  cfg.short_term_frames = 2;
+  cfg.long_term_capacity = 12;
+  SpatioTemporalMemory mem(cfg);
+  at::manual_seed(6);
+  bool saw_both_parts = false;
+  for (int64_t f = 0; f < 60; ++f) {
+    const at::Tensor pos = at::cat({at::rand({1, 9, 3}) * 5, at::rand({1, 9, 3}) * 2});
+    const at::Tensor keys = at::randn({2, 9, 4}), values = at::randn({2, 9, 4});
+    mem.add_frame(keys, values, pos, f, {3, 3}, at::cat({keys, values}, 2));
+    ASSERT_TRUE(mem.has_payload());
+    const int64_t S = mem.padded_size();
+    // Every token once, in reverse, and a padded row pointing at token 0.
+    at::Tensor index = at::arange(S - 1, -1, -1, at::kLong).repeat({2, 1});
+    const std::vector<int64_t> total = mem.total_sizes();
+    for (int64_t b = 0; b < 2; ++b) {
+      index[b].narrow(0, 0, S - total[b]).fill_(0);
+    }
+    const at::Tensor got = mem.gather_payload(index);
+    ASSERT_EQ(got.sizes(), (at::IntArrayRef{2, S, 8}));
+    const at::Tensor want = at::cat(
+        {long3r::gather_tokens(mem.keys(), index), long3r::gather_tokens(mem.values(), index)}, 2);
+    ASSERT_TRUE(got.equal(want)) << "frame " << f;
+    saw_both_parts = saw_both_parts || (mem.long_sizes()[0] > 0 && mem.long_sizes()[1] > 0);
+    mem.add_attention(at::rand({2, S}) * mem.valid_mask());
+  }
+  EXPECT_TRUE(saw_both_parts);
+  EXPECT_EQ(mem.long_sizes()[0], 12);  // pruning and capacity did act
+
+  // The payload is all or nothing until reset(); an index must be in range.
+  const at::Tensor k = at::randn({2, 9, 4}), pos = at::rand({2, 9, 3});
+  EXPECT_THROW(mem.add_frame(k, k, pos, 60, {3, 3}), c10::Error);
+  EXPECT_THROW(mem.add_frame(k, k, pos, 60, {3, 3}, at::randn({2, 9, 5})), c10::Error);
+  EXPECT_THROW(mem.gather_payload(at::full({2, 1}, mem.padded_size(), at::kLong)), c10::Error);
+  mem.reset();
+  EXPECT_FALSE(mem.has_payload());
+  mem.add_frame(k, k, pos, 0, {3, 3});
+  EXPECT_THROW(mem.gather_payload(at::zeros({2, 1}, at::kLong)), c10::Error);
 }
 
 // read() is memory_gating over the whole memory plus add_attention.

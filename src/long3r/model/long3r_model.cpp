@@ -74,7 +74,8 @@ struct Long3rModel::Impl {
   model::Long3rNet net;
   SpatioTemporalMemory memory;
   bool training = false;
-  bool collect_coarse = false;  // run head2 at every step (training targets)
+  bool projection_cache = true;  // set_memory_projection_cache()
+  bool collect_coarse = false;   // run head2 at every step (training targets)
 
   // Stream state.
   int64_t frames = 0;
@@ -137,6 +138,13 @@ void Long3rModel::set_training(bool training) {
 
 bool Long3rModel::training() const { return impl_->training; }
 
+void Long3rModel::set_memory_projection_cache(bool on) {
+  impl_->projection_cache = on;
+  impl_->reset();
+}
+
+bool Long3rModel::memory_projection_cache() const { return impl_->projection_cache; }
+
 torch::nn::Module& Long3rModel::module() { return *impl_->net; }
 
 const SpatioTemporalMemory& Long3rModel::memory() const { return impl_->memory; }
@@ -164,6 +172,7 @@ std::optional<StreamOutput> Long3rModel::push(const at::Tensor& image) {
   const auto t0 = Clock::now();
   const at::Tensor img = image.to(s.device(), at::kFloat);
   const at::Tensor next = dust3r->encode(img, Trace());
+  const bool cached = s.projection_cache && !s.training;
   if (s.frames == 0) {
     s.feat = next;
     s.frames = 1;
@@ -184,8 +193,12 @@ std::optional<StreamOutput> Long3rModel::push(const at::Tensor& image) {
     const at::Tensor query = s.net->feat_key(2, s.feat, s.coarse_final);
     const GatingResult gate = s.memory.read(query, s.feat, s.norms());
     fused = gate.fused;
-    relevant.keys = gather_tokens(s.memory.keys(), gate.relevant_index);
-    relevant.values = gather_tokens(s.memory.values(), gate.relevant_index);
+    if (cached) {
+      relevant.projected = s.memory.gather_payload(gate.relevant_index);
+    } else {
+      relevant.keys = gather_tokens(s.memory.keys(), gate.relevant_index);
+      relevant.values = gather_tokens(s.memory.values(), gate.relevant_index);
+    }
     // B = 1 has no padding; the unmasked attention path is then exact.
     if (s.batch > 1) relevant.valid = gate.relevant_valid;
     out.stats.relevant_tokens = gate.relevant_count.max().item<int64_t>();
@@ -212,7 +225,8 @@ std::optional<StreamOutput> Long3rModel::push(const at::Tensor& image) {
   const at::Tensor key = s.net->feat_key(1, s.feat, dec.refined.back());
   const at::Tensor value = s.net->cur_value(pts, dec.refined.back(), g.first, g.second) + key;
   const at::Tensor positions = token_positions(pts, conf, s.config.dust3r.patch_size);
-  s.memory.add_frame(key, value, positions, t, {g.first, g.second});
+  s.memory.add_frame(key, value, positions, t, {g.first, g.second},
+                     cached ? s.net->project_memory(key, value) : at::Tensor());
   out.stats.memory_ms = ms_since(t2);
 
   s.feat = next;

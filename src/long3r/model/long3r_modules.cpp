@@ -27,11 +27,22 @@ MemoryCrossAttentionImpl::MemoryCrossAttentionImpl(int64_t dim, int64_t mem_dim,
 
 at::Tensor MemoryCrossAttentionImpl::forward(const at::Tensor& query, const at::Tensor& key,
                                              const at::Tensor& value, const at::Tensor& valid) {
+  return forward_projected(query, projk(key), projv(value), valid);
+}
+
+at::Tensor MemoryCrossAttentionImpl::forward_projected(const at::Tensor& query,
+                                                       const at::Tensor& key_proj,
+                                                       const at::Tensor& value_proj,
+                                                       const at::Tensor& valid) {
   const int64_t B = query.size(0), N = query.size(1), C = projq->weight.size(0);
-  const int64_t R = key.size(1), Dh = C / num_heads;
+  const int64_t R = key_proj.size(1), Dh = C / num_heads;
+  TORCH_CHECK(
+      key_proj.dim() == 3 && key_proj.size(2) == C && value_proj.sizes() == key_proj.sizes(),
+      "memory cross-attention: projected key/value must be [B, R, ", C, "], got ", key_proj.sizes(),
+      " and ", value_proj.sizes());
   const at::Tensor q = projq(query).view({B, N, num_heads, Dh}).permute({0, 2, 1, 3});
-  const at::Tensor k = projk(key).view({B, R, num_heads, Dh}).permute({0, 2, 1, 3});
-  const at::Tensor v = projv(value).view({B, R, num_heads, Dh}).permute({0, 2, 1, 3});
+  const at::Tensor k = key_proj.reshape({B, R, num_heads, Dh}).permute({0, 2, 1, 3});
+  const at::Tensor v = value_proj.reshape({B, R, num_heads, Dh}).permute({0, 2, 1, 3});
   at::Tensor out;
   if (!valid.defined()) {
     out = attend(q, k, v);
@@ -62,14 +73,43 @@ MemoryBlockImpl::MemoryBlockImpl(int64_t dim, int64_t mem_dim, int64_t heads, in
 at::Tensor MemoryBlockImpl::forward(const at::Tensor& x, const RopeTable& xrope,
                                     const at::Tensor& keys, const at::Tensor& values,
                                     const at::Tensor& valid) {
-  at::Tensor out = x + attn(norm1(x), xrope);
+  const at::Tensor out = x + attn(norm1(x), xrope);
+  at::Tensor r;
   if (keys.defined() && keys.size(1) > 0) {
-    at::Tensor r = cross_attn(norm2(out), norm_mem_k(keys), norm_mem_v(values), valid);
-    // Without relevant memory the block reads nothing (proj's bias included).
-    if (valid.defined()) r = r * valid.any(1).to(r.scalar_type()).view({-1, 1, 1});
-    out = out + r;
+    r = cross_attn(norm2(out), norm_mem_k(keys), norm_mem_v(values), valid);
   }
-  return out + mlp(norm3(out));
+  return finish(out, r, valid);
+}
+
+at::Tensor MemoryBlockImpl::project_memory(const at::Tensor& keys, const at::Tensor& values) {
+  return at::cat({cross_attn->projk(norm_mem_k(keys)), cross_attn->projv(norm_mem_v(values))}, -1);
+}
+
+at::Tensor MemoryBlockImpl::forward_projected(const at::Tensor& x, const RopeTable& xrope,
+                                              const at::Tensor& projected,
+                                              const at::Tensor& valid) {
+  const at::Tensor out = x + attn(norm1(x), xrope);
+  at::Tensor r;
+  if (projected.defined() && projected.size(1) > 0) {
+    const int64_t C = cross_attn->projq->weight.size(0);
+    TORCH_CHECK(projected.dim() == 3 && projected.size(2) == 2 * C,
+                "memory block: projected memory must be [B, R, ", 2 * C, "], got ",
+                projected.sizes());
+    r = cross_attn->forward_projected(norm2(out), projected.narrow(2, 0, C),
+                                      projected.narrow(2, C, C), valid);
+  }
+  return finish(out, r, valid);
+}
+
+at::Tensor MemoryBlockImpl::finish(const at::Tensor& out, at::Tensor read,
+                                   const at::Tensor& valid) {
+  at::Tensor y = out;
+  if (read.defined()) {
+    // Without relevant memory the block reads nothing (proj's bias included).
+    if (valid.defined()) read = read * valid.any(1).to(read.scalar_type()).view({-1, 1, 1});
+    y = y + read;
+  }
+  return y + mlp(norm3(y));
 }
 
 Long3rNetImpl::Long3rNetImpl(const ModelConfig& c) : Spann3rNetImpl(c) {
@@ -108,12 +148,27 @@ JointDecoderOutputs Long3rNetImpl::decode_joint(const at::Tensor& fused, const a
   out.refined = {fused};
   out.coarse = {next};
   const std::size_t depth = refined_pair.size();
+  int64_t memory_layers = 0, memory_layer = 0;
+  for (const MemoryBlock& m : refined_memory) memory_layers += m.is_empty() ? 0 : 1;
+  if (memory.projected.defined()) {
+    TORCH_CHECK(memory.projected.dim() == 3 && memory.projected.size(2) == memory_projection_dim(),
+                "LONG3R decoder: projected memory must be [B, R, ", memory_projection_dim(),
+                "], got ", memory.projected.sizes());
+  }
   at::Tensor x = net.decoder_embed(fused), y = net.decoder_embed(next);
   for (std::size_t i = 0; i < depth; ++i) {
     at::Tensor ny = net.dec2[i](y, x, r, r);
-    at::Tensor nx = !refined_pair[i].is_empty()
-                        ? refined_pair[i](x, y, r, r)
-                        : refined_memory[i](x, r, memory.keys, memory.values, memory.valid);
+    at::Tensor nx;
+    if (!refined_pair[i].is_empty()) {
+      nx = refined_pair[i](x, y, r, r);
+    } else if (memory.projected.defined()) {
+      const int64_t width = memory.projected.size(2) / memory_layers;
+      nx = refined_memory[i]->forward_projected(
+          x, r, memory.projected.narrow(2, width * memory_layer, width), memory.valid);
+      ++memory_layer;
+    } else {
+      nx = refined_memory[i](x, r, memory.keys, memory.values, memory.valid);
+    }
     x = std::move(nx);
     y = std::move(ny);
     if (i + 1 < depth) {
@@ -124,6 +179,22 @@ JointDecoderOutputs Long3rNetImpl::decode_joint(const at::Tensor& fused, const a
   out.refined.push_back(net.dec_norm(x));
   out.coarse.push_back(net.dec_norm(y));
   return out;
+}
+
+at::Tensor Long3rNetImpl::project_memory(const at::Tensor& keys, const at::Tensor& values) {
+  std::vector<at::Tensor> parts;
+  for (MemoryBlock& m : refined_memory) {
+    if (!m.is_empty()) parts.push_back(m->project_memory(keys, values));
+  }
+  return at::cat(parts, -1);
+}
+
+int64_t Long3rNetImpl::memory_projection_dim() const {
+  int64_t dim = 0;
+  for (const MemoryBlock& m : refined_memory) {
+    if (!m.is_empty()) dim += 2 * m->cross_attn->projq->weight.size(0);
+  }
+  return dim;
 }
 
 }  // namespace model

@@ -27,6 +27,10 @@ class MemoryCrossAttentionImpl : public torch::nn::Module {
   // drops their residual).
   at::Tensor forward(const at::Tensor& query, const at::Tensor& key, const at::Tensor& value,
                      const at::Tensor& valid);
+  // forward() with the key/value projections already applied: key_proj =
+  // projk(key), value_proj = projv(value), [B, R, C_d].
+  at::Tensor forward_projected(const at::Tensor& query, const at::Tensor& key_proj,
+                               const at::Tensor& value_proj, const at::Tensor& valid);
   torch::nn::Linear projq{nullptr}, projk{nullptr}, projv{nullptr}, proj{nullptr};
   int64_t num_heads;
 };
@@ -44,11 +48,20 @@ class MemoryBlockImpl : public torch::nn::Module {
   // tensors = no memory); valid: [B, R] bool or undefined.
   at::Tensor forward(const at::Tensor& x, const RopeTable& xrope, const at::Tensor& keys,
                      const at::Tensor& values, const at::Tensor& valid);
+  // The memory side of the cross-attention, per token:
+  // [projk(norm_mem_k(keys)), projv(norm_mem_v(values))] -> [B, N, 2 C_d].
+  at::Tensor project_memory(const at::Tensor& keys, const at::Tensor& values);
+  // forward() on memory already passed through project_memory().
+  at::Tensor forward_projected(const at::Tensor& x, const RopeTable& xrope,
+                               const at::Tensor& projected, const at::Tensor& valid);
   torch::nn::LayerNorm norm1{nullptr}, norm2{nullptr}, norm3{nullptr};
   torch::nn::LayerNorm norm_mem_k{nullptr}, norm_mem_v{nullptr};
   Attention attn{nullptr};
   MemoryCrossAttention cross_attn{nullptr};
   Mlp mlp{nullptr};
+
+ private:
+  at::Tensor finish(const at::Tensor& out, at::Tensor read, const at::Tensor& valid);
 };
 TORCH_MODULE(MemoryBlock);
 
@@ -57,6 +70,9 @@ struct RelevantMemory {
   at::Tensor keys;    // [B, R, C_m] (undefined: no memory)
   at::Tensor values;  // [B, R, C_m]
   at::Tensor valid;   // [B, R] bool; undefined = all valid
+  // [B, R, memory_projection_dim()] from Long3rNet::project_memory of these
+  // tokens; when defined the memory blocks read it and not keys/values.
+  at::Tensor projected;
 };
 
 // Outputs of the joint decoder, in DUSt3R's DecoderOutputs layout
@@ -75,6 +91,12 @@ class Long3rNetImpl : public Spann3rNetImpl {
   // Mem_i(x_{i-1}, memory) (even i); dec_norm on both last layers.
   JointDecoderOutputs decode_joint(const at::Tensor& fused, const at::Tensor& next, Grid grid,
                                    const RelevantMemory& memory);
+
+  // Every memory block's project_memory() of memory tokens keys/values
+  // [B, N, C_m], concatenated in layer order -> [B, N, memory_projection_dim()].
+  // Per token, so it can be computed once when a token is written.
+  at::Tensor project_memory(const at::Tensor& keys, const at::Tensor& values);
+  int64_t memory_projection_dim() const;
 
   // Refined-branch blocks by layer: pair[i] for odd layers, memory[i] for even
   // layers (index = layer - 1; the other entry is null).

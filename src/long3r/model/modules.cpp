@@ -2,6 +2,7 @@
 #include "long3r/model/modules.hpp"
 
 #include <ATen/ATen.h>
+#include <c10/core/InferenceMode.h>
 #include <torch/nn/modules/container/functional.h>
 #include <torch/version.h>
 
@@ -48,6 +49,10 @@ RopeTable Rope2D::table(int64_t head_dim, int64_t grid_h, int64_t grid_w, const 
   const auto it = cache_.find(key);
   if (it != cache_.end()) return it->second;
 
+  // Built as normal tensors even under InferenceMode: the cache outlives the
+  // mode, and an inference tensor cannot be saved for backward when the model
+  // later trains.
+  c10::InferenceMode normal_tensors(false);
   // Same operations as the official get_cos_sin (float32 frequencies, outer
   // product, cast, cos/sin), so the tables agree bit for bit.
   const int64_t D = head_dim / 2;  // channels per axis
