@@ -314,6 +314,9 @@ struct PredictionMetricsOptions {
   // picture_max_error_m).
   std::string picture_path;
   double picture_max_error_m = 0.3;
+  // Intrinsics of the PnP poses: the generator's (false) or, as the pipeline
+  // does without a calibration, estimated from frame 0's pointmap (true).
+  bool estimate_intrinsics = false;
 };
 struct PredictionMetrics {
   double pointmap_error = 0;  // mean || aligned pred - gt ||, metres

@@ -40,6 +40,8 @@ void usage() {
       "  --img-size N             model input N x N (default 224)\n"
       "  --pixel-step N           cloud subsampling for the metrics (default 2)\n"
       "  --no-normals             skip NC\n"
+      "  --estimate-intrinsics    PnP with the focal estimated from frame 0's pointmap\n"
+      "                           (the pipeline without a calibration), not the GT one\n"
       "  --picture FILE.png       top views of the first sequence (prediction vs GT)\n"
       "  --json FILE              write the per-sequence and mean metrics\n"
       "  --threads N              torch threads (default: all cores)\n"
@@ -70,7 +72,7 @@ int main(int argc, char** argv) {
   int64_t frames = 50, sequences = 3, stride = 2, img_size = 224, lt_capacity = -1, st_frames = -1;
   uint64_t seed_begin = 2000000, seed = 0;
   int pixel_step = 2;
-  bool normals = true;
+  bool normals = true, estimate_intrinsics = false;
   int threads = static_cast<int>(std::thread::hardware_concurrency());
   try {
     for (int i = 1; i < argc; ++i) {
@@ -105,6 +107,8 @@ int main(int argc, char** argv) {
         pixel_step = std::stoi(next());
       else if (a == "--no-normals")
         normals = false;
+      else if (a == "--estimate-intrinsics")
+        estimate_intrinsics = true;
       else if (a == "--picture")
         picture = next();
       else if (a == "--json")
@@ -203,6 +207,7 @@ int main(int argc, char** argv) {
       long3r::PredictionMetricsOptions po;
       po.pixel_step = pixel_step;
       po.normals = normals;
+      po.estimate_intrinsics = estimate_intrinsics;
       if (s == 0) po.picture_path = picture;
       const long3r::PredictionMetrics m = long3r::evaluate_prediction(pred, sample, po);
       const double fps =

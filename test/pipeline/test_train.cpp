@@ -476,6 +476,41 @@ TEST(ModelEval, GroundTruthPredictionScoresZero) {
   EXPECT_LT(m.rpe_trans_rmse, 1e-3);
 }
 
+TEST(ModelEval, EstimatedIntrinsicsFollowThePredictedFieldOfView) {
+  // The pipeline without a calibration takes the focal from frame 0's
+  // pointmap. A prediction that is exact up to a wider field of view (x and y
+  // squeezed by 0.8 in every camera's own frame, the true poses) is then
+  // posed exactly; the GT focal misplaces its cameras.
+  const long3r::SequenceSample s = held_out_sequence(6);
+  long3r::SequencePrediction p;
+  for (int64_t i = 0; i < 6; ++i) {
+    const Eigen::Isometry3d& T = s.T_C0_C[static_cast<std::size_t>(i)];
+    const Eigen::Matrix3f Rm = T.linear().cast<float>();
+    const at::Tensor R = at::from_blob(const_cast<float*>(Rm.data()), {3, 3}, at::kFloat)
+                             .t()  // Eigen is column-major
+                             .clone();
+    const at::Tensor t = at::tensor({static_cast<float>(T.translation().x()),
+                                     static_cast<float>(T.translation().y()),
+                                     static_cast<float>(T.translation().z())});
+    at::Tensor X_C = at::matmul(s.pts[i] - t, R);  // R^T (X - t), row vectors
+    X_C = X_C * at::tensor({0.8f, 0.8f, 1.0f});
+    p.pts.push_back((at::matmul(X_C, R.t()) + t).contiguous());
+    p.conf.push_back(at::full({96, 96}, 5.0f));
+  }
+  long3r::PredictionMetricsOptions o;
+  o.pixel_step = 3;
+  o.normals = false;
+  o.estimate_intrinsics = true;
+  const long3r::PredictionMetrics est = long3r::evaluate_prediction(p, s, o);
+  EXPECT_EQ(est.posed, 6);
+  EXPECT_LT(est.ate_rmse, 2e-3);
+  EXPECT_LT(est.rpe_rot_rmse_deg, 0.1);
+  o.estimate_intrinsics = false;
+  const long3r::PredictionMetrics gt = long3r::evaluate_prediction(p, s, o);
+  ASSERT_EQ(gt.posed, 6);
+  EXPECT_GT(gt.ate_rmse, 10.0 * std::max(est.ate_rmse, 1e-4));
+}
+
 TEST(ModelEval, ConstantDepthBaselineHasNoMotionAndTheGtSpreadAsAte) {
   const long3r::SequenceSample s = held_out_sequence(6);
   const long3r::SequencePrediction p = long3r::constant_depth_prediction(s, 2.0);

@@ -8,9 +8,11 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <stdexcept>
 
 #include "long3r/eval.hpp"
+#include "long3r/intrinsics.hpp"
 #include "long3r/pose.hpp"
 #include "long3r/train.hpp"
 
@@ -140,10 +142,17 @@ PredictionMetrics evaluate_prediction(const SequencePrediction& prediction,
   PoseTrajectory ref, est;
   PnpConfig pc;
   pc.conf_threshold = 0.0f;
+  std::optional<Intrinsics> estimated;
+  if (options.estimate_intrinsics) {
+    const at::Tensor p0 = prediction.pts[0].to(at::kFloat).contiguous();
+    const at::Tensor c0 = prediction.conf[0].to(at::kFloat).contiguous();
+    estimated = estimate_intrinsics(mat3(p0), mat1(c0));
+  }
   for (std::size_t i = 0; i < n; ++i) {
     const at::Tensor p = prediction.pts[i].to(at::kFloat).contiguous();
     const at::Tensor c = prediction.conf[i].to(at::kFloat).contiguous();
-    const PoseResult pr = estimate_pose_pnp(mat3(p), mat1(c), sample.intrinsics[i], pc);
+    const PoseResult pr =
+        estimate_pose_pnp(mat3(p), mat1(c), estimated ? *estimated : sample.intrinsics[i], pc);
     if (!pr.ok()) continue;
     ref.stamps.push_back(static_cast<double>(i));
     ref.poses.push_back(sample.T_C0_C[i]);
