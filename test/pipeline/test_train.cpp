@@ -441,6 +441,26 @@ TEST(TrainConfig, ShippedDefaultParses) {
   EXPECT_NO_THROW(long3r::resolve_model_config(c.model));
 }
 
+TEST(TrainConfig, EveryCheckedInTrainingConfigParses) {
+  // The shipped recipe's stages and the documented experiments: a field
+  // misspelt in any of them would only show when someone runs it.
+  int seen = 0;
+  for (const auto& e : fs::directory_iterator(fs::path(LONG3R_SOURCE_DIR) / "config")) {
+    const std::string name = e.path().filename().string();
+    if (name.rfind("train_", 0) != 0 || e.path().extension() != ".json") continue;
+    SCOPED_TRACE(name);
+    std::ifstream in(e.path());
+    std::stringstream ss;
+    ss << in.rdbuf();
+    long3r::TrainConfig c;
+    ASSERT_NO_THROW(c = long3r::parse_train_config(ss.str()));
+    EXPECT_FALSE(c.stages.empty());
+    EXPECT_NO_THROW(long3r::resolve_model_config(c.model));
+    ++seen;
+  }
+  EXPECT_GE(seen, 4);  // default, ship stage 1 and 2, the long-travel experiment
+}
+
 // ----------------------------------------------------- held-out evaluation
 
 namespace {
