@@ -315,7 +315,8 @@ struct PredictionMetricsOptions {
   std::string picture_path;
   double picture_max_error_m = 0.3;
   // Intrinsics of the PnP poses: the generator's (false) or, as the pipeline
-  // does without a calibration, estimated from frame 0's pointmap (true).
+  // does without a calibration, estimated from frame 0's pointmap (true; if
+  // that fails, no frame is posed).
   bool estimate_intrinsics = false;
 };
 struct PredictionMetrics {

@@ -5,6 +5,8 @@
 #include <torch/nn/module.h>
 #include <torch/optim/adamw.h>
 
+#include <opencv2/core.hpp>
+
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -13,6 +15,7 @@
 #include <string>
 
 #include "long3r/long3r_model.hpp"
+#include "long3r/pose.hpp"
 #include "long3r/safetensors.hpp"
 #include "long3r/train.hpp"
 
@@ -504,23 +507,25 @@ TEST(ModelEval, EstimatedIntrinsicsFollowThePredictedFieldOfView) {
   const long3r::SequenceSample s = held_out_sequence(6);
   long3r::SequencePrediction p;
   for (int64_t i = 0; i < 6; ++i) {
-    const Eigen::Isometry3d& T = s.T_C0_C[static_cast<std::size_t>(i)];
-    const Eigen::Matrix3f Rm = T.linear().cast<float>();
-    const at::Tensor R = at::from_blob(const_cast<float*>(Rm.data()), {3, 3}, at::kFloat)
-                             .t()  // Eigen is column-major
-                             .clone();
-    const at::Tensor t = at::tensor({static_cast<float>(T.translation().x()),
-                                     static_cast<float>(T.translation().y()),
-                                     static_cast<float>(T.translation().z())});
-    at::Tensor X_C = at::matmul(s.pts[i] - t, R);  // R^T (X - t), row vectors
-    X_C = X_C * at::tensor({0.8f, 0.8f, 1.0f});
-    p.pts.push_back((at::matmul(X_C, R.t()) + t).contiguous());
+    const Eigen::Isometry3d& T_C0_C = s.T_C0_C[static_cast<std::size_t>(i)];
+    const at::Tensor gt = s.pts[i].contiguous();
+    const cv::Mat points_C =
+        long3r::points_in_camera(cv::Mat(96, 96, CV_32FC3, gt.data_ptr<float>()), T_C0_C);
+    cv::Mat squeezed;
+    cv::multiply(points_C, cv::Scalar(0.8, 0.8, 1.0), squeezed);
+    const cv::Mat points_W = long3r::transform_points(squeezed, T_C0_C);
+    p.pts.push_back(
+        at::from_blob(const_cast<float*>(points_W.ptr<float>()), {96, 96, 3}, at::kFloat).clone());
     p.conf.push_back(at::full({96, 96}, 5.0f));
   }
   long3r::PredictionMetricsOptions o;
   o.pixel_step = 3;
   o.normals = false;
   o.estimate_intrinsics = true;
+  // No usable pixel in frame 0: no focal, so no poses (not the GT focal).
+  long3r::SequencePrediction blind = p;
+  blind.pts[0] = at::full({96, 96, 3}, std::nanf(""));
+  EXPECT_EQ(long3r::evaluate_prediction(blind, s, o).posed, 0);
   const long3r::PredictionMetrics est = long3r::evaluate_prediction(p, s, o);
   EXPECT_EQ(est.posed, 6);
   EXPECT_LT(est.ate_rmse, 2e-3);

@@ -143,14 +143,14 @@ PredictionMetrics evaluate_prediction(const SequencePrediction& prediction,
   PnpConfig pc;
   pc.conf_threshold = 0.0f;
   std::optional<Intrinsics> estimated;
-  if (options.estimate_intrinsics) {
-    const at::Tensor p0 = prediction.pts[0].to(at::kFloat).contiguous();
-    const at::Tensor c0 = prediction.conf[0].to(at::kFloat).contiguous();
-    estimated = estimate_intrinsics(mat3(p0), mat1(c0));
-  }
   for (std::size_t i = 0; i < n; ++i) {
     const at::Tensor p = prediction.pts[i].to(at::kFloat).contiguous();
     const at::Tensor c = prediction.conf[i].to(at::kFloat).contiguous();
+    if (options.estimate_intrinsics && i == 0) {
+      // As the pipeline: no focal from frame 0, no poses at all (never the GT's).
+      estimated = estimate_intrinsics(mat3(p), mat1(c));
+      if (!estimated) break;
+    }
     const PoseResult pr =
         estimate_pose_pnp(mat3(p), mat1(c), estimated ? *estimated : sample.intrinsics[i], pc);
     if (!pr.ok()) continue;
