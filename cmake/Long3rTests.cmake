@@ -4,43 +4,48 @@ enable_testing()
 find_package(GTest REQUIRED)
 include(GoogleTest)
 
-# test/core/test_*.cpp: one gtest binary for the core. Each gtest case becomes
-# its own ctest entry, so ctest's summary counts individual tests.
-file(GLOB LONG3R_CORE_TEST_SRCS CONFIGURE_DEPENDS test/core/test_*.cpp)
-if(LONG3R_CORE_TEST_SRCS)
-  add_executable(long3r_core_tests ${LONG3R_CORE_TEST_SRCS})
-  target_link_libraries(long3r_core_tests PRIVATE long3r_model GTest::gtest GTest::gtest_main)
-  target_include_directories(long3r_core_tests PRIVATE ${PROJECT_SOURCE_DIR}/src ${PROJECT_SOURCE_DIR}/test)
-  target_compile_options(long3r_core_tests PRIVATE ${LONG3R_WARNINGS})
-  target_compile_definitions(long3r_core_tests PRIVATE
+# Tests live by module (test/<module>/) beside test/support/, the fixtures
+# they share (tiny model configurations, synthetic frames and cameras). Two
+# gtest binaries, by what they need:
+#   long3r_model_tests  test/{io,model,memory}: libtorch only (builds wherever
+#                       the model does, CUDA libtorch included);
+#   long3r_cv_tests     test/{pipeline,dataset,eval,synth,train}: the OpenCV,
+#                       PCL and Eigen side.
+# Each gtest case becomes its own ctest entry, so ctest's summary counts
+# individual tests.
+function(long3r_add_gtest_binary name)
+  cmake_parse_arguments(ARG "" "" "FOLDERS;LIBS" ${ARGN})
+  set(srcs)
+  foreach(folder ${ARG_FOLDERS})
+    file(GLOB folder_srcs CONFIGURE_DEPENDS ${PROJECT_SOURCE_DIR}/test/${folder}/test_*.cpp)
+    list(APPEND srcs ${folder_srcs})
+  endforeach()
+  if(NOT srcs)
+    return()
+  endif()
+  add_executable(${name} ${srcs})
+  target_link_libraries(${name} PRIVATE ${ARG_LIBS} GTest::gtest GTest::gtest_main)
+  target_include_directories(${name} PRIVATE ${PROJECT_SOURCE_DIR}/src ${PROJECT_SOURCE_DIR}/test)
+  target_compile_options(${name} PRIVATE ${LONG3R_WARNINGS})
+  target_compile_definitions(${name} PRIVATE
     LONG3R_SHARED_DIR="${LONG3R_SHARED_DIR}"
     LONG3R_SOURCE_DIR="${PROJECT_SOURCE_DIR}"
     LONG3R_BINARY_DIR="${PROJECT_BINARY_DIR}")
-  gtest_discover_tests(long3r_core_tests
+  gtest_discover_tests(${name}
     WORKING_DIRECTORY ${PROJECT_BINARY_DIR}
     DISCOVERY_TIMEOUT 60
     PROPERTIES ENVIRONMENT "OMP_NUM_THREADS=2;OPENBLAS_NUM_THREADS=1")
+endfunction()
+
+long3r_add_gtest_binary(long3r_model_tests FOLDERS io model memory LIBS long3r_model)
+if(LONG3R_HAVE_CV)
+  long3r_add_gtest_binary(long3r_cv_tests
+    FOLDERS pipeline dataset eval synth train LIBS long3r_train)
 endif()
 
-# test/pipeline/test_*.cpp: gtests of the OpenCV/PCL side of the core.
-file(GLOB LONG3R_PIPELINE_TEST_SRCS CONFIGURE_DEPENDS test/pipeline/test_*.cpp)
-if(LONG3R_HAVE_CORE_CV AND LONG3R_PIPELINE_TEST_SRCS)
-  add_executable(long3r_pipeline_tests ${LONG3R_PIPELINE_TEST_SRCS})
-  target_link_libraries(long3r_pipeline_tests PRIVATE long3r_core GTest::gtest GTest::gtest_main)
-  target_include_directories(long3r_pipeline_tests PRIVATE ${PROJECT_SOURCE_DIR}/src ${PROJECT_SOURCE_DIR}/test)
-  target_compile_options(long3r_pipeline_tests PRIVATE ${LONG3R_WARNINGS})
-  target_compile_definitions(long3r_pipeline_tests PRIVATE
-    LONG3R_SHARED_DIR="${LONG3R_SHARED_DIR}"
-    LONG3R_SOURCE_DIR="${PROJECT_SOURCE_DIR}"
-    LONG3R_BINARY_DIR="${PROJECT_BINARY_DIR}")
-  gtest_discover_tests(long3r_pipeline_tests
-    WORKING_DIRECTORY ${PROJECT_BINARY_DIR}
-    DISCOVERY_TIMEOUT 60
-    PROPERTIES ENVIRONMENT "OMP_NUM_THREADS=2;OPENBLAS_NUM_THREADS=1")
-endif()
-
-# Extra test registrations owned by each area (golden parity, fuzz corpus, ...).
-file(GLOB LONG3R_TEST_CMAKE CONFIGURE_DEPENDS test/core/*.cmake test/pipeline/*.cmake)
+# Extra test registrations owned by each module (golden parity, fuzz corpus,
+# command-line drivers, ...).
+file(GLOB LONG3R_TEST_CMAKE CONFIGURE_DEPENDS test/*/*.cmake)
 foreach(f ${LONG3R_TEST_CMAKE})
   include(${f})
 endforeach()
@@ -71,7 +76,7 @@ if(LONG3R_WITH_ROS)
   set(LONG3R_REPLAY_DATA ${PROJECT_BINARY_DIR}/replay_data)
   add_test(NAME ros_replay_data
     COMMAND ${PROJECT_SOURCE_DIR}/test/ros/make_replay_data.sh
-            $<TARGET_FILE_DIR:long3r_synth> ${LONG3R_REPLAY_DATA})
+            $<TARGET_FILE_DIR:app_long3r_synth> ${LONG3R_REPLAY_DATA})
   set_tests_properties(ros_replay_data PROPERTIES FIXTURES_SETUP ros_replay_data)
   foreach(t replay_normal replay_bad smoke)
     set_tests_properties(_ctest_${PROJECT_NAME}_rostest_test_ros_${t}.test PROPERTIES

@@ -6,7 +6,7 @@ set -euo pipefail
 
 PACKAGES=(
   # toolchain
-  build-essential cmake pkg-config git clang-format
+  build-essential cmake pkg-config git clang-format ccache
   # ROS 1 from Debian (installed under /usr; no setup.bash needed)
   ros-base-dev catkin libroscpp-dev libnodelet-dev python3-nodelet
   libpcl-ros-dev libcv-bridge-dev libimage-transport-dev libtf2-ros-dev
@@ -21,7 +21,7 @@ PACKAGES=(
   image-transport-tools rviz libnodeletlib-tools rosbash rosout ros-core
   # core libraries
   libtorch-dev libopenblas0-pthread libopencv-dev libpcl-dev libeigen3-dev
-  nlohmann-json3-dev googletest libgtest-dev libgmock-dev
+  nlohmann-json3-dev libnanoflann-dev googletest libgtest-dev libgmock-dev
   # python side (checkpoint converter)
   python3-torch python3-numpy
   # scripts/rviz_snapshot.sh: rviz on a virtual display, PNG capture

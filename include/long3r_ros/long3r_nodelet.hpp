@@ -26,8 +26,8 @@
 #include <optional>
 #include <thread>
 
-#include "long3r/bounded_queue.hpp"
-#include "long3r/reconstruction.hpp"
+#include "long3r/pipeline/bounded_queue.hpp"
+#include "long3r/pipeline/reconstruction.hpp"
 #include "long3r_ros/SaveMap.h"
 #include "long3r_ros/params.hpp"
 #include "long3r_ros/stream_monitor.hpp"
@@ -77,7 +77,7 @@ class Long3rNodelet : public nodelet::Nodelet {
   StreamMonitor monitor_{0.0};
 
   std::mutex camera_info_mutex_;
-  std::optional<long3r::Intrinsics> calibration_;  // source resolution, from camera_info
+  std::optional<long3r::PinholeIntrinsics> calibration_;  // source resolution, from camera_info
 
   std::unique_ptr<long3r::BoundedQueue<sensor_msgs::ImageConstPtr>> queue_;
   std::thread worker_;

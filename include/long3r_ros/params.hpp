@@ -11,8 +11,8 @@
 #include <stdexcept>
 #include <string>
 
-#include "long3r/reconstruction.hpp"
-#include "long3r/threads.hpp"
+#include "long3r/model/threads.hpp"
+#include "long3r/pipeline/reconstruction.hpp"
 
 namespace long3r_ros {
 

@@ -12,8 +12,8 @@
 #include <sstream>
 #include <string>
 
-#include "long3r/eval.hpp"
-#include "long3r/tum_dataset.hpp"
+#include "long3r/dataset/tum_dataset.hpp"
+#include "long3r/eval/eval.hpp"
 
 namespace {
 

@@ -19,10 +19,10 @@
 #include <sstream>
 #include <string>
 
-#include "long3r/model_config.hpp"
-#include "long3r/reconstruction.hpp"
-#include "long3r/safetensors.hpp"
-#include "long3r/spann3r_model.hpp"
+#include "long3r/model/model_config.hpp"
+#include "long3r/model/safetensors.hpp"
+#include "long3r/model/spann3r_model.hpp"
+#include "long3r/pipeline/reconstruction.hpp"
 
 namespace {
 

@@ -14,12 +14,12 @@
 #include <thread>
 #include <vector>
 
-#include "long3r/checkpoint.hpp"
-#include "long3r/json.hpp"
-#include "long3r/model_config.hpp"
-#include "long3r/safetensors.hpp"
-#include "long3r/threads.hpp"
-#include "long3r/train.hpp"
+#include "long3r/io/json.hpp"
+#include "long3r/model/checkpoint.hpp"
+#include "long3r/model/model_config.hpp"
+#include "long3r/model/safetensors.hpp"
+#include "long3r/model/threads.hpp"
+#include "long3r/train/train.hpp"
 
 namespace {
 

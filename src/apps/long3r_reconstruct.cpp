@@ -19,9 +19,9 @@
 #include <string>
 #include <vector>
 
-#include "long3r/reconstruction.hpp"
-#include "long3r/threads.hpp"
-#include "long3r/tum_dataset.hpp"
+#include "long3r/dataset/tum_dataset.hpp"
+#include "long3r/model/threads.hpp"
+#include "long3r/pipeline/reconstruction.hpp"
 
 namespace fs = std::filesystem;
 using namespace long3r;
@@ -61,7 +61,7 @@ struct Source {
   cv::VideoCapture video;
   bool is_video = false;
   double fps = 30.0;
-  std::optional<Intrinsics> calib;
+  std::optional<PinholeIntrinsics> calib;
 };
 
 }  // namespace
@@ -71,7 +71,7 @@ int main(int argc, char** argv) {
   int stride = 1, img = 224, threads = 0, openblas_threads = ThreadConfig().openblas_threads;
   long max_frames = -1;
   ReconstructionConfig cfg;
-  std::optional<Intrinsics> calib;
+  std::optional<PinholeIntrinsics> calib;
   try {
     for (int i = 1; i < argc; ++i) {
       const std::string a = argv[i];
@@ -98,7 +98,7 @@ int main(int argc, char** argv) {
       } else if (a == "--openblas-threads") {
         openblas_threads = std::stoi(next());
       } else if (a == "--calib") {
-        Intrinsics k;
+        PinholeIntrinsics k;
         k.fx = std::stod(next());
         k.fy = std::stod(next());
         k.cx = std::stod(next());

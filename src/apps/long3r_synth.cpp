@@ -1,5 +1,5 @@
 // long3r_synth: renders a procedural indoor sequence with exact ground truth
-// into a TUM RGB-D style folder (see include/long3r/synth.hpp, docs/evaluation.md).
+// into a TUM RGB-D style folder (see include/long3r/synth/synth.hpp, docs/evaluation.md).
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -7,7 +7,7 @@
 #include <iostream>
 #include <string>
 
-#include "long3r/synth.hpp"
+#include "long3r/synth/synth.hpp"
 
 namespace {
 

@@ -8,8 +8,8 @@
 #include <string>
 #include <thread>
 
-#include "long3r/threads.hpp"
-#include "long3r/train.hpp"
+#include "long3r/model/threads.hpp"
+#include "long3r/train/train.hpp"
 
 namespace {
 

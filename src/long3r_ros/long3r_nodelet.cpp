@@ -111,7 +111,7 @@ void Long3rNodelet::cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& ms
     NODELET_WARN_THROTTLE(10.0, "ignoring camera_info without valid intrinsics");
     return;
   }
-  long3r::Intrinsics k;
+  long3r::PinholeIntrinsics k;
   k.fx = msg->K[0];
   k.fy = msg->K[4];
   k.cx = msg->K[2];
@@ -178,7 +178,7 @@ void Long3rNodelet::processFrame(const sensor_msgs::ImageConstPtr& msg) {
     std::lock_guard<std::mutex> lock(recon_mutex_);
     if (recon_->frames_pushed() == 0) {
       std::lock_guard<std::mutex> info_lock(camera_info_mutex_);
-      std::optional<long3r::Intrinsics> calib;
+      std::optional<long3r::PinholeIntrinsics> calib;
       if (calibration_ && calibration_->width == static_cast<int>(msg->width) &&
           calibration_->height == static_cast<int>(msg->height)) {
         calib = calibration_;

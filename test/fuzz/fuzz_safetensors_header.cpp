@@ -1,7 +1,7 @@
 // Fuzz entry point for the torch-free checkpoint I/O: the safetensors header
 // validator and the JSON parser. Built with libFuzzer under clang
 // (cmake/Long3rFuzzers.cmake) and, with test/fuzz/replay_main.cpp, as a plain
-// corpus-replay test under any compiler (test/core/fuzz.cmake).
+// corpus-replay test under any compiler (test/fuzz/fuzz.cmake).
 //
 // Expected rejections (CheckpointError, json::Error) are fine; anything else
 // escaping, a sanitizer report, or a broken invariant (__builtin_trap) is a
@@ -10,8 +10,8 @@
 #include <cstdint>
 #include <string>
 
-#include "long3r/json.hpp"
-#include "long3r/safetensors_header.hpp"
+#include "long3r/io/json.hpp"
+#include "long3r/io/safetensors_header.hpp"
 
 namespace {
 

@@ -1,4 +1,4 @@
-// Intrinsics: calibration through resize + crop, and the Weiszfeld focal
+// PinholeIntrinsics: calibration through resize + crop, and the Weiszfeld focal
 // estimate from a pointmap.
 #include <gtest/gtest.h>
 
@@ -8,7 +8,7 @@
 #include <limits>
 #include <stdexcept>
 
-#include "long3r/intrinsics.hpp"
+#include "long3r/pipeline/intrinsics.hpp"
 
 namespace long3r {
 namespace {
@@ -31,8 +31,8 @@ void make_pointmap(int w, int h, double f, uint64_t seed, cv::Mat& pts, cv::Mat&
   }
 }
 
-Intrinsics source_camera() {
-  Intrinsics k;
+PinholeIntrinsics source_camera() {
+  PinholeIntrinsics k;
   k.fx = 525.0;
   k.fy = 523.5;
   k.cx = 319.5;
@@ -42,15 +42,15 @@ Intrinsics source_camera() {
   return k;
 }
 
-TEST(Intrinsics, CalibrationThroughResizeAndCropIsExact) {
-  const Intrinsics src = source_camera();
+TEST(PinholeIntrinsics, CalibrationThroughResizeAndCropIsExact) {
+  const PinholeIntrinsics src = source_camera();
   cv::RNG rng(7);
   for (const auto& [tw, th] : {std::pair{224, 224}, {512, 384}, {320, 160}, {160, 320}}) {
     PreprocessConfig config;
     config.width = tw;
     config.height = th;
     const ResizeCropPlan plan = plan_resize_crop(src.width, src.height, config);
-    const Intrinsics k = scale_intrinsics(src, plan.model_to_source, tw, th);
+    const PinholeIntrinsics k = scale_intrinsics(src, plan.model_to_source, tw, th);
     EXPECT_EQ(k.width, tw);
     EXPECT_EQ(k.height, th);
     for (int i = 0; i < 50; ++i) {
@@ -64,10 +64,10 @@ TEST(Intrinsics, CalibrationThroughResizeAndCropIsExact) {
   }
 }
 
-TEST(Intrinsics, ScaledCalibrationMatchesThePreprocessedImage) {
+TEST(PinholeIntrinsics, ScaledCalibrationMatchesThePreprocessedImage) {
   // A blob drawn where a 3D point projects in the source image lands where the
   // scaled intrinsics project it in the model image.
-  const Intrinsics src = source_camera();
+  const PinholeIntrinsics src = source_camera();
   const Eigen::Vector3d X(0.31, -0.17, 2.0);
   const Eigen::Vector2d s = src.project(X);
   cv::Mat img(src.height, src.width, CV_8UC3);
@@ -96,18 +96,18 @@ TEST(Intrinsics, ScaledCalibrationMatchesThePreprocessedImage) {
   EXPECT_NEAR(sy / sw, expected.y(), 0.02);
 }
 
-TEST(Intrinsics, CalibrationOfAnotherSizeIsRejected) {
-  Intrinsics k = source_camera();
+TEST(PinholeIntrinsics, CalibrationOfAnotherSizeIsRejected) {
+  PinholeIntrinsics k = source_camera();
   k.width = 1280;
   k.height = 960;
   const PreprocessedImage pre =
       preprocess_image(cv::Mat(480, 640, CV_8UC3, cv::Scalar::all(9)), ImageEncoding::kRgb8);
   EXPECT_THROW(resolve_intrinsics(k, pre, cv::Mat(), cv::Mat()), std::invalid_argument);
-  Intrinsics bad;
+  PinholeIntrinsics bad;
   EXPECT_THROW(scale_intrinsics(bad, PixelMapping{}, 224, 224), std::invalid_argument);
 }
 
-TEST(Intrinsics, WeiszfeldRecoversAKnownFocal) {
+TEST(PinholeIntrinsics, WeiszfeldRecoversAKnownFocal) {
   for (const auto& [w, h, f] :
        {std::tuple{224, 224, 250.0}, {512, 384, 400.0}, {160, 224, 130.0}}) {
     cv::Mat pts, conf;
@@ -115,7 +115,7 @@ TEST(Intrinsics, WeiszfeldRecoversAKnownFocal) {
     const std::optional<double> est = estimate_focal_weiszfeld(pts, conf);
     ASSERT_TRUE(est.has_value());
     EXPECT_NEAR(*est, f, 1e-7 * f) << w << "x" << h;
-    const std::optional<Intrinsics> k = estimate_intrinsics(pts, conf);
+    const std::optional<PinholeIntrinsics> k = estimate_intrinsics(pts, conf);
     ASSERT_TRUE(k.has_value());
     EXPECT_EQ(k->fx, *est);
     EXPECT_EQ(k->fy, *est);
@@ -128,7 +128,7 @@ TEST(Intrinsics, WeiszfeldRecoversAKnownFocal) {
 
 // Gross outliers pull the L2 start away; the Weiszfeld iterations (an L1
 // fit) bring the focal back close to the truth.
-TEST(Intrinsics, WeiszfeldIsRobustToOutliers) {
+TEST(PinholeIntrinsics, WeiszfeldIsRobustToOutliers) {
   const double f = 250.0;
   cv::Mat pts, conf;
   make_pointmap(224, 224, f, 12, pts, conf);
@@ -157,7 +157,7 @@ TEST(Intrinsics, WeiszfeldIsRobustToOutliers) {
   EXPECT_NEAR(*estimate_focal_weiszfeld(pts, conf, confident), f, 1e-7 * f);
 }
 
-TEST(Intrinsics, FocalIsClippedAndNeedsPoints) {
+TEST(PinholeIntrinsics, FocalIsClippedAndNeedsPoints) {
   cv::Mat pts, conf;
   make_pointmap(224, 224, 5000.0, 14, pts, conf);  // very narrow field of view
   const double base = 224 / (2.0 * std::tan(M_PI / 6.0));
@@ -172,7 +172,7 @@ TEST(Intrinsics, FocalIsClippedAndNeedsPoints) {
   EXPECT_THROW(estimate_focal_weiszfeld(cv::Mat(4, 4, CV_32FC1), cv::Mat()), std::invalid_argument);
 }
 
-TEST(Intrinsics, ResolveWithoutCalibrationEstimates) {
+TEST(PinholeIntrinsics, ResolveWithoutCalibrationEstimates) {
   cv::Mat pts, conf;
   make_pointmap(224, 224, 180.0, 16, pts, conf);
   const PreprocessedImage pre =

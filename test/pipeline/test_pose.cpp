@@ -7,13 +7,13 @@
 #include <limits>
 #include <stdexcept>
 
-#include "long3r/pose.hpp"
+#include "long3r/pipeline/pose.hpp"
 
 namespace long3r {
 namespace {
 
-Intrinsics model_camera() {
-  Intrinsics k;
+PinholeIntrinsics model_camera() {
+  PinholeIntrinsics k;
   k.fx = 200.0;
   k.fy = 201.0;
   k.cx = 111.5;
@@ -32,7 +32,7 @@ Eigen::Isometry3d known_pose() {
 
 // World pointmap seen by camera T_W_C: a smooth bumpy surface 1.5-4 m away,
 // so each pixel's world point projects exactly onto that pixel's centre.
-void make_scene(const Intrinsics& k, const Eigen::Isometry3d& T_W_C, cv::Mat& pts_W,
+void make_scene(const PinholeIntrinsics& k, const Eigen::Isometry3d& T_W_C, cv::Mat& pts_W,
                 cv::Mat& conf) {
   pts_W.create(k.height, k.width, CV_32FC3);
   conf.create(k.height, k.width, CV_32FC1);
@@ -58,7 +58,7 @@ void expect_pose_near(const Eigen::Isometry3d& est, const Eigen::Isometry3d& tru
 }
 
 TEST(Pose, PnpRecoversAKnownPose) {
-  const Intrinsics k = model_camera();
+  const PinholeIntrinsics k = model_camera();
   const Eigen::Isometry3d T = known_pose();
   cv::Mat pts, conf;
   make_scene(k, T, pts, conf);
@@ -73,7 +73,7 @@ TEST(Pose, PnpRecoversAKnownPose) {
 }
 
 TEST(Pose, FrameZeroIsTheIdentity) {
-  const Intrinsics k = model_camera();
+  const PinholeIntrinsics k = model_camera();
   cv::Mat pts, conf;
   make_scene(k, Eigen::Isometry3d::Identity(), pts, conf);
   const PoseResult r = estimate_pose_pnp(pts, conf, k);
@@ -82,7 +82,7 @@ TEST(Pose, FrameZeroIsTheIdentity) {
 }
 
 TEST(Pose, OutliersAndLowConfidenceAreRejected) {
-  const Intrinsics k = model_camera();
+  const PinholeIntrinsics k = model_camera();
   const Eigen::Isometry3d T = known_pose();
   cv::Mat pts, conf;
   make_scene(k, T, pts, conf);
@@ -113,7 +113,7 @@ TEST(Pose, OutliersAndLowConfidenceAreRejected) {
 }
 
 TEST(Pose, SubsamplingRespectsTheCap) {
-  const Intrinsics k = model_camera();
+  const PinholeIntrinsics k = model_camera();
   cv::Mat pts, conf;
   make_scene(k, known_pose(), pts, conf);
   PnpConfig config;
@@ -125,7 +125,7 @@ TEST(Pose, SubsamplingRespectsTheCap) {
 }
 
 TEST(Pose, TrackerKeepsTheLastGoodPoseOnFailure) {
-  const Intrinsics k = model_camera();
+  const PinholeIntrinsics k = model_camera();
   const Eigen::Isometry3d T = known_pose();
   cv::Mat pts, conf;
   make_scene(k, T, pts, conf);
@@ -167,18 +167,18 @@ TEST(Pose, TrackerKeepsTheLastGoodPoseOnFailure) {
 }
 
 TEST(Pose, BadInputsThrow) {
-  const Intrinsics k = model_camera();
+  const PinholeIntrinsics k = model_camera();
   cv::Mat pts, conf;
   make_scene(k, known_pose(), pts, conf);
-  Intrinsics other = k;
+  PinholeIntrinsics other = k;
   other.width = 320;
   EXPECT_THROW(estimate_pose_pnp(pts, conf, other), std::invalid_argument);
   EXPECT_THROW(estimate_pose_pnp(pts, cv::Mat(), k), std::invalid_argument);
-  EXPECT_THROW(estimate_pose_pnp(pts, conf, Intrinsics{}), std::invalid_argument);
+  EXPECT_THROW(estimate_pose_pnp(pts, conf, PinholeIntrinsics{}), std::invalid_argument);
 }
 
 TEST(Pose, PointsInCameraFrame) {
-  const Intrinsics k = model_camera();
+  const PinholeIntrinsics k = model_camera();
   const Eigen::Isometry3d T = known_pose();
   cv::Mat pts, conf;
   make_scene(k, T, pts, conf);

@@ -8,7 +8,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "long3r/preprocess.hpp"
+#include "long3r/pipeline/preprocess.hpp"
 
 namespace long3r {
 namespace {

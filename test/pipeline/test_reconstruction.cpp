@@ -9,11 +9,11 @@
 #include <deque>
 #include <opencv2/imgproc.hpp>
 
-#include "long3r/model_config.hpp"
-#include "long3r/reconstruction.hpp"
-#include "long3r/safetensors_header.hpp"
-#include "long3r/spann3r_model.hpp"
-#include "long3r/synth.hpp"
+#include "long3r/io/safetensors_header.hpp"
+#include "long3r/model/model_config.hpp"
+#include "long3r/model/spann3r_model.hpp"
+#include "long3r/pipeline/reconstruction.hpp"
+#include "long3r/synth/synth.hpp"
 
 namespace long3r {
 namespace {

@@ -25,7 +25,7 @@
 #include <string>
 #include <vector>
 
-#include "long3r/voxel_map.hpp"
+#include "long3r/pipeline/voxel_map.hpp"
 
 namespace long3r {
 namespace {

@@ -1,4 +1,4 @@
-#include "long3r/tum_dataset.hpp"
+#include "long3r/dataset/tum_dataset.hpp"
 
 #include <opencv2/imgcodecs.hpp>
 
@@ -49,16 +49,6 @@ std::string join(const std::string& root, const std::string& rel) {
 }
 
 }  // namespace
-
-PinholeIntrinsics PinholeIntrinsics::from_hfov(int width, int height, double hfov_deg) {
-  PinholeIntrinsics k;
-  k.width = width;
-  k.height = height;
-  k.fx = k.fy = 0.5 * width / std::tan(0.5 * hfov_deg * M_PI / 180.0);
-  k.cx = 0.5 * (width - 1);
-  k.cy = 0.5 * (height - 1);
-  return k;
-}
 
 std::vector<Eigen::Vector3d> PoseTrajectory::positions() const {
   std::vector<Eigen::Vector3d> out;

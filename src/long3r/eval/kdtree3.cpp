@@ -1,4 +1,4 @@
-#include "long3r/kdtree3.hpp"
+#include "long3r/eval/kdtree3.hpp"
 
 #include <algorithm>
 #include <limits>

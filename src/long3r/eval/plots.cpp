@@ -6,7 +6,7 @@
 #include <cstdio>
 #include <optional>
 
-#include "long3r/eval.hpp"
+#include "long3r/eval/eval.hpp"
 
 namespace long3r {
 

@@ -7,7 +7,7 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "long3r/eval.hpp"
+#include "long3r/eval/eval.hpp"
 
 namespace long3r {
 

@@ -6,9 +6,9 @@
 #include <stdexcept>
 #include <unordered_map>
 
-#include "long3r/eval.hpp"
+#include "long3r/eval/eval.hpp"
+#include "long3r/eval/kdtree3.hpp"
 #include "long3r/eval/parallel.hpp"
-#include "long3r/kdtree3.hpp"
 
 namespace long3r {
 

@@ -3,7 +3,7 @@
 #include <limits>
 #include <stdexcept>
 
-#include "long3r/eval.hpp"
+#include "long3r/eval/eval.hpp"
 
 namespace long3r {
 

@@ -1,4 +1,4 @@
-#include "long3r/umeyama.hpp"
+#include "long3r/eval/umeyama.hpp"
 
 #include <Eigen/SVD>
 

@@ -1,4 +1,4 @@
-#include "long3r/safetensors_header.hpp"
+#include "long3r/io/safetensors_header.hpp"
 
 namespace long3r {
 

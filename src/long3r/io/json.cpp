@@ -1,5 +1,5 @@
-// Strict JSON parser/writer; see include/long3r/json.hpp.
-#include "long3r/json.hpp"
+// Strict JSON parser/writer; see include/long3r/io/json.hpp.
+#include "long3r/io/json.hpp"
 
 #include <algorithm>
 #include <charconv>

@@ -1,4 +1,4 @@
-// safetensors header validation; see include/long3r/safetensors_header.hpp.
+// safetensors header validation; see include/long3r/io/safetensors_header.hpp.
 //
 // Rules beyond the format's own: only F32/F16/BF16/I64 tensors, at most
 // kMaxTensorRank dimensions, every field present and no unknown ones,
@@ -7,8 +7,8 @@
 #include <algorithm>
 #include <set>
 
-#include "long3r/json.hpp"
-#include "long3r/safetensors_header.hpp"
+#include "long3r/io/json.hpp"
+#include "long3r/io/safetensors_header.hpp"
 
 namespace long3r {
 

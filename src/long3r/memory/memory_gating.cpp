@@ -1,5 +1,5 @@
-// Memory gating and read-out; see include/long3r/memory_gating.hpp.
-#include "long3r/memory_gating.hpp"
+// Memory gating and read-out; see include/long3r/memory/memory_gating.hpp.
+#include "long3r/memory/memory_gating.hpp"
 
 #include <ATen/ATen.h>
 

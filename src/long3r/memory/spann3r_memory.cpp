@@ -1,5 +1,5 @@
-// Spann3R's spatial memory; see include/long3r/spann3r_memory.hpp.
-#include "long3r/spann3r_memory.hpp"
+// Spann3R's spatial memory; see include/long3r/memory/spann3r_memory.hpp.
+#include "long3r/memory/spann3r_memory.hpp"
 
 #include <ATen/ATen.h>
 

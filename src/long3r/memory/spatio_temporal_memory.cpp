@@ -1,5 +1,5 @@
-// 3D spatio-temporal memory; see include/long3r/spatio_temporal_memory.hpp.
-#include "long3r/spatio_temporal_memory.hpp"
+// 3D spatio-temporal memory; see include/long3r/memory/spatio_temporal_memory.hpp.
+#include "long3r/memory/spatio_temporal_memory.hpp"
 
 #include <ATen/ATen.h>
 

@@ -1,14 +1,14 @@
-// DUSt3R pair inference; see include/long3r/dust3r_model.hpp.
-#include "long3r/dust3r_model.hpp"
+// DUSt3R pair inference; see include/long3r/model/dust3r_model.hpp.
+#include "long3r/model/dust3r_model.hpp"
 
 #include <ATen/ATen.h>
 #include <c10/core/InferenceMode.h>
 
 #include <stdexcept>
 
-#include "long3r/checkpoint.hpp"
+#include "long3r/model/checkpoint.hpp"
 #include "long3r/model/modules.hpp"
-#include "long3r/safetensors.hpp"
+#include "long3r/model/safetensors.hpp"
 
 namespace long3r {
 

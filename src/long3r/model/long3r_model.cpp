@@ -1,6 +1,6 @@
 // LONG3R streaming inference and training forward; see
-// include/long3r/long3r_model.hpp.
-#include "long3r/long3r_model.hpp"
+// include/long3r/model/long3r_model.hpp.
+#include "long3r/model/long3r_model.hpp"
 
 #include <ATen/ATen.h>
 #include <c10/core/InferenceMode.h>
@@ -10,9 +10,9 @@
 #include <cmath>
 #include <stdexcept>
 
-#include "long3r/checkpoint.hpp"
+#include "long3r/model/checkpoint.hpp"
 #include "long3r/model/long3r_modules.hpp"
-#include "long3r/safetensors.hpp"
+#include "long3r/model/safetensors.hpp"
 
 namespace long3r {
 

@@ -1,13 +1,13 @@
 // Parsing and validation of the model configuration; see
-// include/long3r/model_config.hpp.
-#include "long3r/model_config.hpp"
+// include/long3r/model/model_config.hpp.
+#include "long3r/model/model_config.hpp"
 
 #include <cmath>
 #include <cstdlib>
 #include <set>
 #include <sstream>
 
-#include "long3r/json.hpp"
+#include "long3r/io/json.hpp"
 
 namespace long3r {
 

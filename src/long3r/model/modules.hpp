@@ -24,8 +24,8 @@
 #include <tuple>
 #include <vector>
 
-#include "long3r/model_config.hpp"
-#include "long3r/model_trace.hpp"
+#include "long3r/model/model_config.hpp"
+#include "long3r/model/model_trace.hpp"
 
 namespace long3r {
 namespace model {

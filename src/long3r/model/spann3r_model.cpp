@@ -1,5 +1,5 @@
-// Spann3R streaming inference; see include/long3r/spann3r_model.hpp.
-#include "long3r/spann3r_model.hpp"
+// Spann3R streaming inference; see include/long3r/model/spann3r_model.hpp.
+#include "long3r/model/spann3r_model.hpp"
 
 #include <ATen/ATen.h>
 #include <c10/core/InferenceMode.h>
@@ -7,9 +7,9 @@
 #include <chrono>
 #include <stdexcept>
 
-#include "long3r/checkpoint.hpp"
+#include "long3r/model/checkpoint.hpp"
 #include "long3r/model/modules.hpp"
-#include "long3r/safetensors.hpp"
+#include "long3r/model/safetensors.hpp"
 
 namespace long3r {
 

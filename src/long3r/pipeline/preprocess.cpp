@@ -1,4 +1,4 @@
-#include "long3r/preprocess.hpp"
+#include "long3r/pipeline/preprocess.hpp"
 
 #include <opencv2/imgproc.hpp>
 

@@ -1,5 +1,5 @@
 // Streaming reconstruction pipeline (see reconstruction.hpp).
-#include "long3r/reconstruction.hpp"
+#include "long3r/pipeline/reconstruction.hpp"
 
 #include <ATen/ATen.h>
 #include <c10/core/InferenceMode.h>
@@ -9,10 +9,10 @@
 #include <fstream>
 #include <stdexcept>
 
-#include "long3r/long3r_model.hpp"
-#include "long3r/model_config.hpp"
-#include "long3r/safetensors_header.hpp"
-#include "long3r/spann3r_model.hpp"
+#include "long3r/io/safetensors_header.hpp"
+#include "long3r/model/long3r_model.hpp"
+#include "long3r/model/model_config.hpp"
+#include "long3r/model/spann3r_model.hpp"
 
 namespace long3r {
 namespace {
@@ -129,7 +129,7 @@ Reconstruction::Reconstruction(std::unique_ptr<StreamingModel> model,
 
 Reconstruction::~Reconstruction() = default;
 
-void Reconstruction::set_calibration(const std::optional<Intrinsics>& calib) {
+void Reconstruction::set_calibration(const std::optional<PinholeIntrinsics>& calib) {
   if (calib && !calib->valid()) {
     throw std::invalid_argument("set_calibration: fx and fy must be positive");
   }
@@ -240,7 +240,7 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
   r.memory.voxel_size = out.stats.voxel_size;
   r.memory.write_skipped = out.stats.memory_write_skipped;
 
-  // Intrinsics: calibration at any frame; an estimate only from frame 0,
+  // PinholeIntrinsics: calibration at any frame; an estimate only from frame 0,
   // whose pointmap is in its own camera frame.
   double t = now_ms();
   if (!intrinsics_ && !intrinsics_failed_ && (calibration_ || p.index == 0)) {

@@ -3,7 +3,7 @@
 #include <cmath>
 #include <limits>
 
-#include "long3r/synth.hpp"
+#include "long3r/synth/synth.hpp"
 
 namespace long3r::synth {
 

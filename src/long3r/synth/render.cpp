@@ -12,8 +12,8 @@
 #include <stdexcept>
 #include <thread>
 
-#include "long3r/synth.hpp"
-#include "long3r/tum_dataset.hpp"
+#include "long3r/dataset/tum_dataset.hpp"
+#include "long3r/synth/synth.hpp"
 
 namespace long3r::synth {
 

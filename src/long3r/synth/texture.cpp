@@ -8,7 +8,7 @@
 #include <cmath>
 #include <cstdint>
 
-#include "long3r/synth.hpp"
+#include "long3r/synth/synth.hpp"
 
 namespace long3r::synth {
 

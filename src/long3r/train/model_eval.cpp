@@ -11,10 +11,10 @@
 #include <optional>
 #include <stdexcept>
 
-#include "long3r/eval.hpp"
-#include "long3r/intrinsics.hpp"
-#include "long3r/pose.hpp"
-#include "long3r/train.hpp"
+#include "long3r/eval/eval.hpp"
+#include "long3r/pipeline/intrinsics.hpp"
+#include "long3r/pipeline/pose.hpp"
+#include "long3r/train/train.hpp"
 
 namespace long3r {
 
@@ -142,7 +142,7 @@ PredictionMetrics evaluate_prediction(const SequencePrediction& prediction,
   PoseTrajectory ref, est;
   PnpConfig pc;
   pc.conf_threshold = 0.0f;
-  std::optional<Intrinsics> estimated;
+  std::optional<PinholeIntrinsics> estimated;
   for (std::size_t i = 0; i < n; ++i) {
     const at::Tensor p = prediction.pts[i].to(at::kFloat).contiguous();
     const at::Tensor c = prediction.conf[i].to(at::kFloat).contiguous();

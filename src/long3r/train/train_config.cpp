@@ -7,9 +7,9 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "long3r/json.hpp"
-#include "long3r/model_config.hpp"
-#include "long3r/train.hpp"
+#include "long3r/io/json.hpp"
+#include "long3r/model/model_config.hpp"
+#include "long3r/train/train.hpp"
 
 namespace long3r {
 

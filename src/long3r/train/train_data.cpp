@@ -8,7 +8,7 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "long3r/train.hpp"
+#include "long3r/train/train.hpp"
 
 namespace long3r {
 

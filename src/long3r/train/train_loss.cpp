@@ -9,10 +9,10 @@
 #include <limits>
 #include <stdexcept>
 
-#include "long3r/eval.hpp"
-#include "long3r/pose.hpp"
-#include "long3r/safetensors.hpp"
-#include "long3r/train.hpp"
+#include "long3r/eval/eval.hpp"
+#include "long3r/model/safetensors.hpp"
+#include "long3r/pipeline/pose.hpp"
+#include "long3r/train/train.hpp"
 
 namespace long3r {
 

@@ -23,11 +23,11 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "long3r/eval.hpp"
-#include "long3r/json.hpp"
-#include "long3r/model_config.hpp"
-#include "long3r/safetensors.hpp"
-#include "long3r/train.hpp"
+#include "long3r/eval/eval.hpp"
+#include "long3r/io/json.hpp"
+#include "long3r/model/model_config.hpp"
+#include "long3r/model/safetensors.hpp"
+#include "long3r/train/train.hpp"
 
 namespace long3r {
 

@@ -1,0 +1,32 @@
+// safetensors checkpoints: validated reading and atomic writing.
+//
+// The header parser is torch-free (see safetensors_header.hpp); this file adds
+// the tensor side. Every error is a long3r::CheckpointError whose message names
+// the file and, where there is one, the tensor.
+#pragma once
+
+#include <ATen/core/Tensor.h>
+
+#include <map>
+#include <string>
+
+#include "long3r/io/safetensors_header.hpp"
+
+namespace long3r {
+
+// All tensors of a file (CPU, contiguous, in their stored dtype: F32, F16,
+// BF16 or I64) and its string metadata.
+struct TensorFile {
+  std::map<std::string, at::Tensor> tensors;
+  std::map<std::string, std::string> metadata;
+};
+
+// Reads and validates a whole file. Throws CheckpointError on any problem.
+TensorFile load_safetensors(const std::string& path);
+
+// Writes tensors (any device; stored as their dtype, C-contiguous) and metadata
+// to path atomically: a temporary file beside it, then rename.
+void save_safetensors(const std::string& path, const std::map<std::string, at::Tensor>& tensors,
+                      const std::map<std::string, std::string>& metadata = {});
+
+}  // namespace long3r

@@ -1,0 +1,88 @@
+// Spann3R online reconstruction (the official Spann3R eval-mode forward) as a
+// StreamingModel: DUSt3R's encoder, decoder and heads plus Spann3R's memory
+// key/value encoders and SpatialMemory (long3r::Spann3rMemory).
+//
+// Step k runs when frame k+1 arrives (push) and returns frame k:
+//   step 0 encodes frames 0 and 1 in one batch; later steps reuse frame k's
+//   features from the previous step and encode frame k+1;
+//   feat_fuse = frame k's features at step 0, else memory.read(feat_k2 of step
+//   k-1) (residual read-out);
+//   dec1, dec2 = decoder(feat_fuse, feat of frame k+1);
+//   feat_k1 = attn_head_1(cat(feat_k, dec1[-1])), feat_k2 = attn_head_2(cat(feat_{k+1}, dec2[-1]));
+//   frame k = head1(dec1); value = value encoder of frame k's point map;
+//   memory.add_mem_check(feat_k1, value + feat_k1).
+// flush() returns the last frame from head 2 of the last step. All point maps
+// are in the frame of camera 0. Portrait frames with landscape_only (the
+// official Spann3R setting) give maps of shape [B, W, H, .], as the official
+// model does.
+#pragma once
+
+#include <ATen/core/Tensor.h>
+
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "long3r/memory/spann3r_memory.hpp"
+#include "long3r/model/model_config.hpp"
+#include "long3r/model/model_trace.hpp"
+#include "long3r/model/streaming.hpp"
+
+namespace torch {
+namespace nn {
+class Module;
+}  // namespace nn
+}  // namespace torch
+
+namespace long3r {
+
+class Spann3rModel : public StreamingModel {
+ public:
+  // config.kind must be ModelKind::kSpann3r; memory settings come from
+  // config.spatial_memory. Parameters start default-initialised.
+  explicit Spann3rModel(const ModelConfig& config);
+  ~Spann3rModel() override;
+
+  // Configuration from the file's metadata "config", then every tensor strictly.
+  static std::unique_ptr<Spann3rModel> from_file(const std::string& path);
+  void load_weights(const TensorMap& tensors, const std::string& source_name,
+                    const std::string& strip_prefix = "");
+
+  const ModelConfig& config() const;
+  // Moves the weights; resets the stream.
+  void to(const at::Device& device);
+  at::Device device() const;
+
+  // StreamingModel. image: [B, 3, H, W] float, (rgb - 0.5) / 0.5, H and W
+  // multiples of the patch size, the same size for the whole stream. flush()
+  // after a single frame returns nothing (Spann3R needs a pair).
+  std::optional<StreamOutput> push(const at::Tensor& image) override;
+  std::optional<StreamOutput> flush() override;
+  void reset() override;
+  int64_t frames_pushed() const override;
+  std::string variant() const override { return "spann3r"; }
+
+  // Records, per step k, under "step{k}.": the encoder intermediates of the
+  // newly encoded frames (img1.* at step 0, img2.*), dec1.* / dec2.*, head1.*,
+  // feat_fuse (k >= 1), feat_k1, feat_k2, cur_v, pts3d, conf; flush() records
+  // "flush.head2.*", "flush.pts3d", "flush.conf". While a trace is set the
+  // memory keeps each read's softmax weights (memory().last_read().attention).
+  void set_trace(const Trace& trace);
+
+  // The memory after the last push (that step's read and update done); empty
+  // after flush() or reset(), which end the stream.
+  const Spann3rMemory& memory() const;
+
+  // The module tree (names as in the official state_dict: dust3r.*,
+  // value_encoder.*, attn_head_1.*, norm_q.*, ...).
+  torch::nn::Module& module();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// Spann3rMemory settings of a Spann3R configuration.
+Spann3rMemoryConfig spann3r_memory_config(const ModelConfig& config);
+
+}  // namespace long3r

@@ -1,0 +1,61 @@
+// Everything the streaming pipeline produces for one frame, for the CLI, the
+// ROS layer and logs.
+//
+// Frames: points_W in the world frame W (camera 0 of the stream); points_C in
+// the camera optical frame of this frame (x right, y down, z forward),
+// points_C = T_W_C^-1 points_W. All images are at model resolution.
+#pragma once
+
+#include <opencv2/core/mat.hpp>
+
+#include <cstddef>
+#include <cstdint>
+
+#include "long3r/pipeline/intrinsics.hpp"
+#include "long3r/pipeline/pose.hpp"
+
+namespace long3r {
+
+// Wall-clock time per stage, milliseconds (0 when a stage did not run).
+struct StageTimings {
+  double preprocess_ms = 0.0;  // decode/convert, resize, crop, normalise
+  double model_ms = 0.0;       // the whole model step (sum of the next three and overhead)
+  double encode_ms = 0.0;      // model: encoder
+  double decode_ms = 0.0;      // model: memory read + decoder + heads
+  double memory_ms = 0.0;      // model: memory write and pruning
+  double intrinsics_ms = 0.0;  // focal estimation (frame 0 without calibration)
+  double pose_ms = 0.0;        // PnP-RANSAC + refinement
+  double map_ms = 0.0;         // voxel map fusion (and eviction)
+  double total_ms = 0.0;       // frame in to result out
+};
+
+// Memory state after the model step, as the model reports it.
+struct MemoryStats {
+  std::int64_t short_tokens = 0;      // short-term / working memory tokens
+  std::int64_t long_tokens = 0;       // long-term memory tokens
+  std::int64_t relevant_tokens = -1;  // after memory gating; -1 = no gating in this variant
+  double voxel_size = 0.0;            // memory voxel size (pointmap units); 0 = not applicable
+  bool write_skipped = false;         // the memory write of this step was skipped
+};
+
+struct FrameResult {
+  std::int64_t frame_index = 0;   // 0-based within the stream
+  double stamp = 0.0;             // seconds, the input image's time stamp
+  bool from_coarse_head = false;  // the stream's last frame (flushed)
+
+  cv::Mat points_W;  // CV_32FC3 [H, W], world frame
+  cv::Mat points_C;  // CV_32FC3 [H, W], camera frame (empty when the pose failed)
+  cv::Mat conf;      // CV_32FC1 [H, W], model confidence (>= 1)
+  cv::Mat rgb;       // CV_8UC3 [H, W], RGB order: the model input's colours
+
+  PoseResult pose;               // T_W_C, PnP status, message, inliers
+  PinholeIntrinsics intrinsics;  // at model resolution
+  IntrinsicsSource intrinsics_source = IntrinsicsSource::kCalibration;
+  bool added_to_map = false;   // false when the pose failed (or mapping is off)
+  std::size_t map_points = 0;  // map size after this frame
+
+  StageTimings timings;
+  MemoryStats memory;
+};
+
+}  // namespace long3r

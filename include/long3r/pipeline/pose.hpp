@@ -1,0 +1,92 @@
+// Camera pose per frame from the model's pointmap by PnP-RANSAC.
+//
+// Frames: the model's pointmaps are in the frame of camera 0 of the stream,
+// which is the world frame W here. Each pixel (u, v) whose confidence passes
+// the threshold gives a 2D-3D correspondence (pixel centre (u, v), world
+// point); cv::solvePnPRansac (EPnP minimal sets) finds the inliers, then
+// Levenberg-Marquardt on the inliers refines the pose. The result is T_W_C,
+// camera optical frame (x right, y down, z forward) to world.
+#pragma once
+
+#include <Eigen/Geometry>
+#include <opencv2/core/mat.hpp>
+
+#include <cstdint>
+#include <string>
+
+#include "long3r/pipeline/intrinsics.hpp"
+
+namespace long3r {
+
+struct PnpConfig {
+  float conf_threshold = 3.0f;         // model confidence (>= 1); pixels below are ignored
+  double reprojection_error_px = 2.0;  // RANSAC inlier threshold, model pixels
+  int iterations = 100;                // RANSAC iterations
+  double ransac_confidence = 0.999;
+  int min_inliers = 50;            // fewer -> kTooFewInliers
+  int max_correspondences = 4000;  // evenly spaced subsample of the confident pixels
+  bool refine = true;              // LM refinement on the inliers
+};
+
+enum class PnpStatus {
+  kOk,
+  kTooFewPoints,   // fewer usable correspondences than max(min_inliers, 6)
+  kSolverFailed,   // solvePnPRansac found no pose (or threw)
+  kTooFewInliers,  // a pose, but fewer than min_inliers inliers
+  kNonFinite,      // the solver returned NaN/inf
+};
+const char* to_string(PnpStatus status);
+
+struct PoseResult {
+  PnpStatus status = PnpStatus::kSolverFailed;
+  std::string message;  // empty when ok; otherwise why, with the numbers
+  bool ok() const { return status == PnpStatus::kOk; }
+  // The new pose when ok(); otherwise the last good pose (PoseTracker) or the
+  // identity (estimate_pose_pnp).
+  Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
+  int correspondences = 0;  // used (after filtering and subsampling)
+  int inliers = 0;
+  double inlier_rmse_px = 0.0;  // reprojection RMSE over the inliers after refinement
+};
+
+// One PnP solve. pts3d_W: CV_32FC3 [H, W] world points (camera-0 frame);
+// conf: CV_32FC1 [H, W]; intrinsics at the same resolution (width/height, if
+// set, must match: std::invalid_argument otherwise, as for wrong types).
+// Pixels with non-finite points are skipped. Deterministic (fixed RNG seed).
+PoseResult estimate_pose_pnp(const cv::Mat& pts3d_W, const cv::Mat& conf,
+                             const PinholeIntrinsics& intrinsics, const PnpConfig& config = {});
+
+// Keeps the last good pose across a stream: a failed frame reports the
+// failure and returns the previous good T_W_C (the caller should not add such
+// a frame to the map).
+class PoseTracker {
+ public:
+  explicit PoseTracker(const PnpConfig& config = {}) : config_(config) {}
+
+  PoseResult track(const cv::Mat& pts3d_W, const cv::Mat& conf,
+                   const PinholeIntrinsics& intrinsics);
+
+  // Identity until the first success.
+  const Eigen::Isometry3d& last_good_pose() const { return last_good_; }
+  bool has_good_pose() const { return has_good_; }
+  int64_t consecutive_failures() const { return consecutive_failures_; }
+  void reset();  // new stream
+  const PnpConfig& config() const { return config_; }
+
+ private:
+  PnpConfig config_;
+  Eigen::Isometry3d last_good_ = Eigen::Isometry3d::Identity();
+  bool has_good_ = false;
+  int64_t consecutive_failures_ = 0;
+};
+
+// points (CV_32FC3) mapped through T: p' = T p, e.g. the world pointmap into
+// the camera frame with T = T_W_C.inverse(). Non-finite points stay NaN.
+cv::Mat transform_points(const cv::Mat& points, const Eigen::Isometry3d& T);
+
+// The pointmap in the camera frame: T_C_W = T_W_C^-1 applied to pts3d_W.
+inline cv::Mat points_in_camera(const cv::Mat& pts3d_W, const Eigen::Isometry3d& T_W_C) {
+  return transform_points(pts3d_W, T_W_C.inverse());
+}
+
+}  // namespace long3r

@@ -1,0 +1,126 @@
+// The streaming reconstruction pipeline: source images in, per-frame results
+// (pointmap, pose, intrinsics) out, a fused voxel map kept.
+//
+// Per frame: preprocess (resize + crop to the model size) -> model step ->
+// intrinsics (calibration scaled to model resolution, else estimated from
+// frame 0's pointmap and kept for the stream) -> pose by PnP-RANSAC
+// (PoseTracker) -> map fusion when the pose is good.
+//
+// Frames: the world frame W is the camera optical frame of frame 0 of the
+// current stream (x right, y down, z forward); frame 0's pose is the identity.
+// Results come with one frame of latency (the models need the next frame);
+// flush() returns the last one.
+#pragma once
+
+#include <Eigen/Geometry>
+#include <opencv2/core/mat.hpp>
+
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "long3r/model/streaming.hpp"
+#include "long3r/pipeline/frame_result.hpp"
+#include "long3r/pipeline/intrinsics.hpp"
+#include "long3r/pipeline/pose.hpp"
+#include "long3r/pipeline/preprocess.hpp"
+#include "long3r/pipeline/voxel_map.hpp"
+
+namespace long3r {
+
+struct ReconstructionConfig {
+  PreprocessConfig preprocess;  // model input size
+  PnpConfig pnp;
+  VoxelMapConfig map;
+  FocalEstimationOptions focal;  // its own conf_threshold (default 0: all pixels, as DUSt3R)
+  // When >= 0, replaces pnp.conf_threshold and map.conf_threshold; set it
+  // negative to use theirs as given. The default 1 keeps every pixel: the
+  // shipped model's confidence stays within about [1, 1.1] (docs/model_card.md)
+  // and says little; 3 suits the official DUSt3R / Spann3R checkpoints.
+  float conf_threshold = 1.0f;
+};
+
+// Loads a checkpoint and builds the right StreamingModel variant from its
+// metadata config (today: spann3r). Throws CheckpointError with a clear
+// message for an unreadable or bad file and for unknown/unsupported kinds
+// (e.g. a DUSt3R pair model).
+std::unique_ptr<StreamingModel> load_streaming_model(const std::string& path);
+
+// The string metadata of a safetensors file (header only; tensors untouched).
+// Throws CheckpointError.
+std::map<std::string, std::string> read_checkpoint_metadata(const std::string& path);
+
+// Metadata key long3r_make_random_model writes ("true"): the weights are
+// random placeholders, the outputs meaningless.
+constexpr const char* kRandomWeightsMetadataKey = "random_weights";
+bool has_random_weights(const std::map<std::string, std::string>& metadata);
+
+class Reconstruction {
+ public:
+  // Throws std::invalid_argument for a null model or a bad map config.
+  Reconstruction(std::unique_ptr<StreamingModel> model, const ReconstructionConfig& config);
+  ~Reconstruction();
+
+  // Source-resolution calibration (e.g. from camera_info / --calib); nullopt =
+  // estimate from frame 0. A calibration given mid-stream applies from the
+  // next result on; clearing it mid-stream keeps the current intrinsics until
+  // reset() (an estimate is only possible on frame 0).
+  void set_calibration(const std::optional<PinholeIntrinsics>& calib);
+
+  // One source image (cv::Mat + ROS-style encoding: rgb8, bgr8, rgba8, bgra8,
+  // mono8, mono16). Returns the result of the previous frame, or nullopt for
+  // the first frame of a stream. Throws std::invalid_argument for bad input
+  // (unsupported encoding, type mismatch, size change within a stream: call
+  // reset() first); nothing changes then. After flush(), the next push starts
+  // a new stream and implies reset() (new world frame, empty map).
+  // Timings: total_ms = the frame's preprocess time + the wall time of the
+  // call that returned it, from its model step to the result (compute time,
+  // without the wait for the next frame).
+  std::optional<FrameResult> push(const cv::Mat& image, const std::string& encoding,
+                                  double stamp_s);
+  // The last pending frame (coarse head); nullopt if none. Ends the stream.
+  std::optional<FrameResult> flush();
+  // Model memory, map, trajectory, pose tracker, intrinsics estimate, frame indices.
+  void reset();
+
+  const VoxelMap& map() const { return map_; }
+  VoxelMap& map() { return map_; }
+  // (stamp, T_W_C) of the frames with a good pose, in order.
+  std::vector<std::pair<double, Eigen::Isometry3d>> trajectory() const { return trajectory_; }
+  // Frames pushed in the current stream.
+  int64_t frames_pushed() const { return frames_pushed_; }
+
+  const StreamingModel& model() const { return *model_; }
+  const ReconstructionConfig& config() const { return config_; }
+  // Intrinsics of the current stream at model resolution, once known.
+  const std::optional<ResolvedIntrinsics>& intrinsics() const { return intrinsics_; }
+
+ private:
+  struct Pending {
+    int64_t index = 0;
+    double stamp = 0.0;
+    PreprocessedImage image;  // chw moved into the model input
+    double preprocess_ms = 0.0;
+  };
+  FrameResult finish(const StreamOutput& out, double call_start_ms, double model_ms);
+
+  std::unique_ptr<StreamingModel> model_;
+  ReconstructionConfig config_;
+  std::optional<PinholeIntrinsics> calibration_;
+  std::optional<ResolvedIntrinsics> intrinsics_;
+  bool intrinsics_failed_ = false;
+  PoseTracker tracker_;
+  VoxelMap map_;
+  std::deque<Pending> pending_;
+  std::vector<std::pair<double, Eigen::Isometry3d>> trajectory_;
+  int64_t frames_pushed_ = 0;
+  int source_width_ = 0, source_height_ = 0;
+  bool flushed_ = false;
+};
+
+}  // namespace long3r

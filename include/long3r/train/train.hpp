@@ -1,0 +1,416 @@
+// Training of LONG3R (paper section 3.5, spec "Training"): data sampling with
+// exact ground-truth pointmaps, the confidence-aware regression + scale loss,
+// AdamW with warm-up and cosine decay, the two-stage curriculum, checkpoints
+// that resume bit-exactly, validation with the evaluation metrics, and logs.
+// See docs/training.md for the configuration file and the recipe.
+//
+// Frames: ground-truth pointmaps are in the optical frame of camera 0 of each
+// sampled sequence (x right, y down, z forward), metres, like the model's.
+#pragma once
+
+#include <ATen/core/Tensor.h>
+
+#include <Eigen/Geometry>
+#include <opencv2/core.hpp>
+
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <memory>
+#include <optional>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "long3r/dataset/tum_dataset.hpp"
+#include "long3r/model/long3r_model.hpp"
+#include "long3r/model/streaming.hpp"
+#include "long3r/pipeline/pinhole_intrinsics.hpp"
+#include "long3r/synth/synth.hpp"
+
+namespace long3r {
+
+namespace json {
+class Value;
+}  // namespace json
+
+// ===================================================================== config
+
+struct TrainStage {
+  std::string name;
+  int64_t steps = 0;            // optimiser steps in this stage
+  int64_t frames = 5;           // sequence length N (>= 2)
+  int64_t batch_size = 1;       // sequences per step
+  double lr = 1e-4;             // peak learning rate of the stage
+  int64_t warmup_steps = 0;     // linear warm-up from 0 to lr
+  double min_lr_ratio = 0.01;   // cosine decay ends at lr * min_lr_ratio
+  bool freeze_encoder = false;  // dust3r.patch_embed / enc_blocks / enc_norm
+};
+
+struct LossConfig {
+  double alpha = 0.2;         // DUSt3R's confidence regulariser weight
+  double scale_weight = 1.0;  // weight of L_scale (the paper sums them: 1)
+  bool coarse = true;         // also supervise head 2's next-frame pointmaps
+};
+
+struct AugmentConfig {
+  double color_jitter = 0.1;  // brightness / contrast / saturation factors in [1-j, 1+j]
+  double max_crop = 0.1;      // crop side shrinks by a factor in [1 - max_crop, 1]
+};
+
+struct SynthDataConfig {
+  bool enabled = true;
+  uint64_t train_seed_begin = 1000;  // scenes [begin, begin + train_scenes)
+  int64_t train_scenes = 1000;
+  uint64_t val_seed_begin = 1000000;  // held out: must not overlap the training range
+  int64_t val_scenes = 4;
+  int64_t trajectory_frames = 240;  // length of each scene's camera path
+  double speed = 0.02;              // metres per frame of the path
+  double hfov_min_deg = 60.0, hfov_max_deg = 80.0;
+  int render_size = 0;  // square render side before cropping; 0 = image_size
+};
+
+struct DataConfig {
+  SynthDataConfig synth;
+  std::vector<std::string> tum_dirs;  // TUM-layout folders (depth, groundtruth, calibration)
+  double tum_fraction = 0.5;          // share of TUM sequences when both sources exist
+  int64_t min_stride = 1, max_stride = 4;
+  AugmentConfig augment;
+};
+
+struct ValidationConfig {
+  int64_t every = 100;    // steps; 0 = only at the end
+  int64_t sequences = 2;  // from the held-out scene seeds
+  int64_t frames = 16;
+  int64_t stride = 3;
+  int pixel_step = 2;   // subsampling of the clouds for Acc / Comp / NC
+  bool normals = true;  // NC (costs a k-NN normal estimate)
+};
+
+struct TrainConfig {
+  std::string model = "long3r_ship";  // named_model_config name or a JSON file
+  int64_t image_size = 224;           // square model input, multiple of the patch size
+  std::vector<TrainStage> stages;
+  LossConfig loss;
+  double weight_decay = 0.05;
+  double beta1 = 0.9, beta2 = 0.95;
+  double grad_clip = 1.0;    // max global L2 norm; <= 0 disables clipping
+  std::string amp = "bf16";  // CUDA autocast dtype: "bf16" or "off" (CPU is always fp32)
+  DataConfig data;
+  ValidationConfig validation;
+  int64_t checkpoint_every = 100;  // steps; 0 = only at the end
+  int64_t keep_checkpoints = 2;
+  int64_t log_every = 1;
+
+  int64_t total_steps() const;
+};
+
+// Parses the training configuration (docs/training.md); unknown keys are
+// errors so that a misspelt field is not silently defaulted. Throws
+// std::invalid_argument (json errors name the field).
+TrainConfig parse_train_config(const std::string& json_text);
+TrainConfig parse_train_config(const json::Value& root);
+void validate_train_config(const TrainConfig& config);
+std::string train_config_to_json(const TrainConfig& config);
+// A model configuration by name (named_model_config) or from a JSON file path.
+ModelConfig resolve_model_config(const std::string& name_or_path);
+
+// ================================================================== schedule
+
+struct StagePosition {
+  int64_t index = 0;       // stage index; stages.size() when past the end
+  int64_t local_step = 0;  // step within the stage
+};
+StagePosition stage_at(const TrainConfig& config, int64_t step);
+// Learning rate of global step `step` (0-based): per stage, linear warm-up
+// lr * (s + 1) / warmup for s < warmup, then cosine from lr to lr * min_ratio
+// over the remaining steps of the stage.
+double learning_rate_at(const TrainConfig& config, int64_t step);
+
+// ====================================================================== data
+
+// One source frame with ground truth.
+struct RawFrame {
+  cv::Mat bgr;    // CV_8UC3
+  cv::Mat depth;  // CV_32FC1 z-depth, metres; 0 / non-finite = invalid
+  PinholeIntrinsics intrinsics;
+  Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
+};
+
+// Intrinsics after cropping the rectangle (x0, y0, w, h) out of an image and
+// resizing it to out_w x out_h with pixel-centre alignment (cv::resize):
+// f' = f * out / crop, c' = (c - x0 + 0.5) * out / crop - 0.5.
+PinholeIntrinsics crop_resize_intrinsics(const PinholeIntrinsics& k, int x0, int y0, int w, int h,
+                                         int out_w, int out_h);
+
+// Ground-truth pointmap of one frame: depth unprojected with `k` and mapped by
+// T_C0_C into camera 0's frame. Returns [H, W, 3] float32 (zeros where
+// invalid) and sets *valid ([H, W] bool: depth > 0 and finite).
+at::Tensor depth_to_pointmap(const cv::Mat& depth, const PinholeIntrinsics& k,
+                             const Eigen::Isometry3d& T_C0_C, at::Tensor* valid);
+
+// [3, H, W] float32 model input, (rgb - 0.5) / 0.5, from a BGR image.
+at::Tensor bgr_to_model_input(const cv::Mat& bgr);
+
+// A sequence ready for the model.
+struct SequenceSample {
+  std::vector<at::Tensor> images;             // N x [3, H, W]
+  at::Tensor pts;                             // [N, H, W, 3], camera-0 frame
+  at::Tensor valid;                           // [N, H, W] bool
+  std::vector<Eigen::Isometry3d> T_C0_C;      // GT poses relative to camera 0
+  std::vector<PinholeIntrinsics> intrinsics;  // at model resolution
+  std::string source;                         // e.g. "synth:1234@17+3"
+};
+
+// Crop + resize every frame to size x size (one crop for the whole sequence:
+// a random square of side (1 - u * max_crop) times the largest centred
+// square, at a random position, u uniform), optional colour jitter per frame,
+// and ground truth in camera 0's frame. rng == nullptr: centred full crop and
+// no jitter (validation).
+SequenceSample prepare_sequence(const std::vector<RawFrame>& frames, int size,
+                                const AugmentConfig& augment, std::mt19937_64* rng,
+                                const std::string& source = "");
+
+// A batch: frames[i] = [B, 3, H, W]; pts [B, N, H, W, 3]; valid [B, N, H, W].
+struct Batch {
+  std::vector<at::Tensor> frames;
+  at::Tensor pts, valid;
+  std::vector<std::string> sources;
+  Batch to(const at::Device& device) const;
+};
+Batch collate(const std::vector<SequenceSample>& samples);
+
+// Draws training sequences (random source, scene, start and stride) and
+// builds the fixed validation sequences. Deterministic given its RNG state,
+// which checkpoints save and restore.
+class SequenceSampler {
+ public:
+  SequenceSampler(const DataConfig& config, int image_size, uint64_t seed, int render_threads = 2);
+
+  SequenceSample sample(int64_t frames);
+  Batch sample_batch(int64_t batch_size, int64_t frames);
+
+  // Held-out scenes val_seed_begin + i, frames from 0 with a fixed stride, no
+  // augmentation.
+  SequenceSample validation_sequence(int64_t index, int64_t frames, int64_t stride);
+
+  // Raw frames of a generated scene (start, stride) without preprocessing.
+  std::vector<RawFrame> synth_frames(uint64_t scene_seed, int64_t start, int64_t stride,
+                                     int64_t frames);
+
+  std::string rng_state() const;
+  void set_rng_state(const std::string& state);
+
+ private:
+  const synth::Sequence& scene(uint64_t seed);
+  int64_t draw_int(int64_t lo, int64_t hi);  // inclusive, portable
+  double draw_uniform();
+
+  DataConfig config_;
+  int image_size_;
+  int render_threads_;
+  std::mt19937_64 rng_;
+  std::map<uint64_t, synth::Sequence> scenes_;
+  std::vector<TumDataset> tum_;
+};
+
+// ====================================================================== loss
+
+// Loss of one sequence batch, all in float32:
+//   L = L_conf + scale_weight * L_scale                      (paper Eq. 9)
+// L_conf (DUSt3R / Spann3R): for every supervised pointmap (the N refined /
+// final outputs except the last, and the N-1 coarse next-frame pointmaps, or
+// just the N outputs when coarse supervision is off) the mean over valid
+// pixels of  conf * || x_hat / z_hat - x / z || - alpha * log(conf),  averaged
+// over the pointmaps; z_hat (z) is the average distance to the origin of the
+// prediction's (GT's) valid points over the whole sequence (the N outputs),
+// per batch item, camera-0 frame.
+// L_scale: the paper states it only in words ("encourages the predicted point
+// cloud to have an average distance smaller than that of the ground truth");
+// this is Spann3R's form, which the paper follows: the mean of z_hat - z over
+// the batch items whose z_hat > z (0 when there are none).
+struct LossTerms {
+  at::Tensor total;                     // scalar, differentiable
+  at::Tensor conf_loss;                 // L_conf
+  at::Tensor scale_loss;                // L_scale
+  double regression = 0;                // mean || x_hat / z_hat - x / z || (no confidence)
+  double pred_scale = 0, gt_scale = 0;  // mean z_hat, z over the batch
+};
+
+// Average distance to the origin of the valid points of [B, N, H, W, 3]
+// pointmaps, per batch item: [B].
+at::Tensor average_distance(const at::Tensor& pts, const at::Tensor& valid);
+
+// One pointmap's confidence-weighted term: pred_n, gt_n [B, H, W, 3] (already
+// normalised), conf [B, H, W], valid [B, H, W]. Returns (mean of
+// conf * err - alpha * log conf, mean err) over valid pixels.
+std::pair<at::Tensor, at::Tensor> confidence_regression(const at::Tensor& pred_n,
+                                                        const at::Tensor& gt_n,
+                                                        const at::Tensor& conf,
+                                                        const at::Tensor& valid, double alpha);
+
+// outputs: N model outputs (forward_sequence); coarse: N-1 next-frame
+// predictions (may be empty when config.coarse is false); gt_pts
+// [B, N, H, W, 3] and gt_valid [B, N, H, W] on the outputs' device.
+LossTerms sequence_loss(const std::vector<StreamOutput>& outputs,
+                        const std::vector<StreamOutput>& coarse, const at::Tensor& gt_pts,
+                        const at::Tensor& gt_valid, const LossConfig& config);
+
+// ============================================================ initialisation
+
+struct InitReport {
+  int64_t loaded = 0;          // model tensors copied from the file
+  int64_t shape_mismatch = 0;  // same name, different shape: kept fresh
+  int64_t unused = 0;          // file tensors with no counterpart in the model
+  int64_t fresh = 0;           // model tensors not in the file (new modules)
+  std::vector<std::string> mismatched_names;
+};
+// Copies every tensor of a DUSt3R (names without prefix), Spann3R or LONG3R
+// checkpoint whose name (as is, or with "dust3r." prepended) and shape match a
+// parameter or buffer of the model; the rest of the model keeps its values.
+InitReport init_from_checkpoint(Long3rModel& model, const std::string& path);
+
+// True for the encoder's parameters (dust3r.patch_embed, dust3r.enc_blocks,
+// dust3r.enc_norm), which stage 2 freezes.
+bool is_encoder_parameter(const std::string& name);
+
+// ================================================================ validation
+
+struct ValidationMetrics {
+  double loss = 0, regression = 0;
+  double pointmap_error = 0;  // mean || aligned pred - gt || over valid pixels, metres
+  double acc_mean = 0, acc_median = 0, comp_mean = 0, comp_median = 0;
+  double nc_mean = 0, nc_median = 0;
+  double ate_rmse = 0;  // NaN when PnP gives fewer than 3 poses
+  int64_t sequences = 0;
+};
+// Inference-mode run of `model` (switched to inference and back) over the
+// sequences: loss, and after a Sim(3) Umeyama alignment of each sequence's
+// predicted points to the GT (scale alignment, as long3r_eval's corr mode),
+// the point-cloud metrics and the ATE of PnP poses. Averages over sequences.
+ValidationMetrics validate(Long3rModel& model, const std::vector<SequenceSample>& sequences,
+                           const LossConfig& loss, const ValidationConfig& config);
+
+// ======================================================= held-out evaluation
+
+// A model's (or a baseline's) pointmaps for one sequence, CPU float32.
+struct SequencePrediction {
+  std::vector<at::Tensor> pts;   // N x [H, W, 3], camera-0 frame
+  std::vector<at::Tensor> conf;  // N x [H, W]
+  double seconds = 0;            // wall time of the prediction
+};
+// Streams the sequence through `model` in inference mode (one push per
+// frame, the last frame from flush(), as the pipeline does).
+SequencePrediction predict_sequence(Long3rModel& model, const SequenceSample& sample);
+// The constant-depth baseline: every pixel of every frame at depth `depth_m`
+// in its own camera, all cameras at camera 0 (no motion), confidence 1.
+SequencePrediction constant_depth_prediction(const SequenceSample& sample, double depth_m);
+
+struct PredictionMetricsOptions {
+  int pixel_step = 2;   // subsampling of the clouds
+  bool normals = true;  // NC
+  // When set: a PNG of the aligned prediction next to the GT, top views
+  // coloured by Acc / Comp error (plot_error_top_view, saturating at
+  // picture_max_error_m).
+  std::string picture_path;
+  double picture_max_error_m = 0.3;
+  // Intrinsics of the PnP poses: the generator's (false) or, as the pipeline
+  // does without a calibration, estimated from frame 0's pointmap (true; if
+  // that fails, no frame is posed).
+  bool estimate_intrinsics = false;
+};
+struct PredictionMetrics {
+  double pointmap_error = 0;  // mean || aligned pred - gt ||, metres
+  double acc_mean = 0, acc_median = 0, comp_mean = 0, comp_median = 0;
+  double nc_mean = 0, nc_median = 0;
+  double ate_rmse = 0;        // m; NaN when fewer than 3 frames were posed
+  double rpe_trans_rmse = 0;  // m per frame step (after the Sim(3) of the ATE)
+  double rpe_rot_rmse_deg = 0;
+  int64_t frames = 0, posed = 0;
+};
+// Scores a prediction against the sequence's ground truth: one Sim(3)
+// (Umeyama on corresponding valid pixels) aligns the predicted points to the
+// GT, then Acc / Comp / NC on the aligned clouds; camera poses by PnP on the
+// predicted pointmaps (all pixels, as validation) give ATE / RPE after their
+// own Sim(3) alignment. An estimate without any motion (the baseline) has no
+// unique Sim(3); its least-squares optimum maps every pose onto the GT
+// centroid, so ATE is then the spread of the GT positions and RPE the GT's
+// own frame-to-frame motion.
+PredictionMetrics evaluate_prediction(const SequencePrediction& prediction,
+                                      const SequenceSample& sample,
+                                      const PredictionMetricsOptions& options);
+
+// =================================================================== trainer
+
+struct TrainOptions {
+  std::string out_dir;
+  std::string device = "cpu";  // "cpu" or "cuda" (or any torch device string)
+  uint64_t seed = 0;
+  int64_t max_steps = -1;       // stop after this many global steps (< 0: the schedule's end)
+  bool resume = false;          // continue from out_dir/checkpoint/latest
+  std::string init_checkpoint;  // DUSt3R / Spann3R / LONG3R weights to start from
+  std::string model_override;   // replaces config.model when set
+  bool quiet = false;
+};
+
+// One CSV row (train_log.csv); validation columns are NaN where not run.
+struct LogRow {
+  int64_t step = 0;  // 1-based count of optimiser steps done
+  int64_t stage = 0;
+  double loss = 0, conf_loss = 0, scale_loss = 0, regression = 0;
+  double lr = 0, grad_norm = 0;
+  double step_s = 0, data_s = 0, wall_s = 0;  // step time, its data part, run time
+  std::optional<ValidationMetrics> val;
+};
+
+class Trainer {
+ public:
+  Trainer(const TrainConfig& config, const TrainOptions& options);
+  ~Trainer();
+
+  // Runs until the schedule's end or max_steps; writes model.safetensors,
+  // train_log.csv, loss_curve.png and checkpoints.
+  void run();
+  // One optimiser step (sampling, forward, loss, backward, clip, update).
+  LogRow step();
+
+  void save_checkpoint();
+  // Restores weights, optimiser, step, RNG from a checkpoint folder.
+  void load_checkpoint(const std::string& dir);
+  ValidationMetrics run_validation();
+  void write_outputs();  // model.safetensors, CSV, PNG
+
+  int64_t global_step() const { return step_; }
+  Long3rModel& model() { return *model_; }
+  const TrainConfig& config() const { return config_; }
+  const std::vector<LogRow>& log() const { return log_; }
+  const std::optional<InitReport>& init_report() const { return init_report_; }
+
+ private:
+  void apply_stage(int64_t stage);
+  void set_lr(double lr);
+
+  TrainConfig config_;
+  TrainOptions options_;
+  at::Device device_;
+  std::unique_ptr<Long3rModel> model_;
+  struct Optim;
+  std::unique_ptr<Optim> optim_;
+  std::unique_ptr<SequenceSampler> sampler_;
+  std::vector<SequenceSample> val_sequences_;
+  std::vector<LogRow> log_;
+  std::optional<InitReport> init_report_;
+  int64_t step_ = 0;
+  int64_t applied_stage_ = -1;
+  double wall_offset_s_ = 0;  // wall time of the runs before a resume
+  double start_time_ = 0;
+};
+
+// loss_curve.png: training loss (raw and smoothed), validation loss and the
+// learning rate over the steps (plot_line_chart).
+cv::Mat plot_training_curves(const std::vector<LogRow>& rows, int width = 900, int height = 560);
+
+// CSV text of the rows (header included).
+std::string log_rows_to_csv(const std::vector<LogRow>& rows);
+
+}  // namespace long3r

@@ -1,0 +1,207 @@
+// long3r_bench: streams synthetic frames through a randomly initialised LONG3R
+// model of a named configuration and prints per-frame latency and memory size
+// at fixed frame counts, the latency growth ratio, and peak RSS. A figure
+// printer, not a test: random weights give meaningless point maps, but the
+// cost of every step (and the memory's growth and bound) is the real one.
+//
+// Frames vary smoothly over time (shifted sinusoids) so that consecutive point
+// maps are similar, as in a real video.
+#include <ATen/ATen.h>
+#include <sys/resource.h>
+#include <time.h>
+#include <torch/nn/module.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <iostream>
+#include <string>
+#include <vector>
+
+#include "long3r/model/long3r_model.hpp"
+#include "long3r/model/model_config.hpp"
+#include "long3r/model/threads.hpp"
+
+namespace {
+
+void usage() {
+  std::cerr << "usage: long3r_bench --config long3r_small|long3r_tiny|long3r_paper [--frames N]\n"
+               "                    [--size S] [--threads T] [--openblas-threads T] [--seed N]\n"
+               "                    [--no-projection-cache]\n"
+               "Streams N synthetic S x S frames (plus one, for the one-frame latency) through\n"
+               "a random model; prints latency and memory tokens at frames 10, 50, 100, 500,\n"
+               "1000 (those <= N); latency = wall time of the push that returns the frame.\n"
+               "median10 / min10: median / fastest of the 10 frames up to that one (min10 is\n"
+               "the least disturbed by other load on the machine, which only adds time).\n"
+               "cpu_ms: process CPU time of the step (with --threads 1: the work itself).\n"
+               "--openblas-threads: default 1 (see long3r/threads.hpp); 0 = environment.\n"
+               "--no-projection-cache: recompute the memory blocks' key/value projections of\n"
+               "the relevant tokens at every step (the reference path).\n";
+}
+
+at::Tensor synthetic_frame(int64_t t, int64_t H, int64_t W) {
+  const auto f = at::TensorOptions().dtype(at::kFloat);
+  const at::Tensor y = at::arange(H, f).view({1, H, 1});
+  const at::Tensor x = at::arange(W, f).view({1, 1, W});
+  const at::Tensor c = at::arange(3, f).view({3, 1, 1});
+  const double s = 0.05 * static_cast<double>(t);
+  return (at::sin(x * (0.03 + 0.01 * std::sin(s)) + y * 0.02 + c * 1.3 + s) * 0.6 +
+          at::cos(y * 0.015 - s + x * 0.005) * 0.3)
+      .unsqueeze(0);
+}
+
+// CPU time of the whole process (all threads), ms. With one torch thread it
+// is the work of the step, free of the waits that other load on a shared
+// machine adds to the wall time; with more threads it includes their spinning.
+double process_cpu_ms() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) * 1e3 + static_cast<double>(ts.tv_nsec) * 1e-6;
+}
+
+double min_window(const std::vector<double>& v, std::size_t end, std::size_t n) {
+  const std::size_t begin = end > n ? end - n : 0;
+  if (end <= begin) return 0.0;
+  return *std::min_element(v.begin() + static_cast<std::ptrdiff_t>(begin),
+                           v.begin() + static_cast<std::ptrdiff_t>(end));
+}
+
+double median_window(const std::vector<double>& v, std::size_t end, std::size_t n) {
+  const std::size_t begin = end > n ? end - n : 0;
+  std::vector<double> w(v.begin() + static_cast<std::ptrdiff_t>(begin),
+                        v.begin() + static_cast<std::ptrdiff_t>(end));
+  std::sort(w.begin(), w.end());
+  return w.empty() ? 0.0 : w[w.size() / 2];
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string config_name;
+  int64_t frames = 100, size = 224;
+  int threads = 2, openblas_threads = long3r::ThreadConfig().openblas_threads;
+  uint64_t seed = 0;
+  bool projection_cache = true;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto next = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        usage();
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (a == "--config") {
+      config_name = next();
+    } else if (a == "--frames") {
+      frames = std::stoll(next());
+    } else if (a == "--size") {
+      size = std::stoll(next());
+    } else if (a == "--threads") {
+      threads = std::stoi(next());
+    } else if (a == "--openblas-threads") {
+      openblas_threads = std::stoi(next());
+    } else if (a == "--seed") {
+      seed = std::stoull(next());
+    } else if (a == "--no-projection-cache") {
+      projection_cache = false;
+    } else {
+      usage();
+      return 2;
+    }
+  }
+  if (config_name.empty() || frames < 2 || size <= 0) {
+    usage();
+    return 2;
+  }
+  try {
+    long3r::ThreadConfig tc;
+    tc.torch_threads = threads;
+    tc.openblas_threads = openblas_threads;
+    const int used = long3r::apply_thread_config(tc);
+    at::manual_seed(seed);
+    const long3r::ModelConfig config = long3r::named_model_config(config_name);
+    const auto t_build = std::chrono::steady_clock::now();
+    long3r::Long3rModel model(config);
+    model.set_memory_projection_cache(projection_cache);
+    int64_t params = 0;
+    for (const auto& p : model.module().parameters()) params += p.numel();
+    const int64_t P = (size / config.dust3r.patch_size) * (size / config.dust3r.patch_size);
+    std::printf(
+        "config %s: %.1f M parameters, %lldx%lld frames (P = %lld tokens), %d threads, "
+        "K = %lld, L = %lld, bound K*P + L = %lld tokens, memory projection cache %s "
+        "(built in %.1f s)\n",
+        config_name.c_str(), params / 1e6, static_cast<long long>(size),
+        static_cast<long long>(size), static_cast<long long>(P), used,
+        static_cast<long long>(config.long3r.short_term_frames),
+        static_cast<long long>(config.long3r.long_term_capacity),
+        static_cast<long long>(config.long3r.short_term_frames * P +
+                               config.long3r.long_term_capacity),
+        projection_cache ? "on" : "off",
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t_build).count());
+    std::fflush(stdout);
+
+    std::vector<double> latency;    // latency[k]: push that returned frame k, ms
+    std::vector<double> cpu;        // process CPU time of that push, ms
+    std::vector<int64_t> tokens;    // memory tokens after that step
+    std::vector<int64_t> relevant;  // relevant tokens of that step
+    const std::vector<int64_t> marks{10, 50, 100, 500, 1000};
+    std::printf("%8s %12s %12s %10s %10s %10s %10s %10s %10s %10s %10s\n", "frame", "latency_ms",
+                "median10_ms", "min10_ms", "cpu_ms", "encode_ms", "decode_ms", "memory_ms",
+                "mem_short", "mem_long", "relevant");
+    // N + 1 pushes: the step for frame k runs when frame k + 1 arrives, so
+    // this gives N outputs from the refined head.
+    for (int64_t t = 0; t <= frames; ++t) {
+      const at::Tensor img = synthetic_frame(t, size, size);
+      const auto t0 = std::chrono::steady_clock::now();
+      const double c0 = process_cpu_ms();
+      const auto out = model.push(img);
+      const double cpu_ms = process_cpu_ms() - c0;
+      const double ms =
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+      if (!out) continue;
+      latency.push_back(ms);
+      cpu.push_back(cpu_ms);
+      tokens.push_back(out->stats.mem_short_tokens + out->stats.mem_long_tokens);
+      relevant.push_back(out->stats.relevant_tokens);
+      const int64_t n = out->frame_index + 1;  // frames processed
+      if (std::find(marks.begin(), marks.end(), n) != marks.end() || frames <= 5) {
+        std::printf("%8lld %12.1f %12.1f %10.1f %10.1f %10.1f %10.1f %10.1f %10lld %10lld %10lld\n",
+                    static_cast<long long>(n), ms, median_window(latency, latency.size(), 10),
+                    min_window(latency, latency.size(), 10), cpu_ms, out->stats.encode_ms,
+                    out->stats.decode_ms, out->stats.memory_ms,
+                    static_cast<long long>(out->stats.mem_short_tokens),
+                    static_cast<long long>(out->stats.mem_long_tokens),
+                    static_cast<long long>(out->stats.relevant_tokens));
+        std::fflush(stdout);
+      }
+    }
+    model.flush();
+    if (latency.size() >= 50) {
+      const std::size_t end = std::min<std::size_t>(latency.size(), 1000);
+      std::printf("latency ratio median10(%zu) / median10(50) = %.3f\n", end,
+                  median_window(latency, end, 10) / median_window(latency, 50, 10));
+      std::printf("latency ratio min10(%zu) / min10(50) = %.3f\n", end,
+                  min_window(latency, end, 10) / min_window(latency, 50, 10));
+      std::printf("cpu time ratio median10(%zu) / median10(50) = %.3f\n", end,
+                  median_window(cpu, end, 10) / median_window(cpu, 50, 10));
+    }
+    const int64_t peak_tokens =
+        tokens.empty() ? 0 : *std::max_element(tokens.begin(), tokens.end());
+    double total = 0;
+    for (double v : latency) total += v;
+    std::printf("frames %zu, mean latency %.1f ms (%.2f FPS), peak memory tokens %lld\n",
+                latency.size(), total / std::max<std::size_t>(1, latency.size()),
+                latency.empty() ? 0.0 : 1000.0 * latency.size() / total,
+                static_cast<long long>(peak_tokens));
+    struct rusage ru;
+    getrusage(RUSAGE_SELF, &ru);
+    std::printf("peak RSS %.1f MiB\n", ru.ru_maxrss / 1024.0);
+  } catch (const std::exception& e) {
+    std::cerr << "long3r_bench: " << e.what() << "\n";
+    return 1;
+  }
+  return 0;
+}

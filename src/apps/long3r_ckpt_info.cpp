@@ -1,0 +1,109 @@
+// long3r_ckpt_info: validates a safetensors checkpoint and prints its
+// metadata (the model config pretty-printed when it is JSON) and a table of
+// its tensors. Exits 1 with the error message if the file is unreadable or
+// invalid, 2 on bad usage.
+#include <ATen/ATen.h>
+
+#include <cstdio>
+#include <cstring>
+#include <iostream>
+#include <string>
+
+#include "long3r/io/json.hpp"
+#include "long3r/model/safetensors.hpp"
+
+namespace {
+
+void usage() {
+  std::cerr << "usage: long3r_ckpt_info [--no-tensors] [--no-metadata] FILE.safetensors\n"
+               "Validates the file and prints its metadata and tensor table.\n";
+}
+
+std::string shape_string(const at::Tensor& t) {
+  std::string s = "[";
+  for (int64_t k = 0; k < t.dim(); ++k) s += (k ? ", " : "") + std::to_string(t.size(k));
+  return s + "]";
+}
+
+const char* safetensors_dtype(const at::Tensor& t) {
+  switch (t.scalar_type()) {
+    case at::kFloat:
+      return "F32";
+    case at::kHalf:
+      return "F16";
+    case at::kBFloat16:
+      return "BF16";
+    case at::kLong:
+      return "I64";
+    default:
+      return "?";
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  bool tensors = true, metadata = true;
+  std::string path;
+  for (int i = 1; i < argc; ++i) {
+    if (std::strcmp(argv[i], "--no-tensors") == 0) {
+      tensors = false;
+    } else if (std::strcmp(argv[i], "--no-metadata") == 0) {
+      metadata = false;
+    } else if (std::strcmp(argv[i], "-h") == 0 || std::strcmp(argv[i], "--help") == 0) {
+      usage();
+      return 0;
+    } else if (path.empty() && argv[i][0] != '-') {
+      path = argv[i];
+    } else {
+      usage();
+      return 2;
+    }
+  }
+  if (path.empty()) {
+    usage();
+    return 2;
+  }
+
+  long3r::TensorFile f;
+  try {
+    f = long3r::load_safetensors(path);
+  } catch (const std::exception& e) {
+    std::cerr << "error: " << e.what() << "\n";
+    return 1;
+  }
+
+  if (metadata) {
+    std::cout << "metadata (" << f.metadata.size() << " keys):\n";
+    for (const auto& kv : f.metadata) {
+      std::string shown = kv.second;
+      // Pretty-print JSON values (the model config); leave other strings as is.
+      try {
+        const long3r::json::Value v = long3r::json::parse(kv.second);
+        if (v.is_object() || v.is_array()) shown = v.dump(2);
+      } catch (const long3r::json::Error&) {
+      }
+      std::cout << "  " << kv.first << ": " << shown << "\n";
+    }
+  }
+
+  uint64_t total = 0;
+  std::size_t name_w = 4;
+  for (const auto& kv : f.tensors) name_w = std::max(name_w, kv.first.size());
+  if (tensors) {
+    std::printf("%-*s  %-5s  %-20s  %12s\n", static_cast<int>(name_w), "name", "dtype", "shape",
+                "bytes");
+  }
+  for (const auto& kv : f.tensors) {
+    const uint64_t bytes = static_cast<uint64_t>(kv.second.numel()) * kv.second.element_size();
+    total += bytes;
+    if (tensors) {
+      std::printf("%-*s  %-5s  %-20s  %12llu\n", static_cast<int>(name_w), kv.first.c_str(),
+                  safetensors_dtype(kv.second), shape_string(kv.second).c_str(),
+                  static_cast<unsigned long long>(bytes));
+    }
+  }
+  std::printf("%zu tensors, %llu bytes of tensor data\n", f.tensors.size(),
+              static_cast<unsigned long long>(total));
+  return 0;
+}

@@ -1,7 +1,0 @@
-#include "long3r/version.hpp"
-
-namespace long3r {
-
-const char* version() { return "0.1.0"; }
-
-}  // namespace long3r

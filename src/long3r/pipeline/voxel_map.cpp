@@ -1,0 +1,249 @@
+#include "long3r/pipeline/voxel_map.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <utility>
+
+namespace long3r {
+
+namespace {
+
+// 21 bits per axis, biased so that the packed key orders like (i, j, k).
+constexpr int kBits = 21;
+constexpr std::int64_t kBias = std::int64_t{1} << (kBits - 1);
+constexpr std::uint64_t kMask = (std::uint64_t{1} << kBits) - 1;
+
+bool index_of(const Eigen::Vector3f& p, double voxel, std::int64_t out[3]) {
+  for (int a = 0; a < 3; ++a) {
+    const double f = std::floor(static_cast<double>(p[a]) / voxel);
+    if (!(f >= -static_cast<double>(kBias) && f < static_cast<double>(kBias))) return false;
+    out[a] = static_cast<std::int64_t>(f);
+  }
+  return true;
+}
+
+std::uint64_t pack(const std::int64_t idx[3]) {
+  return (static_cast<std::uint64_t>(idx[0] + kBias) << (2 * kBits)) |
+         (static_cast<std::uint64_t>(idx[1] + kBias) << kBits) |
+         static_cast<std::uint64_t>(idx[2] + kBias);
+}
+
+Eigen::Vector3i unpack(std::uint64_t key) {
+  return {static_cast<int>(static_cast<std::int64_t>((key >> (2 * kBits)) & kMask) - kBias),
+          static_cast<int>(static_cast<std::int64_t>((key >> kBits) & kMask) - kBias),
+          static_cast<int>(static_cast<std::int64_t>(key & kMask) - kBias)};
+}
+
+std::uint8_t round_colour(float c) {
+  return static_cast<std::uint8_t>(std::lround(std::clamp(c, 0.0f, 255.0f)));
+}
+
+}  // namespace
+
+VoxelMap::VoxelMap(const VoxelMapConfig& config) : config_(config) {
+  if (!(config.voxel_size_m > 0.0) || !std::isfinite(config.voxel_size_m)) {
+    throw std::invalid_argument("VoxelMap: voxel_size_m must be positive and finite");
+  }
+  // Positions are 32-bit; a frame may add voxels beyond the cap before eviction.
+  if (config.max_points == 0 || config.max_points > (std::size_t{1} << 31)) {
+    throw std::invalid_argument("VoxelMap: max_points must be in [1, 2^31]");
+  }
+}
+
+Eigen::Vector3i VoxelMap::voxel_index(const Eigen::Vector3f& p) const {
+  std::int64_t idx[3];
+  if (!index_of(p, config_.voxel_size_m, idx)) {
+    throw std::out_of_range("VoxelMap::voxel_index: point outside the map's index range");
+  }
+  return {static_cast<int>(idx[0]), static_cast<int>(idx[1]), static_cast<int>(idx[2])};
+}
+
+void VoxelMap::fuse_locked(const Eigen::Vector3f& p, const std::uint8_t* rgb, std::int64_t frame,
+                           IntegrationStats& stats) {
+  std::int64_t idx[3];
+  if (!index_of(p, config_.voxel_size_m, idx)) {
+    ++stats.out_of_range;
+    return;
+  }
+  const std::uint64_t key = pack(idx);
+  const auto [it, inserted] = index_.try_emplace(key, static_cast<std::uint32_t>(voxels_.size()));
+  bool rebucket = false;
+  if (inserted) {
+    voxels_.push_back(
+        Voxel{key, {p.x(), p.y(), p.z()}, {float(rgb[0]), float(rgb[1]), float(rgb[2])}, 1, frame});
+    ++stats.new_voxels;
+    rebucket = true;
+  } else {
+    Voxel& v = voxels_[it->second];
+    ++v.hits;
+    const double inv = 1.0 / v.hits;
+    for (int a = 0; a < 3; ++a) {
+      v.mean[a] += (static_cast<double>(p[a]) - v.mean[a]) * inv;
+      v.color[a] += (static_cast<float>(rgb[a]) - v.color[a]) * static_cast<float>(inv);
+    }
+    if (frame > v.last_seen) {
+      v.last_seen = frame;
+      rebucket = true;
+    }
+  }
+  if (rebucket) {  // the voxel's last-seen frame is now `frame`
+    buckets_[frame].push_back(key);
+    ++bucket_entries_;
+  }
+  ++stats.fused;
+}
+
+void VoxelMap::erase_locked(std::uint64_t key) {
+  const auto it = index_.find(key);
+  const std::uint32_t pos = it->second;
+  index_.erase(it);
+  // Swap-remove keeps the storage dense.
+  if (pos + 1 != voxels_.size()) {
+    voxels_[pos] = voxels_.back();
+    index_[voxels_[pos].key] = pos;
+  }
+  voxels_.pop_back();
+}
+
+void VoxelMap::compact_buckets_locked() {
+  buckets_.clear();
+  for (const Voxel& v : voxels_) buckets_[v.last_seen].push_back(v.key);
+  bucket_entries_ = voxels_.size();
+}
+
+void VoxelMap::evict_locked(IntegrationStats& stats) {
+  while (voxels_.size() > config_.max_points && !buckets_.empty()) {
+    auto bucket = buckets_.begin();
+    // Live entries of the oldest frame, fewest hits first, then by index.
+    std::vector<std::pair<std::uint32_t, std::uint64_t>> live;
+    live.reserve(bucket->second.size());
+    for (std::uint64_t key : bucket->second) {
+      const auto it = index_.find(key);
+      if (it != index_.end() && voxels_[it->second].last_seen == bucket->first) {
+        live.emplace_back(voxels_[it->second].hits, key);
+      }
+    }
+    std::sort(live.begin(), live.end());
+    live.erase(std::unique(live.begin(), live.end()), live.end());
+    bucket_entries_ -= bucket->second.size();
+    const std::size_t excess = voxels_.size() - config_.max_points;
+    const std::size_t n = std::min(excess, live.size());
+    for (std::size_t i = 0; i < n; ++i) erase_locked(live[i].second);
+    stats.evicted += n;
+    if (n == live.size()) {
+      buckets_.erase(bucket);
+    } else {
+      bucket->second.clear();
+      for (std::size_t i = n; i < live.size(); ++i) bucket->second.push_back(live[i].second);
+      bucket_entries_ += bucket->second.size();
+    }
+  }
+}
+
+IntegrationStats VoxelMap::integrate(const cv::Mat& pts3d_W, const cv::Mat& conf,
+                                     const cv::Mat& rgb, std::int64_t frame_index) {
+  if (pts3d_W.type() != CV_32FC3 || conf.type() != CV_32FC1 || rgb.type() != CV_8UC3) {
+    throw std::invalid_argument(
+        "VoxelMap::integrate: expected CV_32FC3 points, CV_32FC1 conf, CV_8UC3 rgb");
+  }
+  if (conf.size() != pts3d_W.size() || rgb.size() != pts3d_W.size()) {
+    throw std::invalid_argument("VoxelMap::integrate: points, conf and rgb differ in size");
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  IntegrationStats stats;
+  for (int v = 0; v < pts3d_W.rows; ++v) {
+    const auto* p = pts3d_W.ptr<cv::Vec3f>(v);
+    const float* c = conf.ptr<float>(v);
+    const auto* col = rgb.ptr<cv::Vec3b>(v);
+    for (int u = 0; u < pts3d_W.cols; ++u) {
+      if (!(c[u] >= config_.conf_threshold)) continue;
+      const Eigen::Vector3f q(p[u][0], p[u][1], p[u][2]);
+      if (!q.allFinite()) continue;
+      ++stats.candidates;
+      fuse_locked(q, &col[u][0], frame_index, stats);
+    }
+  }
+  evict_locked(stats);
+  if (bucket_entries_ > 2 * voxels_.size() + 4096) compact_buckets_locked();
+  if (stats.fused > 0) ++revision_;
+  stats.map_size = voxels_.size();
+  return stats;
+}
+
+IntegrationStats VoxelMap::integrate(const std::vector<Eigen::Vector3f>& points,
+                                     const std::vector<Rgb8>& colors, std::int64_t frame_index) {
+  if (points.size() != colors.size()) {
+    throw std::invalid_argument("VoxelMap::integrate: points and colors differ in length");
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  IntegrationStats stats;
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    if (!points[i].allFinite()) continue;
+    ++stats.candidates;
+    fuse_locked(points[i], colors[i].data(), frame_index, stats);
+  }
+  evict_locked(stats);
+  if (bucket_entries_ > 2 * voxels_.size() + 4096) compact_buckets_locked();
+  if (stats.fused > 0) ++revision_;
+  stats.map_size = voxels_.size();
+  return stats;
+}
+
+std::size_t VoxelMap::size() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return voxels_.size();
+}
+
+void VoxelMap::clear() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  voxels_.clear();
+  index_.clear();
+  buckets_.clear();
+  bucket_entries_ = 0;
+  ++revision_;
+}
+
+std::uint64_t VoxelMap::revision() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return revision_;
+}
+
+MapSnapshot VoxelMap::snapshot() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  MapSnapshot s;
+  s.points.reserve(voxels_.size());
+  s.colors.reserve(voxels_.size());
+  for (const Voxel& v : voxels_) {
+    s.points.emplace_back(static_cast<float>(v.mean[0]), static_cast<float>(v.mean[1]),
+                          static_cast<float>(v.mean[2]));
+    s.colors.push_back(
+        {round_colour(v.color[0]), round_colour(v.color[1]), round_colour(v.color[2])});
+  }
+  return s;
+}
+
+std::vector<VoxelInfo> VoxelMap::voxels() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<VoxelInfo> out;
+  out.reserve(voxels_.size());
+  for (const Voxel& v : voxels_) {
+    VoxelInfo info;
+    info.index = unpack(v.key);
+    info.position = Eigen::Vector3f(static_cast<float>(v.mean[0]), static_cast<float>(v.mean[1]),
+                                    static_cast<float>(v.mean[2]));
+    info.color = {round_colour(v.color[0]), round_colour(v.color[1]), round_colour(v.color[2])};
+    info.hits = v.hits;
+    info.last_seen = v.last_seen;
+    out.push_back(info);
+  }
+  return out;
+}
+
+void VoxelMap::save(const std::string& path, const MapSaveOptions& options) const {
+  // Copy under the lock, write without it: fusing is not blocked by disk I/O.
+  const MapSnapshot s = snapshot();
+  save_colored_cloud(path, s.points, s.colors, options);
+}
+
+}  // namespace long3r

@@ -1,0 +1,87 @@
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <random>
+
+#include "long3r/eval/kdtree3.hpp"
+
+namespace {
+// The reference: (squared distance, index) of every point, closest first.
+std::vector<std::pair<float, int>> by_distance(const std::vector<Eigen::Vector3f>& pts,
+                                               const Eigen::Vector3f& query) {
+  std::vector<std::pair<float, int>> out;
+  for (size_t i = 0; i < pts.size(); ++i)
+    out.emplace_back((pts[i] - query).squaredNorm(), static_cast<int>(i));
+  std::sort(out.begin(), out.end());
+  return out;
+}
+}  // namespace
+
+TEST(EvalKdTree, MatchesBruteForce) {
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<float> u(-2.0f, 2.0f);
+  std::vector<Eigen::Vector3f> pts(3000);
+  for (auto& p : pts) p = Eigen::Vector3f(u(rng), u(rng), 0.2f * u(rng));
+  // Duplicates must not break the tree.
+  for (int i = 0; i < 50; ++i) pts.push_back(pts[i]);
+  const long3r::KdTree3 tree(pts);
+  ASSERT_EQ(tree.size(), pts.size());
+  std::vector<int> idx;
+  std::vector<float> d2;
+  for (int q = 0; q < 300; ++q) {
+    const Eigen::Vector3f query(u(rng) * 1.3f, u(rng) * 1.3f, u(rng));
+    const auto brute = by_distance(pts, query);
+    float best;
+    const int n = tree.nearest(query, &best);
+    EXPECT_EQ(best, brute[0].first);
+    EXPECT_EQ((pts[n] - query).squaredNorm(), brute[0].first);
+    tree.knn(query, 7, &idx, &d2);
+    ASSERT_EQ(idx.size(), 7u);
+    for (int k = 0; k < 7; ++k) EXPECT_EQ(d2[k], brute[k].first) << "rank " << k;
+  }
+}
+
+TEST(EvalKdTree, EmptyAndSmall) {
+  long3r::KdTree3 empty;
+  float d2 = 0;
+  EXPECT_EQ(empty.nearest(Eigen::Vector3f::Zero(), &d2), -1);
+  const long3r::KdTree3 two({Eigen::Vector3f(0, 0, 0), Eigen::Vector3f(1, 0, 0)});
+  std::vector<int> idx;
+  std::vector<float> dd;
+  two.knn(Eigen::Vector3f(0.9f, 0, 0), 5, &idx, &dd);
+  ASSERT_EQ(idx.size(), 2u);
+  EXPECT_EQ(idx[0], 1);
+  EXPECT_EQ(idx[1], 0);
+}
+
+// A degenerate prediction (an untrained model collapses to a blob) queried
+// from far away, and a cloud of coincident points: results must stay exact.
+TEST(EvalKdTree, FarQueriesAndCoincidentPoints) {
+  std::mt19937_64 rng(11);
+  std::normal_distribution<float> n(0.0f, 0.01f);
+  std::vector<Eigen::Vector3f> pts;
+  for (int i = 0; i < 2000; ++i) pts.emplace_back(n(rng), n(rng), 1.0f + n(rng));
+  const Eigen::Vector3f same(0.5f, 0.5f, 0.5f);
+  for (int i = 0; i < 500; ++i) pts.push_back(same);
+  const long3r::KdTree3 tree(pts);
+  std::uniform_real_distribution<float> u(-20.0f, 20.0f);
+  std::vector<int> idx;
+  std::vector<float> d2;
+  for (int q = 0; q < 200; ++q) {
+    const Eigen::Vector3f query = q % 4 == 0
+                                      ? Eigen::Vector3f(same + Eigen::Vector3f(0.3f, 0.0f, 0.0f))
+                                      : Eigen::Vector3f(u(rng), u(rng), u(rng));
+    const auto brute = by_distance(pts, query);
+    float best;
+    const int i = tree.nearest(query, &best);
+    EXPECT_EQ(best, brute[0].first);
+    ASSERT_GE(i, 0);
+    EXPECT_EQ((pts[i] - query).squaredNorm(), best);
+    tree.knn(query, 9, &idx, &d2);
+    ASSERT_EQ(idx.size(), 9u);
+    for (int k = 0; k < 9; ++k) {
+      EXPECT_EQ(d2[k], brute[k].first) << "rank " << k;
+      EXPECT_EQ((pts[idx[k]] - query).squaredNorm(), d2[k]);
+    }
+  }
+}

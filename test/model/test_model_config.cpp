@@ -1,0 +1,204 @@
+// Tests of the model configuration parser (include/long3r/model/model_config.hpp):
+// the golden checkpoints' configs, defaults, and one error per rule.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <string>
+
+#include "long3r/io/json.hpp"
+#include "long3r/model/model_config.hpp"
+#include "long3r/model/safetensors.hpp"
+
+namespace {
+
+using long3r::ModelConfig;
+using long3r::ModelConfigError;
+using long3r::parse_model_config;
+
+const std::string kGolden = std::string(LONG3R_SHARED_DIR) + "/golden/";
+
+// A complete tiny Spann3R config (the golden land96x64 model's fields).
+long3r::json::Value tiny_spann3r() {
+  return long3r::json::parse(R"json({
+    "model": "Spann3R",
+    "dust3r": {"output_mode": "pts3d", "head_type": "dpt",
+               "depth_mode": ["exp", "-inf", "inf"], "conf_mode": ["exp", 1, "inf"],
+               "freeze": "none", "landscape_only": true, "patch_embed_cls": "PatchEmbedDust3R",
+               "img_size": [64, 96], "patch_size": 16,
+               "enc_embed_dim": 32, "enc_depth": 3, "enc_num_heads": 2,
+               "dec_embed_dim": 16, "dec_depth": 10, "dec_num_heads": 2,
+               "mlp_ratio": 4, "norm_layer": "LayerNorm(eps=1e-6)", "norm_im2_in_dec": true,
+               "pos_embed": "RoPE100", "mask_ratio": 0.9,
+               "dpt_head": {"feature_dim": 12, "last_dim": 8, "layer_dims": [8, 12, 16, 16],
+                            "hooks": [0, 5, 7, 10], "dim_tokens": [32, 16, 16, 16],
+                            "num_channels": 4, "head_type": "regression",
+                            "output_width_ratio": 1, "stride_level": 1, "patch_size": 16,
+                            "use_bn": false, "note": "tiny"}},
+    "spann3r": {"use_feat": false, "mem_pos_enc": false, "memory_dropout": 0.15,
+                "value_encoder": {"depth": 2, "embed_dim": 32, "num_heads": 2, "mlp_ratio": 4,
+                                  "qkv_bias": true, "norm_layer": "LayerNorm(eps=1e-6)",
+                                  "rope": null, "out_dim": 32},
+                "pos_patch_embed": "PatchEmbedDust3R", "norm_qkv": "LayerNorm(32) eps=1e-5",
+                "attn_head": "Sequential(...)"},
+    "spatial_memory": {"long_mem_size": 156, "top_k": 156, "work_mem_size": 1,
+                       "attn_thresh": 0.0005, "sim_thresh": 0.95, "mem_dropout": null,
+                       "num_patches": 24},
+    "seed": 3252
+  })json");
+}
+
+// Sets obj[path...] = v (objects only).
+void set_path(long3r::json::Value& root, const std::vector<std::string>& path,
+              long3r::json::Value v) {
+  long3r::json::Value* cur = &root;
+  for (std::size_t i = 0; i + 1 < path.size(); ++i) {
+    for (auto& m : cur->as_object()) {
+      if (m.first == path[i]) {
+        cur = &m.second;
+        break;
+      }
+    }
+  }
+  cur->set(path.back(), std::move(v));
+}
+
+void erase_key(long3r::json::Value& obj, const std::string& key) {
+  auto& o = obj.as_object();
+  for (auto it = o.begin(); it != o.end(); ++it) {
+    if (it->first == key) {
+      o.erase(it);
+      return;
+    }
+  }
+}
+
+// The error message of parsing `cfg`, or "" if it parses.
+std::string error_of(const long3r::json::Value& cfg) {
+  try {
+    parse_model_config(cfg);
+  } catch (const ModelConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(ModelConfig, GoldenCheckpointConfigs) {
+  for (const char* c : {"dust3r_pair_sq224", "dust3r_pair_port80x112", "spann3r_seq_land96x64"}) {
+    const std::string path = kGolden + c + "/weights.safetensors";
+    const long3r::TensorFile f = long3r::load_safetensors(path);
+    const ModelConfig cfg = long3r::model_config_from_metadata(f.metadata, path);
+    EXPECT_EQ(cfg.dust3r.enc_embed_dim, 32);
+    EXPECT_EQ(cfg.dust3r.dec_depth, 10);
+    EXPECT_EQ(cfg.dust3r.dpt.hooks, (std::vector<int64_t>{0, 5, 7, 10}));
+    EXPECT_EQ(cfg.dust3r.dpt.layer_dims, (std::vector<int64_t>{8, 12, 16, 16}));
+    EXPECT_DOUBLE_EQ(cfg.dust3r.norm_eps, 1e-6);
+    EXPECT_DOUBLE_EQ(cfg.dust3r.rope_freq, 100.0);
+    EXPECT_TRUE(cfg.dust3r.landscape_only);
+    EXPECT_EQ(cfg.dust3r.conf_mode, long3r::ConfMode::kExp);
+    EXPECT_TRUE(std::isinf(cfg.dust3r.conf_vmax));
+  }
+  const std::string path = kGolden + "spann3r_seq_land96x64/weights.safetensors";
+  const ModelConfig s =
+      long3r::model_config_from_metadata(long3r::load_safetensors(path).metadata, path);
+  EXPECT_EQ(s.kind, long3r::ModelKind::kSpann3r);
+  EXPECT_EQ(s.spann3r.value_encoder.depth, 2);
+  EXPECT_EQ(s.memory_dim(), 32);
+  EXPECT_DOUBLE_EQ(s.spann3r.norm_qkv_eps, 1e-5);
+  EXPECT_EQ(s.spatial_memory.long_mem_size, 156);
+  EXPECT_EQ(s.spatial_memory.work_mem_size, 1);
+  EXPECT_EQ(s.spatial_memory.num_patches, 24);
+}
+
+TEST(ModelConfig, MissingOptionalFieldsTakeDust3rDefaults) {
+  const ModelConfig c = parse_model_config(std::string(R"({"dust3r": {}})"));
+  EXPECT_EQ(c.kind, long3r::ModelKind::kDust3r);
+  EXPECT_EQ(c.dust3r.enc_embed_dim, 1024);
+  EXPECT_EQ(c.dust3r.enc_depth, 24);
+  EXPECT_EQ(c.dust3r.dec_embed_dim, 768);
+  EXPECT_EQ(c.dust3r.dec_depth, 12);
+  EXPECT_EQ(c.dust3r.dpt.hooks, (std::vector<int64_t>{0, 6, 9, 12}));
+  EXPECT_EQ(c.dust3r.dpt.dim_tokens, (std::vector<int64_t>{1024, 768, 768, 768}));
+  EXPECT_EQ(c.dust3r.dpt.feature_dim, 256);
+  EXPECT_EQ(c.dust3r.dpt.num_channels, 4);
+
+  // Spann3R defaults follow the encoder width; hooks follow the decoder depth.
+  const ModelConfig s = parse_model_config(std::string(
+      R"({"model": "Spann3R", "dust3r": {"enc_embed_dim": 64, "enc_num_heads": 4,
+          "dec_depth": 8}})"));
+  EXPECT_EQ(s.spann3r.value_encoder.embed_dim, 64);
+  EXPECT_EQ(s.spann3r.value_encoder.out_dim, 64);
+  EXPECT_EQ(s.dust3r.dpt.hooks, (std::vector<int64_t>{0, 4, 6, 8}));
+  EXPECT_EQ(s.spatial_memory.long_mem_size, 4000);
+  EXPECT_EQ(s.spatial_memory.work_mem_size, 5);
+}
+
+TEST(ModelConfig, TinyConfigParses) {
+  const ModelConfig c = parse_model_config(tiny_spann3r());
+  EXPECT_EQ(c.dust3r.img_size, (std::vector<int64_t>{64, 96}));
+  EXPECT_EQ(c.spatial_memory.top_k, 156);
+}
+
+struct BadCase {
+  std::vector<std::string> path;
+  const char* value_json;  // nullptr: erase the key
+  const char* expected;    // substring of the message
+};
+
+TEST(ModelConfig, ErrorsNameTheField) {
+  const std::vector<BadCase> cases = {
+      {{"dust3r", "enc_num_heads"}, "3", "dust3r.enc_num_heads: must divide"},
+      {{"dust3r", "dec_num_heads"}, "8", "head width divisible by 4"},
+      {{"dust3r", "enc_embed_dim"}, "\"32\"", "dust3r.enc_embed_dim: expected an integer"},
+      {{"dust3r", "enc_depth"}, "2.5", "dust3r.enc_depth: expected an integer"},
+      {{"dust3r", "enc_depth"}, "0", "dust3r.enc_depth: must be at least 1"},
+      {{"dust3r", "enc_embed_dims"}, "32", "unknown field(s) \"enc_embed_dims\""},
+      {{"dust3r", "head_type"}, "\"linear\"", "only \"dpt\" heads"},
+      {{"dust3r", "pos_embed"}, "\"cosine\"", "only RoPE"},
+      {{"dust3r", "patch_embed_cls"}, "\"Foo\"", "unknown class"},
+      {{"dust3r", "norm_layer"}, "\"BatchNorm\"", "only LayerNorm"},
+      {{"dust3r", "depth_mode"}, "[\"exp\", 0, \"inf\"]", "unbounded"},
+      {{"dust3r", "depth_mode"}, "[\"log\", \"-inf\", \"inf\"]", "unknown mode \"log\""},
+      {{"dust3r", "conf_mode"}, "[\"exp\", 1]", "expected [mode, vmin, vmax]"},
+      {{"dust3r", "dpt_head", "hooks"}, "[0, 5, 7, 11]", "dust3r.dpt_head.hooks[3]: must lie"},
+      {{"dust3r", "dpt_head", "hooks"}, "[0, 5, 7]", "needs 4 entries"},
+      {{"dust3r", "dpt_head", "dim_tokens"},
+       "[16, 16, 16, 16]",
+       "dim_tokens[0]: must be the width"},
+      {{"dust3r", "dpt_head", "num_channels"}, "3", "num_channels: must be 4"},
+      {{"dust3r", "dpt_head", "use_bn"}, "true", "batch-norm"},
+      {{"dust3r", "dpt_head", "output_width_ratio"}, "2", "only 1"},
+      {{"spann3r", "value_encoder", "out_dim"}, "16", "value_encoder.out_dim: must equal"},
+      {{"spann3r", "value_encoder", "embed_dim"}, "16", "value_encoder.embed_dim: must equal"},
+      {{"spann3r", "value_encoder", "rope"}, "\"RoPE100\"", "mem_pos_enc"},
+      {{"spann3r", "norm_qkv"}, "\"LayerNorm eps=abc\"", "cannot read a positive eps"},
+      {{"spatial_memory", "work_mem_size"}, "0", "work_mem_size: must be at least 1"},
+      {{"spatial_memory", "mem_dropout"}, "0.1", "training setting"},
+      {{"model"}, "\"CroCoNet\"", "unknown model"},
+      {{"dust3r"}, nullptr, "dust3r: missing"},
+  };
+  for (const BadCase& c : cases) {
+    long3r::json::Value cfg = tiny_spann3r();
+    if (c.value_json == nullptr) {
+      erase_key(cfg, c.path.back());
+    } else {
+      set_path(cfg, c.path, long3r::json::parse(c.value_json));
+    }
+    const std::string msg = error_of(cfg);
+    EXPECT_NE(msg.find(c.expected), std::string::npos)
+        << "path " << c.path.back() << ": got \"" << msg << "\"";
+  }
+}
+
+TEST(ModelConfig, BadJsonAndMissingMetadata) {
+  EXPECT_THROW(parse_model_config(std::string("{\"dust3r\": {,}}")), ModelConfigError);
+  EXPECT_THROW(parse_model_config(std::string("[]")), ModelConfigError);
+  try {
+    long3r::model_config_from_metadata({{"format", "pt"}}, "x.safetensors");
+    FAIL() << "expected an error";
+  } catch (const ModelConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("x.safetensors: no model configuration"),
+              std::string::npos);
+  }
+}
+
+}  // namespace

@@ -1,0 +1,169 @@
+// Tests of the public model classes on the golden checkpoints
+// (../shared/golden): strict loading (success, renamed and missing tensors),
+// pair inference against the reference outputs, and the Spann3R streaming
+// semantics (latency of one frame, flush from the coarse head, reset).
+#include <ATen/ATen.h>
+#include <gtest/gtest.h>
+#include <torch/nn/module.h>
+
+#include <stdexcept>
+#include <string>
+
+#include "long3r/model/dust3r_model.hpp"
+#include "long3r/model/safetensors.hpp"
+#include "long3r/model/spann3r_model.hpp"
+
+namespace {
+
+const std::string kGolden = std::string(LONG3R_SHARED_DIR) + "/golden/";
+
+double rel_diff(const at::Tensor& got, const at::Tensor& want) {
+  return (got.to(at::kDouble) - want.to(at::kDouble)).abs().max().item<double>() /
+         want.to(at::kDouble).abs().max().item<double>();
+}
+
+// The message of the CheckpointError that loading `tensors` throws.
+template <typename Model>
+std::string load_error(Model& model, const long3r::TensorMap& tensors) {
+  try {
+    model.load_weights(tensors, "test.safetensors");
+  } catch (const long3r::CheckpointError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(ModelLoad, Dust3rGoldenWeightsLoadStrictly) {
+  const std::string path = kGolden + "dust3r_pair_port80x112/weights.safetensors";
+  const long3r::TensorFile file = long3r::load_safetensors(path);
+  long3r::Dust3rModel model(long3r::model_config_from_metadata(file.metadata, path));
+  EXPECT_NO_THROW(model.load_weights(file.tensors, path));
+  // Every file tensor maps onto a module tensor (the layer_rn alias included).
+  EXPECT_EQ(model.module().named_parameters().size(), file.tensors.size());
+  const at::Tensor w = file.tensors.at("dec_blocks2.3.cross_attn.projq.weight");
+  bool found = false;
+  for (const auto& kv : model.module().named_parameters()) {
+    if (kv.key() == "dec_blocks2.3.cross_attn.projq.weight") {
+      found = true;
+      EXPECT_TRUE(kv.value().equal(w));
+    }
+  }
+  EXPECT_TRUE(found);
+
+  long3r::TensorMap renamed = file.tensors;
+  renamed["enc_blocks.0.attn.qkvx.weight"] = renamed.at("enc_blocks.0.attn.qkv.weight");
+  renamed.erase("enc_blocks.0.attn.qkv.weight");
+  const std::string msg = load_error(model, renamed);
+  EXPECT_NE(msg.find("missing: enc_blocks.0.attn.qkv.weight"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("unexpected: enc_blocks.0.attn.qkvx.weight"), std::string::npos) << msg;
+
+  for (const char* name : {"downstream_head2.dpt.head.4.bias", "mask_token",
+                           "downstream_head1.dpt.scratch.layer_rn.0.weight"}) {
+    long3r::TensorMap missing = file.tensors;
+    missing.erase(name);
+    EXPECT_NE(load_error(model, missing).find(std::string("missing: ") + name), std::string::npos)
+        << name;
+  }
+  long3r::TensorMap reshaped = file.tensors;
+  reshaped["dec_norm.weight"] = at::zeros({17});
+  EXPECT_NE(load_error(model, reshaped).find("shape mismatch: dec_norm.weight"), std::string::npos);
+}
+
+TEST(ModelLoad, Dust3rPairMatchesGoldenPortrait) {
+  const std::string dir = kGolden + "dust3r_pair_port80x112/";
+  const long3r::Dust3rModel model = long3r::Dust3rModel::from_file(dir + "weights.safetensors");
+  const long3r::TensorFile io = long3r::load_safetensors(dir + "io.safetensors");
+  const long3r::PairPrediction p =
+      model.infer(io.tensors.at("view1.img"), io.tensors.at("view2.img"));
+  // Portrait input (H = 112, W = 80): outputs [1, W, H, .] as the reference.
+  EXPECT_EQ(p.pts3d1.sizes(), (std::vector<int64_t>{1, 80, 112, 3}));
+  EXPECT_LE(rel_diff(p.pts3d1, io.tensors.at("res1.pts3d")), 1e-4);
+  EXPECT_LE(rel_diff(p.conf1, io.tensors.at("res1.conf")), 1e-4);
+  EXPECT_LE(rel_diff(p.pts3d2, io.tensors.at("res2.pts3d_in_other_view")), 1e-4);
+  EXPECT_LE(rel_diff(p.conf2, io.tensors.at("res2.conf")), 1e-4);
+  // Swapped inputs give other results (the test can tell them apart).
+  const long3r::PairPrediction s =
+      model.infer(io.tensors.at("view2.img"), io.tensors.at("view1.img"));
+  EXPECT_GT(rel_diff(s.pts3d1, io.tensors.at("res1.pts3d")), 1e-2);
+  // Views of different sizes are encoded separately (each on its own grid).
+  const long3r::PairPrediction d =
+      model.infer(io.tensors.at("view1.img"), io.tensors.at("view2.img").narrow(2, 0, 96));
+  EXPECT_EQ(d.pts3d1.sizes(), (std::vector<int64_t>{1, 80, 112, 3}));
+  EXPECT_EQ(d.pts3d2.sizes(), (std::vector<int64_t>{1, 80, 96, 3}));
+  EXPECT_TRUE(at::isfinite(d.pts3d2).all().item<bool>());
+  EXPECT_THROW(model.infer(io.tensors.at("view1.img"), io.tensors.at("view1.img").narrow(3, 0, 70)),
+               std::invalid_argument);
+}
+
+TEST(ModelLoad, Spann3rGoldenWeightsLoadStrictly) {
+  const std::string path = kGolden + "spann3r_seq_land96x64/weights.safetensors";
+  const long3r::TensorFile file = long3r::load_safetensors(path);
+  long3r::Spann3rModel model(long3r::model_config_from_metadata(file.metadata, path));
+  EXPECT_NO_THROW(model.load_weights(file.tensors, path));
+  EXPECT_EQ(model.module().named_parameters().size(), file.tensors.size());
+
+  long3r::TensorMap renamed = file.tensors;
+  renamed["dust3r.enc_norm.weights"] = renamed.at("dust3r.enc_norm.weight");
+  renamed.erase("dust3r.enc_norm.weight");
+  const std::string msg = load_error(model, renamed);
+  EXPECT_NE(msg.find("missing: dust3r.enc_norm.weight"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("unexpected: dust3r.enc_norm.weights"), std::string::npos) << msg;
+  for (const char* name : {"norm_q.bias", "attn_head_2.2.weight", "pos_patch_embed.proj.bias",
+                           "value_encoder.1.mlp.fc2.weight"}) {
+    long3r::TensorMap missing = file.tensors;
+    missing.erase(name);
+    EXPECT_NE(load_error(model, missing).find(std::string("missing: ") + name), std::string::npos)
+        << name;
+  }
+  // A DUSt3R checkpoint is not a Spann3R one.
+  EXPECT_THROW(long3r::Spann3rModel::from_file(kGolden + "dust3r_pair_sq224/weights.safetensors"),
+               long3r::ModelConfigError);
+  EXPECT_THROW(long3r::Dust3rModel::from_file(path), long3r::ModelConfigError);
+}
+
+TEST(ModelLoad, Spann3rStreamSemantics) {
+  const std::string dir = kGolden + "spann3r_seq_land96x64/";
+  auto model = long3r::Spann3rModel::from_file(dir + "weights.safetensors");
+  const long3r::TensorFile io = long3r::load_safetensors(dir + "io.safetensors");
+  const at::Tensor frames = io.tensors.at("frames.img");
+  const at::Tensor pred = io.tensors.at("pred.pts3d");
+  EXPECT_EQ(model->variant(), "spann3r");
+
+  EXPECT_FALSE(model->push(frames.narrow(0, 0, 1)).has_value());  // one frame of latency
+  EXPECT_EQ(model->frames_pushed(), 1);
+  const auto o0 = model->push(frames.narrow(0, 1, 1));
+  ASSERT_TRUE(o0.has_value());
+  EXPECT_EQ(o0->frame_index, 0);
+  EXPECT_FALSE(o0->from_coarse_head);
+  EXPECT_LE(rel_diff(o0->pts3d, pred.narrow(0, 0, 1)), 1e-4);
+  EXPECT_EQ(o0->stats.mem_short_tokens + o0->stats.mem_long_tokens, 24);
+  const auto o1 = model->push(frames.narrow(0, 2, 1));
+  ASSERT_TRUE(o1.has_value());
+  EXPECT_EQ(o1->frame_index, 1);
+  EXPECT_LE(rel_diff(o1->pts3d, pred.narrow(0, 1, 1)), 1e-4);
+  EXPECT_LE(rel_diff(o1->conf, io.tensors.at("pred.conf").narrow(0, 1, 1)), 1e-4);
+  EXPECT_EQ(model->memory().size(), 48);
+  EXPECT_EQ(o1->stats.mem_short_tokens, 24);  // work_mem_size 1
+  EXPECT_EQ(o1->stats.mem_long_tokens, 24);
+  EXPECT_THROW(model->push(frames.narrow(0, 3, 1).narrow(3, 0, 64)), std::invalid_argument);
+
+  const auto last = model->flush();  // frame 2 from the coarse head of step 1
+  ASSERT_TRUE(last.has_value());
+  EXPECT_EQ(last->frame_index, 2);
+  EXPECT_TRUE(last->from_coarse_head);
+  EXPECT_EQ(last->pts3d.sizes(), (std::vector<int64_t>{1, 64, 96, 3}));
+  EXPECT_EQ(model->frames_pushed(), 0);
+  EXPECT_TRUE(model->memory().empty());
+
+  // A new stream starts from scratch: the same first output again.
+  model->push(frames.narrow(0, 0, 1));
+  const auto again = model->push(frames.narrow(0, 1, 1));
+  ASSERT_TRUE(again.has_value());
+  EXPECT_TRUE(again->pts3d.equal(o0->pts3d));
+  model->reset();
+  EXPECT_EQ(model->frames_pushed(), 0);
+  model->push(frames.narrow(0, 0, 1));
+  EXPECT_FALSE(model->flush().has_value());  // a single frame has no pair
+}
+
+}  // namespace

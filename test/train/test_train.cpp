@@ -1,0 +1,567 @@
+// Trainer pieces: loss, ground truth, schedule, optimisation, curriculum
+// freezing, checkpoint/resume, initialisation and configuration.
+#include <ATen/ATen.h>
+#include <gtest/gtest.h>
+#include <torch/nn/module.h>
+#include <torch/optim/adamw.h>
+
+#include <opencv2/core.hpp>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string>
+
+#include "long3r/model/long3r_model.hpp"
+#include "long3r/model/safetensors.hpp"
+#include "long3r/pipeline/pose.hpp"
+#include "long3r/train/train.hpp"
+
+namespace fs = std::filesystem;
+using long3r::LossConfig;
+using long3r::StreamOutput;
+
+namespace {
+
+// N outputs (and N-1 coarse) equal to `pts` [B, N, H, W, 3] times `scale`.
+void make_outputs(const at::Tensor& pts, double scale, const at::Tensor& conf,
+                  std::vector<StreamOutput>* out, std::vector<StreamOutput>* coarse) {
+  const int64_t N = pts.size(1);
+  out->clear();
+  coarse->clear();
+  for (int64_t i = 0; i < N; ++i) {
+    StreamOutput o;
+    o.pts3d = pts.select(1, i) * scale;
+    o.conf = conf.select(1, i);
+    out->push_back(o);
+    if (i > 0) coarse->push_back(o);
+  }
+}
+
+at::Tensor random_gt(int64_t B, int64_t N, int64_t H, int64_t W) {
+  at::Tensor p = at::randn({B, N, H, W, 3});
+  p.select(-1, 2).abs_().add_(1.0);  // in front of the camera
+  return p;
+}
+
+std::string scratch(const std::string& name) {
+  const fs::path p = fs::path(LONG3R_BINARY_DIR) / "test_tmp" / "train" / name;
+  fs::remove_all(p);
+  fs::create_directories(p);
+  return p.string();
+}
+
+// A configuration small enough for a unit test: long3r_tiny at 64 x 64.
+long3r::TrainConfig tiny_config() {
+  long3r::TrainConfig c;
+  c.model = "long3r_tiny";
+  c.image_size = 64;
+  long3r::TrainStage s1;
+  s1.name = "s1";
+  s1.steps = 3;
+  s1.frames = 3;
+  s1.batch_size = 1;
+  s1.lr = 1e-3;
+  s1.warmup_steps = 1;
+  long3r::TrainStage s2 = s1;
+  s2.name = "s2";
+  s2.frames = 4;
+  s2.lr = 1e-4;
+  s2.freeze_encoder = true;
+  c.stages = {s1, s2};
+  c.data.synth.train_scenes = 4;
+  c.data.synth.val_scenes = 0;
+  c.data.synth.trajectory_frames = 30;
+  c.validation.sequences = 0;
+  c.checkpoint_every = 0;
+  return c;
+}
+
+}  // namespace
+
+TEST(TrainLoss, PerfectPredictionHasZeroRegressionAndUnitConfidenceZeroLoss) {
+  at::manual_seed(1);
+  const at::Tensor gt = random_gt(2, 3, 4, 5);
+  const at::Tensor valid = at::ones({2, 3, 4, 5}, at::kBool);
+  std::vector<StreamOutput> out, coarse;
+  LossConfig cfg;
+  // A prediction at a smaller scale is a perfect one after normalisation; with
+  // conf = 1 the -alpha log conf term vanishes and the scale loss is off.
+  make_outputs(gt, 0.5, at::ones({2, 3, 4, 5}), &out, &coarse);
+  long3r::LossTerms t = long3r::sequence_loss(out, coarse, gt, valid, cfg);
+  EXPECT_NEAR(t.total.item<double>(), 0.0, 1e-5);
+  EXPECT_NEAR(t.regression, 0.0, 1e-5);
+  EXPECT_DOUBLE_EQ(t.scale_loss.item<double>(), 0.0);
+  // Higher confidence on a perfect prediction lowers the loss (-alpha log c).
+  make_outputs(gt, 0.5, at::full({2, 3, 4, 5}, 3.0), &out, &coarse);
+  t = long3r::sequence_loss(out, coarse, gt, valid, cfg);
+  EXPECT_NEAR(t.total.item<double>(), -cfg.alpha * std::log(3.0), 1e-5);
+  // A wrong prediction costs.
+  std::vector<StreamOutput> bad, bad_coarse;
+  make_outputs(gt + at::randn_like(gt) * 0.3, 1.0, at::ones({2, 3, 4, 5}), &bad, &bad_coarse);
+  t = long3r::sequence_loss(bad, bad_coarse, gt, valid, cfg);
+  EXPECT_GT(t.total.item<double>(), 0.05);
+  EXPECT_GT(t.regression, 0.05);
+}
+
+TEST(TrainLoss, InvalidPixelsAreIgnored) {
+  at::manual_seed(2);
+  const at::Tensor gt = random_gt(1, 2, 4, 4);
+  at::Tensor valid = at::ones({1, 2, 4, 4}, at::kBool);
+  std::vector<StreamOutput> out, coarse;
+  make_outputs(gt, 1.0, at::ones({1, 2, 4, 4}), &out, &coarse);
+  // Garbage where the GT is invalid changes nothing.
+  valid[0][1][2][3] = false;
+  out[1].pts3d = out[1].pts3d.clone();
+  out[1].pts3d[0][2][3] = at::tensor({1e3f, -1e3f, 1e3f});
+  coarse[0] = out[1];
+  // The normalisation of the prediction only uses valid pixels too.
+  const long3r::LossTerms t = long3r::sequence_loss(out, coarse, gt, valid, LossConfig());
+  EXPECT_NEAR(t.total.item<double>(), 0.0, 1e-5);
+}
+
+TEST(TrainLoss, RegressionIsInvariantToThePredictionsScale) {
+  at::manual_seed(3);
+  const at::Tensor gt = random_gt(2, 4, 3, 3);
+  const at::Tensor valid = at::rand({2, 4, 3, 3}) > 0.2;
+  const at::Tensor pred = gt + at::randn_like(gt) * 0.5;
+  const at::Tensor conf = 1.0 + at::rand({2, 4, 3, 3}) * 4.0;
+  std::vector<StreamOutput> out, coarse;
+  LossConfig cfg;
+  cfg.scale_weight = 0.0;
+  make_outputs(pred, 1.0, conf, &out, &coarse);
+  const double a = long3r::sequence_loss(out, coarse, gt, valid, cfg).total.item<double>();
+  make_outputs(pred, 7.5, conf, &out, &coarse);
+  const double b = long3r::sequence_loss(out, coarse, gt, valid, cfg).total.item<double>();
+  EXPECT_NEAR(a, b, 1e-5 * std::abs(a));
+  // The GT's own scale does not matter either.
+  make_outputs(pred, 1.0, conf, &out, &coarse);
+  const double c = long3r::sequence_loss(out, coarse, gt * 0.1, valid, cfg).total.item<double>();
+  EXPECT_NEAR(a, c, 1e-5 * std::abs(a));
+}
+
+TEST(TrainLoss, ScaleLossPenalisesOnlyLargerPredictions) {
+  at::manual_seed(4);
+  const at::Tensor gt = random_gt(1, 3, 4, 4);
+  const at::Tensor valid = at::ones({1, 3, 4, 4}, at::kBool);
+  const double z = long3r::average_distance(gt, valid).item<double>();
+  std::vector<StreamOutput> out, coarse;
+  make_outputs(gt, 2.0, at::ones({1, 3, 4, 4}), &out, &coarse);
+  long3r::LossTerms t = long3r::sequence_loss(out, coarse, gt, valid, LossConfig());
+  EXPECT_NEAR(t.scale_loss.item<double>(), z, 1e-4 * z);  // 2z - z
+  EXPECT_NEAR(t.total.item<double>(), t.conf_loss.item<double>() + z, 1e-4 * z);
+  make_outputs(gt, 0.9, at::ones({1, 3, 4, 4}), &out, &coarse);
+  t = long3r::sequence_loss(out, coarse, gt, valid, LossConfig());
+  EXPECT_DOUBLE_EQ(t.scale_loss.item<double>(), 0.0);
+  // Batch: only the item with the larger prediction counts, averaged over
+  // such items (Spann3R).
+  const at::Tensor gt2 = at::cat({gt, gt});
+  std::vector<StreamOutput> o2, c2;
+  const at::Tensor pred2 = at::cat({gt * 3.0, gt * 0.5});
+  make_outputs(pred2, 1.0, at::ones({2, 3, 4, 4}), &o2, &c2);
+  t = long3r::sequence_loss(o2, c2, gt2, at::cat({valid, valid}), LossConfig());
+  EXPECT_NEAR(t.scale_loss.item<double>(), 2.0 * z, 1e-4 * z);
+  // And its gradient shrinks the prediction.
+  at::Tensor p = (gt * 2.0).requires_grad_(true);
+  make_outputs(p, 1.0, at::ones({1, 3, 4, 4}), &out, &coarse);
+  LossConfig only_scale;
+  only_scale.alpha = 1e-9;
+  long3r::sequence_loss(out, coarse, gt, valid, only_scale).scale_loss.backward();
+  EXPECT_GT((p.grad() * p.detach()).sum().item<double>(), 0.0);
+}
+
+TEST(TrainData, PointmapMatchesHandComputation) {
+  cv::Mat depth(2, 3, CV_32FC1, cv::Scalar(0));
+  depth.at<float>(0, 0) = 2.0f;
+  depth.at<float>(1, 2) = 4.0f;
+  depth.at<float>(0, 1) = std::nanf("");
+  long3r::PinholeIntrinsics k;
+  k.fx = 2.0;
+  k.fy = 4.0;
+  k.cx = 1.0;
+  k.cy = 0.5;
+  // Camera C sits 1 m along x of camera 0 and is turned 90 degrees about z.
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(1.0, 0.0, 0.0);
+  at::Tensor valid;
+  const at::Tensor pts = long3r::depth_to_pointmap(depth, k, T, &valid);
+  ASSERT_EQ(pts.sizes(), (at::IntArrayRef{2, 3, 3}));
+  EXPECT_TRUE(valid[0][0].item<bool>());
+  EXPECT_TRUE(valid[1][2].item<bool>());
+  EXPECT_FALSE(valid[0][1].item<bool>());  // NaN depth
+  EXPECT_FALSE(valid[1][0].item<bool>());  // zero depth
+  EXPECT_EQ(valid.sum().item<int64_t>(), 2);
+  // Pixel (u=0, v=0), z=2: camera point ((0-1)/2*2, (0-0.5)/4*2, 2) = (-1, -0.25, 2);
+  // Rz(90) (x, y, z) -> (-y, x, z) = (0.25, -1, 2); + (1, 0, 0).
+  EXPECT_NEAR(pts[0][0][0].item<float>(), 1.25f, 1e-6);
+  EXPECT_NEAR(pts[0][0][1].item<float>(), -1.0f, 1e-6);
+  EXPECT_NEAR(pts[0][0][2].item<float>(), 2.0f, 1e-6);
+  // Pixel (u=2, v=1), z=4: ((2-1)/2*4, (1-0.5)/4*4, 4) = (2, 0.5, 4) -> (-0.5, 2, 4) + t.
+  EXPECT_NEAR(pts[1][2][0].item<float>(), 0.5f, 1e-6);
+  EXPECT_NEAR(pts[1][2][1].item<float>(), 2.0f, 1e-6);
+  EXPECT_NEAR(pts[1][2][2].item<float>(), 4.0f, 1e-6);
+  EXPECT_EQ(pts[1][0].abs().sum().item<float>(), 0.0f);
+}
+
+TEST(TrainData, CropResizeIntrinsicsFollowPixelCentres) {
+  long3r::PinholeIntrinsics k;
+  k.fx = k.fy = 100.0;
+  k.cx = 63.5;
+  k.cy = 47.5;
+  // Cropping 64 x 64 at (32, 16) and halving: the pixel centre at source
+  // (32, 16) lands at (0.25 - 0.5 + ...): check the mapping of two points.
+  const long3r::PinholeIntrinsics r = long3r::crop_resize_intrinsics(k, 32, 16, 64, 64, 32, 32);
+  EXPECT_DOUBLE_EQ(r.fx, 50.0);
+  EXPECT_DOUBLE_EQ(r.cx, (63.5 - 32 + 0.5) * 0.5 - 0.5);
+  EXPECT_DOUBLE_EQ(r.cy, (47.5 - 16 + 0.5) * 0.5 - 0.5);
+  EXPECT_EQ(r.width, 32);
+  // A 3D point projects to consistent pixels before and after.
+  const Eigen::Vector3d X(0.3, -0.2, 2.0);
+  const Eigen::Vector2d a = k.project(X), b = r.project(X);
+  EXPECT_NEAR(b.x(), (a.x() - 32 + 0.5) * 0.5 - 0.5, 1e-9);
+  EXPECT_NEAR(b.y(), (a.y() - 16 + 0.5) * 0.5 - 0.5, 1e-9);
+}
+
+TEST(TrainData, SequenceGroundTruthIsInCameraZerosFrame) {
+  long3r::DataConfig dc;
+  dc.synth.train_scenes = 2;
+  dc.synth.trajectory_frames = 20;
+  long3r::SequenceSampler sampler(dc, 64, 5);
+  const long3r::SequenceSample s = sampler.validation_sequence(0, 3, 3);
+  ASSERT_EQ(s.images.size(), 3u);
+  EXPECT_EQ(s.images[0].sizes(), (at::IntArrayRef{3, 64, 64}));
+  EXPECT_TRUE(s.T_C0_C[0].isApprox(Eigen::Isometry3d::Identity()));
+  EXPECT_GT(s.valid.to(at::kFloat).mean().item<double>(), 0.9);  // closed rooms
+  // Frame 0's points have the depth as z.
+  const at::Tensor z0 = s.pts[0].select(-1, 2);
+  EXPECT_GT(z0.masked_select(s.valid[0]).min().item<float>(), 0.0f);
+  // Augmented samples are deterministic given the seed.
+  long3r::SequenceSampler a(dc, 64, 9), b(dc, 64, 9);
+  const long3r::SequenceSample sa = a.sample(3), sb = b.sample(3);
+  EXPECT_EQ(sa.source, sb.source);
+  EXPECT_TRUE(at::equal(sa.images[2], sb.images[2]));
+  EXPECT_TRUE(at::equal(sa.pts, sb.pts));
+  // Frame i's GT maps back into its own camera with depth = z.
+  const Eigen::Isometry3d Ti = sa.T_C0_C[2].inverse();
+  const at::Tensor p = sa.pts[2][32][32];
+  const Eigen::Vector3d Xc =
+      Ti * Eigen::Vector3d(p[0].item<float>(), p[1].item<float>(), p[2].item<float>());
+  const Eigen::Vector2d px = sa.intrinsics[2].project(Xc);
+  EXPECT_NEAR(px.x(), 32.0, 1e-3);
+  EXPECT_NEAR(px.y(), 32.0, 1e-3);
+}
+
+TEST(TrainSchedule, WarmupThenCosine) {
+  long3r::TrainConfig c = tiny_config();
+  c.stages[0].steps = 10;
+  c.stages[0].lr = 1.0;
+  c.stages[0].warmup_steps = 4;
+  c.stages[0].min_lr_ratio = 0.1;
+  c.stages[1].steps = 5;
+  c.stages[1].lr = 0.5;
+  c.stages[1].warmup_steps = 0;
+  c.stages[1].min_lr_ratio = 0.0;
+  EXPECT_DOUBLE_EQ(long3r::learning_rate_at(c, 0), 0.25);
+  EXPECT_DOUBLE_EQ(long3r::learning_rate_at(c, 3), 1.0);
+  EXPECT_DOUBLE_EQ(long3r::learning_rate_at(c, 4), 1.0);  // cosine starts at the peak
+  // Steps 4..9 decay over 6 steps: progress (s - 4) / 5.
+  EXPECT_NEAR(long3r::learning_rate_at(c, 6), 0.1 + 0.45 * (1 + std::cos(M_PI * 0.4)), 1e-12);
+  EXPECT_NEAR(long3r::learning_rate_at(c, 9), 0.1, 1e-12);
+  EXPECT_DOUBLE_EQ(long3r::learning_rate_at(c, 10), 0.5);  // stage 2 restarts
+  EXPECT_NEAR(long3r::learning_rate_at(c, 14), 0.0, 1e-12);
+  EXPECT_EQ(long3r::stage_at(c, 12).index, 1);
+  EXPECT_EQ(long3r::stage_at(c, 12).local_step, 2);
+  EXPECT_EQ(long3r::stage_at(c, 15).index, 2);
+}
+
+TEST(TrainOptim, FewStepsOverfitAFixedBatch) {
+  at::manual_seed(6);
+  long3r::Long3rModel model(long3r::named_model_config("long3r_tiny"));
+  model.set_training(true);
+  long3r::DataConfig dc;
+  dc.synth.train_scenes = 1;
+  dc.synth.trajectory_frames = 20;
+  long3r::SequenceSampler sampler(dc, 64, 3);
+  const long3r::Batch batch = long3r::collate({sampler.sample(3)});
+  torch::optim::AdamW opt(model.module().parameters(), torch::optim::AdamWOptions(2e-3));
+  LossConfig cfg;
+  double first = 0, last = 0;
+  for (int i = 0; i < 25; ++i) {
+    opt.zero_grad();
+    std::vector<StreamOutput> coarse;
+    const auto out = model.forward_sequence(batch.frames, &coarse);
+    const long3r::LossTerms t = long3r::sequence_loss(out, coarse, batch.pts, batch.valid, cfg);
+    t.total.backward();
+    opt.step();
+    if (i == 0) first = t.regression;
+    last = t.regression;
+  }
+  EXPECT_LT(last, 0.6 * first) << "first " << first << " last " << last;
+}
+
+TEST(TrainTrainer, StageTwoFreezesTheEncoder) {
+  long3r::TrainConfig c = tiny_config();
+  c.stages[0].steps = 1;
+  long3r::TrainOptions o;
+  o.out_dir = scratch("freeze");
+  o.quiet = true;
+  long3r::Trainer tr(c, o);
+  auto snapshot = [&]() {
+    std::map<std::string, at::Tensor> m;
+    for (const auto& kv : tr.model().module().named_parameters())
+      m[kv.key()] = kv.value().detach().clone();
+    return m;
+  };
+  const auto s0 = snapshot();
+  tr.step();  // stage 1: everything trains
+  const auto s1 = snapshot();
+  EXPECT_FALSE(
+      at::equal(s0.at("dust3r.patch_embed.proj.weight"), s1.at("dust3r.patch_embed.proj.weight")));
+  tr.step();  // stage 2
+  const auto s2 = snapshot();
+  int frozen = 0, moved = 0;
+  for (const auto& kv : tr.model().module().named_parameters()) {
+    if (long3r::is_encoder_parameter(kv.key())) {
+      EXPECT_FALSE(kv.value().requires_grad()) << kv.key();
+      EXPECT_TRUE(at::equal(s1.at(kv.key()), s2.at(kv.key()))) << kv.key();
+      ++frozen;
+    } else if (!at::equal(s1.at(kv.key()), s2.at(kv.key()))) {
+      ++moved;
+    }
+  }
+  EXPECT_GT(frozen, 4);
+  EXPECT_GT(moved, 20);
+  EXPECT_TRUE(tr.model()
+                  .module()
+                  .named_parameters()
+                  .find("dust3r.dec_blocks.0.attn.qkv.weight")
+                  ->requires_grad());
+}
+
+TEST(TrainTrainer, ResumeReproducesTheNextStep) {
+  long3r::TrainConfig c = tiny_config();
+  c.stages[0].batch_size = 2;
+  long3r::TrainOptions o;
+  o.out_dir = scratch("resume");
+  o.quiet = true;
+  o.seed = 4;
+  double expected = 0, expected_lr = 0;
+  {
+    long3r::Trainer a(c, o);
+    a.step();
+    a.step();
+    a.save_checkpoint();
+    const long3r::LogRow r = a.step();
+    expected = r.loss;
+    expected_lr = r.lr;
+  }
+  o.resume = true;
+  long3r::Trainer b(c, o);
+  EXPECT_EQ(b.global_step(), 2);
+  ASSERT_EQ(b.log().size(), 2u);
+  const long3r::LogRow r = b.step();
+  EXPECT_EQ(r.step, 3);
+  EXPECT_DOUBLE_EQ(r.lr, expected_lr);
+  EXPECT_NEAR(r.loss, expected, 1e-6 * std::abs(expected));
+  // A different seed gives different data: the check above can fail.
+  long3r::TrainOptions other = o;
+  other.resume = false;
+  other.out_dir = scratch("resume_other");
+  other.seed = 5;
+  long3r::Trainer d(c, other);
+  d.step();
+  d.step();
+  EXPECT_NE(d.step().loss, expected);
+}
+
+TEST(TrainInit, CopiesMatchingTensorsByNameAndShape) {
+  at::manual_seed(7);
+  long3r::Long3rModel src(long3r::named_model_config("long3r_tiny"));
+  // A DUSt3R-style file: encoder / decoder names without the "dust3r." prefix,
+  // one tensor with a wrong shape and one the model does not have.
+  long3r::TensorMap t;
+  for (const auto& kv : src.module().named_parameters()) {
+    if (kv.key().rfind("dust3r.", 0) == 0) t[kv.key().substr(7)] = kv.value().detach().clone();
+  }
+  t["patch_embed.proj.weight"] = at::ones({5});
+  t["not_a_module.weight"] = at::ones({2});
+  const std::string path = scratch("init") + "/dust3r.safetensors";
+  long3r::save_safetensors(path, t);
+  at::manual_seed(8);
+  long3r::Long3rModel dst(long3r::named_model_config("long3r_tiny"));
+  const long3r::InitReport r = long3r::init_from_checkpoint(dst, path);
+  EXPECT_EQ(r.shape_mismatch, 1);
+  EXPECT_EQ(r.unused, 1);
+  EXPECT_EQ(r.loaded, static_cast<int64_t>(t.size()) - 2);
+  EXPECT_GT(r.fresh, 1);  // value encoder, attention heads, patch_embed.proj.weight
+  const auto sp = src.module().named_parameters();
+  const auto dp = dst.module().named_parameters();
+  EXPECT_TRUE(at::equal(*sp.find("dust3r.enc_blocks.0.attn.qkv.weight"),
+                        *dp.find("dust3r.enc_blocks.0.attn.qkv.weight")));
+  // The mis-shaped tensor keeps dst's own (randomly initialised) values.
+  EXPECT_FALSE(at::equal(*sp.find("dust3r.patch_embed.proj.weight"),
+                         *dp.find("dust3r.patch_embed.proj.weight")));
+  EXPECT_FALSE(at::equal(*sp.find("attn_head_1.0.weight"), *dp.find("attn_head_1.0.weight")));
+}
+
+TEST(TrainConfig, ParsesAndRejectsBadFields) {
+  const std::string ok = R"({"model": "long3r_tiny", "image_size": 64,
+    "stages": [{"name": "a", "steps": 2, "frames": 5, "lr": 1e-4}],
+    "data": {"synth": {"train_scenes": 10, "val_scenes": 2}}})";
+  const long3r::TrainConfig c = long3r::parse_train_config(ok);
+  EXPECT_EQ(c.stages.size(), 1u);
+  EXPECT_EQ(c.stages[0].frames, 5);
+  EXPECT_DOUBLE_EQ(c.loss.alpha, 0.2);
+  // Round trip.
+  const long3r::TrainConfig c2 = long3r::parse_train_config(long3r::train_config_to_json(c));
+  EXPECT_EQ(long3r::train_config_to_json(c2), long3r::train_config_to_json(c));
+  EXPECT_THROW(long3r::parse_train_config(R"({"stages": [{"steps": 1, "lr": 1e-4, "frams": 3}]})"),
+               std::invalid_argument);
+  // Validation scenes inside the training range.
+  EXPECT_THROW(long3r::parse_train_config(R"({"stages": [{"steps": 1}],
+    "data": {"synth": {"train_seed_begin": 0, "train_scenes": 100, "val_seed_begin": 50}}})"),
+               std::invalid_argument);
+  EXPECT_THROW(long3r::parse_train_config(R"({"image_size": 70, "stages": [{"steps": 1}]})"),
+               std::invalid_argument);
+}
+
+TEST(TrainConfig, ShippedDefaultParses) {
+  const fs::path p = fs::path(LONG3R_SOURCE_DIR) / "config" / "train_default.json";
+  std::ifstream in(p);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  const long3r::TrainConfig c = long3r::parse_train_config(ss.str());
+  ASSERT_EQ(c.stages.size(), 3u);
+  EXPECT_EQ(c.stages[0].frames, 5);
+  EXPECT_FALSE(c.stages[0].freeze_encoder);
+  EXPECT_EQ(c.stages[1].frames, 10);
+  EXPECT_TRUE(c.stages[1].freeze_encoder);
+  EXPECT_EQ(c.stages[2].frames, 32);
+  EXPECT_TRUE(c.stages[2].freeze_encoder);
+  EXPECT_NO_THROW(long3r::resolve_model_config(c.model));
+}
+
+TEST(TrainConfig, EveryCheckedInTrainingConfigParses) {
+  // The shipped recipe's stages and the documented experiments: a field
+  // misspelt in any of them would only show when someone runs it.
+  int seen = 0;
+  for (const auto& e : fs::directory_iterator(fs::path(LONG3R_SOURCE_DIR) / "config")) {
+    const std::string name = e.path().filename().string();
+    if (name.rfind("train_", 0) != 0 || e.path().extension() != ".json") continue;
+    SCOPED_TRACE(name);
+    std::ifstream in(e.path());
+    std::stringstream ss;
+    ss << in.rdbuf();
+    long3r::TrainConfig c;
+    ASSERT_NO_THROW(c = long3r::parse_train_config(ss.str()));
+    EXPECT_FALSE(c.stages.empty());
+    EXPECT_NO_THROW(long3r::resolve_model_config(c.model));
+    ++seen;
+  }
+  EXPECT_GE(seen, 4);  // default, ship stage 1 and 2, the long-travel experiment
+}
+
+// ----------------------------------------------------- held-out evaluation
+
+namespace {
+
+long3r::SequenceSample held_out_sequence(int64_t frames) {
+  long3r::DataConfig dc;
+  dc.synth.val_seed_begin = 2000000;
+  dc.synth.trajectory_frames = 3 * frames;
+  long3r::SequenceSampler sampler(dc, 96, 0, 1);
+  return sampler.validation_sequence(0, frames, 3);
+}
+
+}  // namespace
+
+TEST(ModelEval, GroundTruthPredictionScoresZero) {
+  const long3r::SequenceSample s = held_out_sequence(6);
+  long3r::SequencePrediction p;
+  for (int64_t i = 0; i < 6; ++i) {
+    // Any Sim(3) of the GT is a perfect prediction after alignment.
+    p.pts.push_back((s.pts[i] * 2.5f + 1.0f).contiguous());
+    p.conf.push_back(at::full({96, 96}, 5.0f));
+  }
+  long3r::PredictionMetricsOptions o;
+  o.pixel_step = 3;
+  const long3r::PredictionMetrics m = long3r::evaluate_prediction(p, s, o);
+  EXPECT_EQ(m.frames, 6);
+  EXPECT_EQ(m.posed, 6);
+  EXPECT_LT(m.pointmap_error, 1e-4);
+  EXPECT_LT(m.acc_mean, 1e-4);
+  EXPECT_LT(m.comp_mean, 1e-4);
+  EXPECT_GT(m.nc_mean, 0.99);
+  EXPECT_LT(m.ate_rmse, 1e-3);
+  EXPECT_LT(m.rpe_trans_rmse, 1e-3);
+}
+
+TEST(ModelEval, EstimatedIntrinsicsFollowThePredictedFieldOfView) {
+  // The pipeline without a calibration takes the focal from frame 0's
+  // pointmap. A prediction that is exact up to a wider field of view (x and y
+  // squeezed by 0.8 in every camera's own frame, the true poses) is then
+  // posed exactly; the GT focal misplaces its cameras.
+  const long3r::SequenceSample s = held_out_sequence(6);
+  long3r::SequencePrediction p;
+  for (int64_t i = 0; i < 6; ++i) {
+    const Eigen::Isometry3d& T_C0_C = s.T_C0_C[static_cast<std::size_t>(i)];
+    const at::Tensor gt = s.pts[i].contiguous();
+    const cv::Mat points_C =
+        long3r::points_in_camera(cv::Mat(96, 96, CV_32FC3, gt.data_ptr<float>()), T_C0_C);
+    cv::Mat squeezed;
+    cv::multiply(points_C, cv::Scalar(0.8, 0.8, 1.0), squeezed);
+    const cv::Mat points_W = long3r::transform_points(squeezed, T_C0_C);
+    p.pts.push_back(
+        at::from_blob(const_cast<float*>(points_W.ptr<float>()), {96, 96, 3}, at::kFloat).clone());
+    p.conf.push_back(at::full({96, 96}, 5.0f));
+  }
+  long3r::PredictionMetricsOptions o;
+  o.pixel_step = 3;
+  o.normals = false;
+  o.estimate_intrinsics = true;
+  // No usable pixel in frame 0: no focal, so no poses (not the GT focal).
+  long3r::SequencePrediction blind = p;
+  blind.pts[0] = at::full({96, 96, 3}, std::nanf(""));
+  EXPECT_EQ(long3r::evaluate_prediction(blind, s, o).posed, 0);
+  const long3r::PredictionMetrics est = long3r::evaluate_prediction(p, s, o);
+  EXPECT_EQ(est.posed, 6);
+  EXPECT_LT(est.ate_rmse, 2e-3);
+  EXPECT_LT(est.rpe_rot_rmse_deg, 0.1);
+  o.estimate_intrinsics = false;
+  const long3r::PredictionMetrics gt = long3r::evaluate_prediction(p, s, o);
+  ASSERT_EQ(gt.posed, 6);
+  EXPECT_GT(gt.ate_rmse, 10.0 * std::max(est.ate_rmse, 1e-4));
+}
+
+TEST(ModelEval, ConstantDepthBaselineHasNoMotionAndTheGtSpreadAsAte) {
+  const long3r::SequenceSample s = held_out_sequence(6);
+  const long3r::SequencePrediction p = long3r::constant_depth_prediction(s, 2.0);
+  ASSERT_EQ(p.pts.size(), 6u);
+  // Pixel centre (cx, cy) at depth 2 lies on the optical axis.
+  const long3r::PinholeIntrinsics& k = s.intrinsics[0];
+  const at::Tensor c =
+      p.pts[0][static_cast<int64_t>(std::lround(k.cy))][static_cast<int64_t>(std::lround(k.cx))];
+  EXPECT_NEAR(c[2].item<float>(), 2.0f, 1e-6);
+  EXPECT_NEAR(c[0].item<float>(), 0.0f, 0.02f);
+  long3r::PredictionMetricsOptions o;
+  o.pixel_step = 3;
+  o.normals = false;
+  const long3r::PredictionMetrics m = long3r::evaluate_prediction(p, s, o);
+  EXPECT_EQ(m.posed, 6);
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& T : s.T_C0_C) mean += T.translation();
+  mean /= 6.0;
+  double sq = 0;
+  for (const auto& T : s.T_C0_C) sq += (T.translation() - mean).squaredNorm();
+  EXPECT_NEAR(m.ate_rmse, std::sqrt(sq / 6.0), 1e-3);
+  EXPECT_GT(m.ate_rmse, 0.01);  // the camera does move
+  EXPECT_GT(m.acc_mean, 0.05);
+  // Wrong lengths are refused.
+  long3r::SequencePrediction short_p = p;
+  short_p.pts.pop_back();
+  short_p.conf.pop_back();
+  EXPECT_THROW(long3r::evaluate_prediction(short_p, s, o), std::invalid_argument);
+}
