@@ -27,7 +27,7 @@ while [ $# -gt 0 ]; do
 done
 build="$LONG3R_ROOT/build/core"
 cmake -S "$LONG3R_ROOT" -B "$build" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
-cmake --build "$build" -j "$LONG3R_JOBS" --target long3r_model_eval
+cmake --build "$build" -j "$LONG3R_JOBS" --target app_long3r_model_eval
 mkdir -p "$out"
 
 row() {  # name args...

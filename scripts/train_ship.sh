@@ -34,7 +34,7 @@ done
 
 build="$LONG3R_ROOT/build/core"
 cmake -S "$LONG3R_ROOT" -B "$build" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
-cmake --build "$build" -j "$LONG3R_JOBS" --target long3r_train long3r_model_eval
+cmake --build "$build" -j "$LONG3R_JOBS" --target app_long3r_train app_long3r_model_eval
 
 stage() {  # name config [extra args]
   local name=$1 config=$2; shift 2
