@@ -1,9 +1,11 @@
 // Reading and validating the nodelet's ROS parameters.
 //
 // One function per config struct; each reads every field from the private
-// node handle, falls back to the struct's default, validates, and throws
-// ParamError naming the parameter when a value is out of range or of the wrong
-// type, so a misconfigured launch fails at start-up with a clear message.
+// node handle (through the struct's list of parameter names in params.cpp,
+// which describe() uses too), falls back to the struct's default, validates,
+// and throws ParamError naming the parameter when a value is out of range or
+// of the wrong type, so a misconfigured launch fails at start-up with a clear
+// message.
 #pragma once
 
 #include <ros/node_handle.h>

@@ -7,9 +7,9 @@
 #include <cstdio>
 #include <cstring>
 #include <iostream>
+#include <nlohmann/json.hpp>
 #include <string>
 
-#include "long3r/io/json.hpp"
 #include "long3r/model/safetensors.hpp"
 
 namespace {
@@ -79,9 +79,9 @@ int main(int argc, char** argv) {
       std::string shown = kv.second;
       // Pretty-print JSON values (the model config); leave other strings as is.
       try {
-        const long3r::json::Value v = long3r::json::parse(kv.second);
+        const auto v = nlohmann::ordered_json::parse(kv.second);
         if (v.is_object() || v.is_array()) shown = v.dump(2);
-      } catch (const long3r::json::Error&) {
+      } catch (const nlohmann::ordered_json::exception&) {
       }
       std::cout << "  " << kv.first << ": " << shown << "\n";
     }

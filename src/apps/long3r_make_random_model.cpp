@@ -16,8 +16,9 @@
 #include <cstdlib>
 #include <iostream>
 #include <map>
-#include <sstream>
+#include <nlohmann/json.hpp>
 #include <string>
+#include <vector>
 
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/safetensors.hpp"
@@ -35,27 +36,36 @@ void usage() {
 std::string config_json(const std::string& size, int img) {
   int enc = 32, enc_depth = 2, enc_heads = 2, dec = 16, dec_depth = 2, dec_heads = 2;
   int feat = 12, last = 8, value_depth = 1;
-  std::string layers = "[8, 12, 16, 16]";
+  std::vector<int> layers{8, 12, 16, 16};
   if (size == "small") {
     enc = 128, enc_depth = 4, enc_heads = 4, dec = 64, dec_depth = 4, dec_heads = 4;
-    feat = 64, last = 32, value_depth = 2, layers = "[32, 48, 64, 64]";
+    feat = 64, last = 32, value_depth = 2, layers = {32, 48, 64, 64};
   }
-  std::ostringstream s;
-  s << "{\"model\": \"Spann3R\", \"note\": \"random weights (long3r_make_random_model --size "
-    << size << ")\", \"dust3r\": {\"img_size\": [" << img << ", " << img
-    << "], \"patch_size\": 16, \"enc_embed_dim\": " << enc << ", \"enc_depth\": " << enc_depth
-    << ", \"enc_num_heads\": " << enc_heads << ", \"dec_embed_dim\": " << dec
-    << ", \"dec_depth\": " << dec_depth << ", \"dec_num_heads\": " << dec_heads
-    << ", \"landscape_only\": true, \"depth_mode\": [\"exp\", \"-inf\", \"inf\"], "
-       "\"conf_mode\": [\"exp\", 1, \"inf\"], \"dpt_head\": {\"feature_dim\": "
-    << feat << ", \"last_dim\": " << last << ", \"layer_dims\": " << layers
-    << "}}, \"spann3r\": {\"use_feat\": false, \"mem_pos_enc\": false, \"value_encoder\": "
-       "{\"depth\": "
-    << value_depth << ", \"embed_dim\": " << enc << ", \"num_heads\": " << enc_heads
-    << ", \"out_dim\": " << enc
-    << "}}, \"spatial_memory\": {\"long_mem_size\": 2000, \"top_k\": 2000, "
-       "\"work_mem_size\": 5}}";
-  return s.str();
+  using Json = nlohmann::ordered_json;
+  Json dust3r = {{"img_size", {img, img}},
+                 {"patch_size", 16},
+                 {"enc_embed_dim", enc},
+                 {"enc_depth", enc_depth},
+                 {"enc_num_heads", enc_heads},
+                 {"dec_embed_dim", dec},
+                 {"dec_depth", dec_depth},
+                 {"dec_num_heads", dec_heads},
+                 {"landscape_only", true},
+                 {"depth_mode", {"exp", "-inf", "inf"}},
+                 {"conf_mode", {"exp", 1, "inf"}},
+                 {"dpt_head", {{"feature_dim", feat}, {"last_dim", last}, {"layer_dims", layers}}}};
+  Json spann3r = {
+      {"use_feat", false},
+      {"mem_pos_enc", false},
+      {"value_encoder",
+       {{"depth", value_depth}, {"embed_dim", enc}, {"num_heads", enc_heads}, {"out_dim", enc}}}};
+  Json root = {
+      {"model", "Spann3R"},
+      {"note", "random weights (long3r_make_random_model --size " + size + ")"},
+      {"dust3r", std::move(dust3r)},
+      {"spann3r", std::move(spann3r)},
+      {"spatial_memory", {{"long_mem_size", 2000}, {"top_k", 2000}, {"work_mem_size", 5}}}};
+  return root.dump();
 }
 
 }  // namespace

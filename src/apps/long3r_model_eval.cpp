@@ -9,12 +9,12 @@
 #include <cstdio>
 #include <fstream>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <stdexcept>
 #include <string>
 #include <thread>
 #include <vector>
 
-#include "long3r/io/json.hpp"
 #include "long3r/model/checkpoint.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/safetensors.hpp"
@@ -49,8 +49,8 @@ void usage() {
 }
 
 // JSON has no NaN: a metric that could not be computed is null.
-long3r::json::Value num(double v) {
-  return std::isfinite(v) ? long3r::json::Value(v) : long3r::json::Value(nullptr);
+nlohmann::ordered_json num(double v) {
+  return std::isfinite(v) ? nlohmann::ordered_json(v) : nlohmann::ordered_json(nullptr);
 }
 
 double mean_finite(const std::vector<double>& v) {
@@ -164,7 +164,11 @@ int main(int argc, char** argv) {
       }
       if (lt_capacity >= 0) mc.long3r.long_term_capacity = lt_capacity;
       if (st_frames >= 0) mc.long3r.short_term_frames = st_frames;
-      if (!policy.empty()) mc.long3r.long_term_policy = policy;
+      if (!policy.empty() && !long3r::config::enum_from_name(policy, &mc.long3r.long_term_policy)) {
+        throw long3r::ConfigError("model config: long3r.long_term_policy: must be " +
+                                  long3r::config::enum_choices<long3r::LongTermPolicy>() +
+                                  ", got \"" + policy + "\"");
+      }
       long3r::validate_model_config(mc);
       at::manual_seed(seed);
       model = std::make_unique<long3r::Long3rModel>(mc);
@@ -173,8 +177,8 @@ int main(int argc, char** argv) {
         throw std::invalid_argument("--img-size must be a multiple of the patch size");
       }
       what += " (K " + std::to_string(mc.long3r.short_term_frames) + ", L " +
-              std::to_string(mc.long3r.long_term_capacity) + ", " + mc.long3r.long_term_policy +
-              " long-term memory)";
+              std::to_string(mc.long3r.long_term_capacity) + ", " +
+              long3r::config::enum_name(mc.long3r.long_term_policy) + " long-term memory)";
     } else {
       what = "baseline constant-depth";
     }
@@ -191,7 +195,7 @@ int main(int argc, char** argv) {
                 static_cast<long long>(img_size), static_cast<unsigned long long>(seed_begin));
     std::printf("%8s %8s %8s %8s %8s %8s %8s %8s %8s %7s %7s\n", "seed", "Acc", "Acc_med", "Comp",
                 "Comp_med", "NC", "NC_med", "ATE_m", "RPE_m", "posed", "fps");
-    long3r::json::Value per_seq{long3r::json::Array{}};
+    nlohmann::ordered_json per_seq = nlohmann::ordered_json::array();
     std::vector<std::vector<double>> cols(11);
     for (int64_t s = 0; s < sequences; ++s) {
       const long3r::SequenceSample sample = sampler.validation_sequence(s, frames, stride);
@@ -229,42 +233,42 @@ int main(int argc, char** argv) {
                   m.acc_mean, m.acc_median, m.comp_mean, m.comp_median, m.nc_mean, m.nc_median,
                   m.ate_rmse, m.rpe_trans_rmse, static_cast<long long>(m.posed), fps);
       std::fflush(stdout);
-      long3r::json::Value o{long3r::json::Object{}};
-      o.set("seed", static_cast<int64_t>(seed_begin + static_cast<uint64_t>(s)));
-      o.set("frames", m.frames);
-      o.set("posed", m.posed);
-      o.set("acc_mean_m", num(m.acc_mean));
-      o.set("acc_median_m", num(m.acc_median));
-      o.set("comp_mean_m", num(m.comp_mean));
-      o.set("comp_median_m", num(m.comp_median));
-      o.set("nc_mean", num(m.nc_mean));
-      o.set("nc_median", num(m.nc_median));
-      o.set("pointmap_error_m", num(m.pointmap_error));
-      o.set("ate_rmse_m", num(m.ate_rmse));
-      o.set("rpe_trans_rmse_m", num(m.rpe_trans_rmse));
-      o.set("rpe_rot_rmse_deg", num(m.rpe_rot_rmse_deg));
-      o.set("fps", num(fps));
+      nlohmann::ordered_json o;
+      o["seed"] = static_cast<int64_t>(seed_begin + static_cast<uint64_t>(s));
+      o["frames"] = m.frames;
+      o["posed"] = m.posed;
+      o["acc_mean_m"] = num(m.acc_mean);
+      o["acc_median_m"] = num(m.acc_median);
+      o["comp_mean_m"] = num(m.comp_mean);
+      o["comp_median_m"] = num(m.comp_median);
+      o["nc_mean"] = num(m.nc_mean);
+      o["nc_median"] = num(m.nc_median);
+      o["pointmap_error_m"] = num(m.pointmap_error);
+      o["ate_rmse_m"] = num(m.ate_rmse);
+      o["rpe_trans_rmse_m"] = num(m.rpe_trans_rmse);
+      o["rpe_rot_rmse_deg"] = num(m.rpe_rot_rmse_deg);
+      o["fps"] = num(fps);
       per_seq.push_back(o);
     }
     const char* names[] = {"acc_mean_m",       "acc_median_m", "comp_mean_m", "comp_median_m",
                            "nc_mean",          "nc_median",    "ate_rmse_m",  "rpe_trans_rmse_m",
                            "rpe_rot_rmse_deg", "posed",        "fps"};
-    long3r::json::Value mean{long3r::json::Object{}};
-    for (std::size_t c = 0; c < cols.size(); ++c) mean.set(names[c], num(mean_finite(cols[c])));
+    nlohmann::ordered_json mean;
+    for (std::size_t c = 0; c < cols.size(); ++c) mean[names[c]] = num(mean_finite(cols[c]));
     std::printf("%8s %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %7.1f %7.2f\n", "mean",
                 mean_finite(cols[0]), mean_finite(cols[1]), mean_finite(cols[2]),
                 mean_finite(cols[3]), mean_finite(cols[4]), mean_finite(cols[5]),
                 mean_finite(cols[6]), mean_finite(cols[7]), mean_finite(cols[9]),
                 mean_finite(cols[10]));
     if (!json_path.empty()) {
-      long3r::json::Value root{long3r::json::Object{}};
-      root.set("what", what);
-      root.set("frames", frames);
-      root.set("stride", stride);
-      root.set("img_size", img_size);
-      root.set("seed_begin", static_cast<int64_t>(seed_begin));
-      root.set("sequences", per_seq);
-      root.set("mean", mean);
+      nlohmann::ordered_json root;
+      root["what"] = what;
+      root["frames"] = frames;
+      root["stride"] = stride;
+      root["img_size"] = img_size;
+      root["seed_begin"] = static_cast<int64_t>(seed_begin);
+      root["sequences"] = per_seq;
+      root["mean"] = mean;
       std::ofstream out(json_path);
       out << root.dump(2) << "\n";
       if (!out) throw std::runtime_error("cannot write " + json_path);

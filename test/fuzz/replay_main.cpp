@@ -22,6 +22,8 @@
 #include <string>
 #include <vector>
 
+#include "long3r/io/safetensors_header.hpp"
+
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, std::size_t size);
 
 namespace {
@@ -73,13 +75,11 @@ bool run_one(const Bytes& b, const std::string& what) {
 
 void set_le64(Bytes& b, uint64_t n) {
   if (b.size() < 8) b.resize(8, 0);
-  for (int i = 0; i < 8; ++i) b[i] = static_cast<uint8_t>((n >> (8 * i)) & 0xFF);
+  long3r::encode_header_length(n, b.data());
 }
 
 uint64_t get_le64(const Bytes& b) {
-  uint64_t n = 0;
-  for (int i = 7; i >= 0 && b.size() >= 8; --i) n = (n << 8) | b[i];
-  return n;
+  return b.size() >= 8 ? long3r::decode_header_length(b.data()) : 0;
 }
 
 Bytes mutate(const std::vector<Bytes>& corpus, std::mt19937_64& rng, std::string* what) {

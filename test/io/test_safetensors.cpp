@@ -13,12 +13,12 @@
 #include <cstdint>
 #include <cstring>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <random>
 #include <sstream>
 #include <string>
 #include <vector>
 
-#include "long3r/io/json.hpp"
 #include "long3r/model/safetensors.hpp"
 
 namespace {
@@ -259,6 +259,37 @@ TEST(SafetensorsHeader, DuplicateNames) {
                   "duplicate \"__metadata__\" key \"k\"");
 }
 
+// The header's JSON is RFC 8259 only; duplicate keys are refused at every
+// level (nlohmann alone would keep the last one).
+TEST(SafetensorsHeader, StrictJson) {
+  const std::string w = R"("w": {"dtype": "F32", "shape": [1], "data_offsets": [0, 4]})";
+  ASSERT_EQ(header_error("{" + w + "}"), "");
+  for (const std::string& bad : std::vector<std::string>{
+           "{" + w + ",}",         // trailing comma
+           "{" + w + "} x",        // text after the value
+           "{/* c */ " + w + "}",  // comment
+           "{\"w\": {\"dtype\": \"F32\", \"shape\": [01], \"data_offsets\": [0, 4]}}",  // leading 0
+           "{\"w\": {\"dtype\": \"F32\", \"shape\": [NaN], \"data_offsets\": [0, 4]}}",
+           "{\"w\": {\"dtype\": \"F32\", \"shape\": [1e999], \"data_offsets\": [0, 4]}}",
+           "{'w': 1}",                 // single quotes
+           "{\"w\x01\": 1}",           // raw control character
+           "{\"w\xff\": 1}",           // invalid UTF-8
+           "{\"\\ud800\": 1}",         // lone surrogate
+           "\xEF\xBB\xBF{" + w + "}",  // byte-order mark
+       }) {
+    EXPECT_CONTAINS(header_error(bad), "not valid JSON");
+  }
+  EXPECT_EQ(header_error(R"({"\u00e9\ud83d\ude00": {"dtype": "F32", "shape": [1], )"
+                         R"("data_offsets": [0, 4]}})"),
+            "");
+  EXPECT_CONTAINS(
+      header_error(
+          R"({"w": {"dtype": "F32", "dtype": "F32", "shape": [1], "data_offsets": [0, 4]}})"),
+      "tensor \"w\": duplicate field \"dtype\"");
+  EXPECT_CONTAINS(header_error(std::string(9, '[') + std::string(9, ']')), "nesting");
+  EXPECT_CONTAINS(header_error(std::string(8, '[') + std::string(8, ']')), "expected an object");
+}
+
 TEST(SafetensorsHeader, MetadataMustBeStrings) {
   EXPECT_CONTAINS(header_error(R"({"__metadata__": {"k": 1}})"),
                   "\"__metadata__\" value for \"k\" has type number, expected a string");
@@ -378,10 +409,10 @@ TEST(Safetensors, RoundTripEveryDtypeBitExact) {
     expect_begin = e.end;
   }
   EXPECT_EQ(h.data_offset + expect_begin, bytes.size());
-  const long3r::json::Value header =
-      long3r::json::parse(bytes.substr(8, static_cast<std::size_t>(h.data_offset - 8)));
+  const auto header =
+      nlohmann::ordered_json::parse(bytes.substr(8, static_cast<std::size_t>(h.data_offset - 8)));
   std::vector<std::string> keys;
-  for (const auto& m : header.as_object()) keys.push_back(m.first);
+  for (const auto& m : header.items()) keys.push_back(m.key());
   ASSERT_EQ(keys.front(), "__metadata__");
   EXPECT_TRUE(std::is_sorted(keys.begin() + 1, keys.end()));
 }
@@ -451,25 +482,26 @@ TEST(Safetensors, LoadReportsFileName) {
 TEST(Safetensors, LoadsEveryGoldenFileWithCaseJsonShapes) {
   for (const char* c : kCases) {
     SCOPED_TRACE(c);
-    const long3r::json::Value cj = long3r::json::parse(read_file(kGolden + c + "/case.json"));
+    const auto cj = nlohmann::json::parse(read_file(kGolden + c + "/case.json"));
     const auto io = long3r::load_safetensors(kGolden + c + "/io.safetensors");
     EXPECT_EQ(io.metadata.at("case"), c);
     // case.json lists every io tensor with its dtype and shape.
-    const auto& listed = cj.at("tensors").as_array();
+    const auto& listed = cj.at("tensors");
     EXPECT_EQ(listed.size(), io.tensors.size());
     for (const auto& t : listed) {
-      const std::string name = t.at("name").as_string();
+      const std::string name = t.at("name").get<std::string>();
       SCOPED_TRACE(name);
       ASSERT_EQ(io.tensors.count(name), 1u);
       const at::Tensor& x = io.tensors.at(name);
-      EXPECT_EQ(x.scalar_type(), t.at("dtype").as_string() == "I64" ? at::kLong : at::kFloat);
+      EXPECT_EQ(x.scalar_type(),
+                t.at("dtype").get<std::string>() == "I64" ? at::kLong : at::kFloat);
       std::vector<int64_t> shape;
-      for (const auto& d : t.at("shape").as_array()) shape.push_back(d.as_int());
+      for (const auto& d : t.at("shape")) shape.push_back(d.get<int64_t>());
       EXPECT_EQ(x.sizes().vec(), shape);
     }
 
     const auto w = long3r::load_safetensors(kGolden + c + "/weights.safetensors");
-    EXPECT_EQ(long3r::json::parse(w.metadata.at("config")), cj.at("config"));
+    EXPECT_EQ(nlohmann::json::parse(w.metadata.at("config")), cj.at("config"));
     const bool spann3r = std::string(c).rfind("spann3r", 0) == 0;
     const std::string p = spann3r ? "dust3r." : "";
     EXPECT_EQ(w.tensors.size(), spann3r ? 705u : 661u);
@@ -488,8 +520,8 @@ TEST(Safetensors, LoadsEveryGoldenFileWithCaseJsonShapes) {
     // Total bytes agree with the file size recorded in case.json.
     int64_t data = 0;
     for (const auto& kv : w.tensors) data += kv.second.numel() * kv.second.element_size();
-    EXPECT_LT(data, cj.at("file_bytes").at("weights").as_int());
-    EXPECT_GT(data, cj.at("file_bytes").at("weights").as_int() - 80000);
+    EXPECT_LT(data, cj.at("file_bytes").at("weights").get<int64_t>());
+    EXPECT_GT(data, cj.at("file_bytes").at("weights").get<int64_t>() - 80000);
   }
 }
 

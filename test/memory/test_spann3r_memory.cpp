@@ -14,11 +14,11 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 #include <vector>
 
-#include "long3r/io/json.hpp"
 #include "long3r/memory/spann3r_memory.hpp"
 #include "long3r/model/safetensors.hpp"
 
@@ -55,7 +55,7 @@ struct Golden {
   long3r::TensorFile io;
   GatingNorms norms;
   Spann3rMemoryConfig config;
-  long3r::json::Value memory;  // case.json "memory"
+  nlohmann::json memory;  // case.json "memory"
   int64_t steps = 0;
   int64_t patches = 0;
 
@@ -77,9 +77,9 @@ struct Golden {
     for (int64_t s = 0; s < k; ++s) j += step_value("step.pruned", s);
     return step_value("step.pruned", k) ? j : -1;
   }
-  const long3r::json::Value* check_sim(int64_t k) const {
-    for (const auto& e : memory.at("check_sim").as_array()) {
-      if (e.at("step").as_int() == k) return &e;
+  const nlohmann::json* check_sim(int64_t k) const {
+    for (const auto& e : memory.at("check_sim")) {
+      if (e.at("step").get<int64_t>() == k) return &e;
     }
     return nullptr;
   }
@@ -101,15 +101,15 @@ const Golden& golden(const std::string& name) {
   std::ifstream in(dir + "case.json");
   std::stringstream ss;
   ss << in.rdbuf();
-  const long3r::json::Value cj = long3r::json::parse(ss.str());
+  const nlohmann::json cj = nlohmann::json::parse(ss.str());
   const auto& sm = cj.at("config").at("spatial_memory");
-  g->config.long_mem_size = sm.at("long_mem_size").as_int();
-  g->config.work_mem_size = sm.at("work_mem_size").as_int();
-  g->config.attn_thresh = sm.at("attn_thresh").as_double();
-  g->config.sim_thresh = sm.at("sim_thresh").as_double();
-  g->config.top_k = sm.at("top_k").as_int();
+  g->config.long_mem_size = sm.at("long_mem_size").get<int64_t>();
+  g->config.work_mem_size = sm.at("work_mem_size").get<int64_t>();
+  g->config.attn_thresh = sm.at("attn_thresh").get<double>();
+  g->config.sim_thresh = sm.at("sim_thresh").get<double>();
+  g->config.top_k = sm.at("top_k").get<int64_t>();
   // num_patches stays 0: the official forward takes it from the first key.
-  g->patches = sm.at("num_patches").as_int();
+  g->patches = sm.at("num_patches").get<int64_t>();
   g->memory = cj.at("memory");
   g->steps = g->t("step.feat_k1").size(0);
   slot = std::move(g);
@@ -304,19 +304,19 @@ TEST_P(Spann3rGolden, ReadWithoutResidual) {
 TEST_P(Spann3rGolden, PruneOrder) {
   c10::InferenceMode guard;
   const Golden& gd = g();
-  const auto& prunes = gd.memory.at("prunes").as_array();
-  ASSERT_EQ(static_cast<int64_t>(prunes.size()), gd.memory.at("memory_prune_calls").as_int());
+  const auto& prunes = gd.memory.at("prunes");
+  ASSERT_EQ(static_cast<int64_t>(prunes.size()), gd.memory.at("memory_prune_calls").get<int64_t>());
   ASSERT_FALSE(prunes.empty());
   for (std::size_t j = 0; j < prunes.size(); ++j) {
     const std::string p = "prune" + std::to_string(j);
     const at::Tensor attn = gd.t(p + ".mem_attn_before").unsqueeze(0);
     const at::Tensor count = gd.t(p + ".mem_count_before").unsqueeze(0);
-    EXPECT_EQ(attn.size(1), prunes[j].at("tokens_before").as_int());
+    EXPECT_EQ(attn.size(1), prunes[j].at("tokens_before").get<int64_t>());
     EXPECT_EQ((count < static_cast<double>(gd.config.work_mem_size + 5)).sum().item<int64_t>(),
-              prunes[j].at("protected_tokens").as_int());
+              prunes[j].at("protected_tokens").get<int64_t>());
     const at::Tensor order =
         long3r::spann3r_prune_order(attn, count, gd.config.work_mem_size, gd.config.top_k);
-    ASSERT_EQ(order.sizes(), at::IntArrayRef({1, prunes[j].at("tokens_after").as_int()}));
+    ASSERT_EQ(order.sizes(), at::IntArrayRef({1, prunes[j].at("tokens_after").get<int64_t>()}));
     const bool same = expect_same_prune(to_vec(order), to_vec(gd.t(p + ".indices")), count[0],
                                         gd.config.work_mem_size, gd.name + " " + p);
     std::printf("[%s] %s: kept set matches; tied-group order %s the stored one\n", gd.name.c_str(),
@@ -354,10 +354,10 @@ TEST_P(Spann3rGolden, IsolatedAddSteps) {
       const auto* cs = gd.check_sim(k);
       ASSERT_NE(cs, nullptr) << where;
       EXPECT_TRUE(st.checked) << where;
-      const double d = std::abs(st.similarity - cs->at("max_mean_corr").as_double());
+      const double d = std::abs(st.similarity - cs->at("max_mean_corr").get<double>());
       EXPECT_LE(d, kSimTol) << where;
       worst_sim = std::max(worst_sim, d);
-      EXPECT_EQ(st.skipped, cs->at("skipped").as_bool()) << where;
+      EXPECT_EQ(st.skipped, cs->at("skipped").get<bool>()) << where;
     }
     if (added) {
       for (int64_t p = 0; p < gd.patches; ++p) ids.push_back(k * gd.patches + p);
@@ -457,9 +457,9 @@ TEST_P(Spann3rGolden, EndToEndReplay) {
     if (k > 0) {
       const auto* cs = gd.check_sim(k);
       ASSERT_NE(cs, nullptr);
-      EXPECT_EQ(st.skipped, cs->at("skipped").as_bool()) << where;
+      EXPECT_EQ(st.skipped, cs->at("skipped").get<bool>()) << where;
       if (same_window) {
-        const double d = std::abs(st.similarity - cs->at("max_mean_corr").as_double());
+        const double d = std::abs(st.similarity - cs->at("max_mean_corr").get<double>());
         EXPECT_LE(d, kSimTol) << where;
         worst_sim = std::max(worst_sim, d);
       }
@@ -491,7 +491,7 @@ TEST_P(Spann3rGolden, EndToEndReplay) {
       EXPECT_TRUE(at::equal(mem.values().index_select(1, pi), gd.t("final_mem.v"))) << where;
     }
   }
-  EXPECT_EQ(n_pruned, gd.memory.at("memory_prune_calls").as_int());
+  EXPECT_EQ(n_pruned, gd.memory.at("memory_prune_calls").get<int64_t>());
   std::printf(
       "[%s] end-to-end replay: feat_fuse max rel diff %.3g, mem_attn %.3g, similarity "
       "max abs diff %.3g, memory order %s\n",

@@ -455,9 +455,9 @@ TEST(Long3rConfig, NamedConfigsAndJsonRoundTrip) {
       base + R"("long3r": {"short_term_frames": 4, "long_term_capacity": 100, "tau": 0.001,
       "voxel_statistic": "percentile", "voxel_percentile": 10}})");
   EXPECT_EQ(c.long3r.short_term_frames, 4);
-  EXPECT_EQ(c.long3r.voxel_statistic, "percentile");
+  EXPECT_EQ(c.long3r.voxel_statistic, long3r::VoxelStatistic::kPercentile);
   EXPECT_EQ(c.memory_dim(), 64);
-  EXPECT_EQ(long3r::long3r_memory_config(c).voxel_statistic, long3r::VoxelStatistic::kPercentile);
+  EXPECT_DOUBLE_EQ(c.long3r.voxel_percentile, 10.0);
   EXPECT_THROW(long3r::parse_model_config(base + R"("long3r": {"short_frames": 4}})"),
                long3r::ModelConfigError);
   EXPECT_THROW(long3r::parse_model_config(base + R"("long3r": {"voxel_statistic": "max"}})"),

@@ -3,9 +3,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <nlohmann/json.hpp>
 #include <string>
 
-#include "long3r/io/json.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/safetensors.hpp"
 
@@ -14,12 +14,13 @@ namespace {
 using long3r::ModelConfig;
 using long3r::ModelConfigError;
 using long3r::parse_model_config;
+using Json = nlohmann::ordered_json;
 
 const std::string kGolden = std::string(LONG3R_SHARED_DIR) + "/golden/";
 
 // A complete tiny Spann3R config (the golden land96x64 model's fields).
-long3r::json::Value tiny_spann3r() {
-  return long3r::json::parse(R"json({
+Json tiny_spann3r() {
+  return Json::parse(R"json({
     "model": "Spann3R",
     "dust3r": {"output_mode": "pts3d", "head_type": "dpt",
                "depth_mode": ["exp", "-inf", "inf"], "conf_mode": ["exp", 1, "inf"],
@@ -48,32 +49,16 @@ long3r::json::Value tiny_spann3r() {
 }
 
 // Sets obj[path...] = v (objects only).
-void set_path(long3r::json::Value& root, const std::vector<std::string>& path,
-              long3r::json::Value v) {
-  long3r::json::Value* cur = &root;
-  for (std::size_t i = 0; i + 1 < path.size(); ++i) {
-    for (auto& m : cur->as_object()) {
-      if (m.first == path[i]) {
-        cur = &m.second;
-        break;
-      }
-    }
-  }
-  cur->set(path.back(), std::move(v));
+void set_path(Json& root, const std::vector<std::string>& path, Json v) {
+  Json* cur = &root;
+  for (std::size_t i = 0; i + 1 < path.size(); ++i) cur = &(*cur)[path[i]];
+  (*cur)[path.back()] = std::move(v);
 }
 
-void erase_key(long3r::json::Value& obj, const std::string& key) {
-  auto& o = obj.as_object();
-  for (auto it = o.begin(); it != o.end(); ++it) {
-    if (it->first == key) {
-      o.erase(it);
-      return;
-    }
-  }
-}
+void erase_key(Json& obj, const std::string& key) { obj.erase(key); }
 
 // The error message of parsing `cfg`, or "" if it parses.
-std::string error_of(const long3r::json::Value& cfg) {
+std::string error_of(const Json& cfg) {
   try {
     parse_model_config(cfg);
   } catch (const ModelConfigError& e) {
@@ -177,16 +162,54 @@ TEST(ModelConfig, ErrorsNameTheField) {
       {{"dust3r"}, nullptr, "dust3r: missing"},
   };
   for (const BadCase& c : cases) {
-    long3r::json::Value cfg = tiny_spann3r();
+    Json cfg = tiny_spann3r();
     if (c.value_json == nullptr) {
       erase_key(cfg, c.path.back());
     } else {
-      set_path(cfg, c.path, long3r::json::parse(c.value_json));
+      set_path(cfg, c.path, Json::parse(c.value_json));
     }
     const std::string msg = error_of(cfg);
     EXPECT_NE(msg.find(c.expected), std::string::npos)
         << "path " << c.path.back() << ": got \"" << msg << "\"";
   }
+}
+
+// The writer keeps the official encodings; memory settings are the memories'
+// own structs, enums written by name.
+TEST(ModelConfig, WritesTheOfficialEncodings) {
+  ModelConfig c = parse_model_config(tiny_spann3r());
+  const Json s = Json::parse(long3r::model_config_to_json(c));
+  EXPECT_EQ(s.at("dust3r").at("norm_layer"), "LayerNorm(eps=1e-06)");
+  EXPECT_EQ(s.at("dust3r").at("pos_embed"), "RoPE100.0");
+  EXPECT_EQ(s.at("dust3r").at("depth_mode"), Json::parse(R"(["exp", "-inf", "inf"])"));
+  EXPECT_EQ(s.at("dust3r").at("conf_mode"), Json::parse(R"(["exp", 1.0, "inf"])"));
+  EXPECT_EQ(s.at("spann3r").at("norm_qkv"), "LayerNorm(eps=1e-05)");
+  EXPECT_FALSE(s.at("spann3r").at("value_encoder").contains("rope"));
+  EXPECT_EQ(s.at("spatial_memory").at("top_k"), 156);
+  c.dust3r.conf_mode = long3r::ConfMode::kNone;
+  c.dust3r.dpt.num_channels = 3;
+  EXPECT_TRUE(Json::parse(long3r::model_config_to_json(c)).at("dust3r").at("conf_mode").is_null());
+
+  // Without "top_k" a Spann3R model keeps long_mem_size tokens.
+  Json cfg = tiny_spann3r();
+  cfg["spatial_memory"].erase("top_k");
+  EXPECT_EQ(parse_model_config(cfg).spatial_memory.top_k, 156);
+  cfg["spatial_memory"]["top_k"] = 0;
+  EXPECT_NE(error_of(cfg).find("spatial_memory.top_k: must be positive"), std::string::npos);
+
+  ModelConfig l = long3r::named_model_config("long3r_tiny");
+  l.long3r.voxel_statistic = long3r::VoxelStatistic::kPercentile;
+  l.long3r.long_term_policy = long3r::LongTermPolicy::kSpann3r;
+  const Json lj = Json::parse(long3r::model_config_to_json(l));
+  EXPECT_EQ(lj.at("long3r").at("voxel_statistic"), "percentile");
+  EXPECT_EQ(lj.at("long3r").at("long_term_policy"), "spann3r");
+  EXPECT_EQ(parse_model_config(lj.dump()).long3r.long_term_policy,
+            long3r::LongTermPolicy::kSpann3r);
+  Json bad = lj;
+  bad["long3r"]["long_term_policy"] = "lru";
+  EXPECT_NE(error_of(bad).find("long3r.long_term_policy: must be \"voxel\" or \"spann3r\", got "
+                               "\"lru\""),
+            std::string::npos);
 }
 
 TEST(ModelConfig, BadJsonAndMissingMetadata) {

@@ -43,8 +43,18 @@ struct SafetensorsHeader {
 // Largest accepted header (JSON) length; real headers are well below 1 MB.
 constexpr uint64_t kMaxSafetensorsHeaderBytes = 100ull << 20;
 
+// The 8-byte little-endian header length at the start of a file (`p` holds at
+// least 8 bytes), and its encoding.
+uint64_t decode_header_length(const uint8_t* p);
+void encode_header_length(uint64_t n, uint8_t out[8]);
+
+// A JSON string literal of `s` (quotes included), for messages naming tensors.
+std::string quoted(const std::string& s);
+
 // Validates everything that can be checked before touching tensor data: the
-// header length bound, JSON syntax, known dtypes, shape x itemsize == byte
+// header length bound, JSON syntax (strict: no comments, byte-order mark,
+// invalid UTF-8 or lone surrogates; at most 8 levels deep), duplicate keys at
+// any level, known dtypes, shape x itemsize == byte
 // range, ranges inside the file and non-overlapping. `data` holds at least the
 // first min(size, 8 + N) bytes; `file_size` is the whole file's size.
 SafetensorsHeader parse_safetensors_header(const uint8_t* data, std::size_t size,

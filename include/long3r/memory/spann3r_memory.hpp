@@ -25,31 +25,10 @@
 
 #include <cstdint>
 
+#include "long3r/memory/memory_config.hpp"  // Spann3rMemoryConfig
 #include "long3r/memory/memory_gating.hpp"  // LayerNormParams, GatingNorms
 
 namespace long3r {
-
-struct Spann3rMemoryConfig {
-  // The official SpatialMemory defaults (long_mem_size 4000, work_mem_size 5,
-  // attn_thresh 5e-4, sim_thresh 0.95) are what Spann3R's eval-mode forward uses.
-  // long_mem_size is compared with the long-memory token counter (tokens beyond
-  // the working memory), so it is a number of tokens, not of frames.
-  int64_t long_mem_size = 4000;
-  // Frames in the working memory; also the similarity window and, plus 5, the
-  // age (in frames) below which a token is protected from pruning.
-  int64_t work_mem_size = 5;
-  // Softmax weights below this are zeroed and rows renormalised; <= 0 disables
-  // the thresholding (Spann3R's training mode uses 0).
-  double attn_thresh = 5e-4;
-  // A frame whose max mean cosine similarity to a working-memory frame is
-  // > sim_thresh is not added; exactly 1.0 disables the check (as officially).
-  double sim_thresh = 0.95;
-  // Tokens per frame P; 0 takes it from the first key added (the official
-  // forward leaves it unset too).
-  int64_t num_patches = 0;
-  // Tokens kept by a prune; <= 0 means long_mem_size (the official choice).
-  int64_t top_k = 0;
-};
 
 // Per-read details, for diagnostics and parity checks. Counts are over the
 // whole batch.

@@ -26,37 +26,10 @@
 #include <deque>
 #include <vector>
 
+#include "long3r/memory/memory_config.hpp"  // SpatioTemporalMemoryConfig
 #include "long3r/memory/memory_gating.hpp"
 
 namespace long3r {
-
-// Statistic of the per-token neighbour distances d_i that gives a frame's v_img.
-enum class VoxelStatistic {
-  kMin,         // min_i d_i (the paper)
-  kPercentile,  // the given percentile of d_i, linear interpolation (numpy default)
-};
-
-// How long-term memory is kept bounded.
-enum class LongTermPolicy {
-  kVoxel,    // the paper: one token per adaptive voxel, then the L most attended
-  kSpann3r,  // ablation: Spann3R's rules instead (no voxels): the L tokens with the
-             // highest cumulative attention per frame of age (a_s / age_s, age in
-             // frames since the token's frame, >= 1; ties: newer), and a frame
-             // whose keys are too similar to a short-term frame's is not added
-};
-
-struct SpatioTemporalMemoryConfig {
-  int64_t short_term_frames = 10;     // K (0: every frame goes straight to long-term)
-  int64_t long_term_capacity = 3000;  // L, in tokens
-  double tau = 5e-4;                  // gating threshold used by read()
-  VoxelStatistic voxel_statistic = VoxelStatistic::kMin;
-  double voxel_percentile = 5.0;  // in [0, 100]; used with kPercentile only
-  LongTermPolicy long_term_policy = LongTermPolicy::kVoxel;
-  // kSpann3r only: a frame is skipped when the mean over its P tokens of the
-  // cosine similarity between its key and a short-term frame's key exceeds
-  // this for some short-term frame (max over the batch, as Spann3R). 1 = off.
-  double sim_thresh = 0.95;
-};
 
 class SpatioTemporalMemory {
  public:

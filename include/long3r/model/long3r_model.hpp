@@ -110,7 +110,4 @@ class Long3rModel : public StreamingModel {
   std::unique_ptr<Impl> impl_;
 };
 
-// SpatioTemporalMemory settings of a LONG3R configuration.
-SpatioTemporalMemoryConfig long3r_memory_config(const ModelConfig& config);
-
 }  // namespace long3r

@@ -11,22 +11,18 @@
 #include <cstdint>
 #include <limits>
 #include <map>
-#include <stdexcept>
+#include <nlohmann/json_fwd.hpp>
 #include <string>
 #include <vector>
 
+#include "long3r/io/config_fields.hpp"
+#include "long3r/memory/memory_config.hpp"
+
 namespace long3r {
 
-namespace json {
-class Value;
-}  // namespace json
-
-// Malformed or unsupported configuration; the message names the field
-// (e.g. "dust3r.enc_num_heads").
-class ModelConfigError : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
-};
+// Malformed or unsupported model configuration; the message names the field
+// (e.g. "model config: dust3r.enc_num_heads: ...").
+using ModelConfigError = ConfigError;
 
 // kLong3r: Spann3R's encoders and memory key/value encoders with LONG3R's
 // memory-gated joint decoder and 3D spatio-temporal memory.
@@ -98,46 +94,22 @@ struct Spann3rConfig {
   double norm_qkv_eps = 1e-5;  // norm_q / norm_k / norm_v (nn.LayerNorm default)
 };
 
-// Spann3R SpatialMemory settings for inference.
-struct SpatialMemoryConfig {
-  int64_t long_mem_size = 4000;
-  int64_t top_k = 4000;
-  int64_t work_mem_size = 5;
-  double attn_thresh = 5e-4;
-  double sim_thresh = 0.95;
-  int64_t num_patches = 0;  // tokens per frame; 0 = taken from the first frame
-};
-
-// LONG3R memory settings (JSON section "long3r"; spec "3D spatio-temporal
-// memory"). The decoder layout is fixed by the spec: odd layers of the refined
-// branch are pairwise blocks, even layers memory blocks.
-struct Long3rConfig {
-  int64_t short_term_frames = 10;       // K
-  int64_t long_term_capacity = 3000;    // L, tokens
-  double tau = 5e-4;                    // gating threshold (inference)
-  std::string voxel_statistic = "min";  // "min" (the paper) or "percentile"
-  double voxel_percentile = 5.0;        // with "percentile", in [0, 100]
-  // "voxel" (the paper's 3D spatio-temporal memory) or "spann3r" (ablation:
-  // Spann3R's attention-per-age pruning and similarity skip instead).
-  std::string long_term_policy = "voxel";
-  double sim_thresh = 0.95;  // "spann3r" only
-};
-
 struct ModelConfig {
   ModelKind kind = ModelKind::kDust3r;
   Dust3rConfig dust3r;
-  Spann3rConfig spann3r;               // kSpann3r and kLong3r (memory encoders)
-  SpatialMemoryConfig spatial_memory;  // kSpann3r only
-  Long3rConfig long3r;                 // kLong3r only
+  Spann3rConfig spann3r;  // kSpann3r and kLong3r (memory encoders)
+  // kSpann3r only (JSON "spatial_memory"). A model stores top_k resolved: the
+  // official long_mem_size when the section does not give it.
+  Spann3rMemoryConfig spatial_memory{/*long_mem_size=*/4000, /*top_k=*/4000};
+  SpatioTemporalMemoryConfig long3r;  // kLong3r only (JSON "long3r")
 
   // Width of the memory tokens (C_m) of a Spann3R model.
   int64_t memory_dim() const { return spann3r.value_encoder.out_dim; }
 };
 
-// Parses and validates; throws ModelConfigError (json errors are wrapped and
-// name the field).
+// Parses and validates; throws ModelConfigError naming the field.
 ModelConfig parse_model_config(const std::string& json_text);
-ModelConfig parse_model_config(const json::Value& config);
+ModelConfig parse_model_config(const nlohmann::ordered_json& config);
 
 // The configuration a checkpoint stores as metadata "config"; `source` names
 // the file in errors.

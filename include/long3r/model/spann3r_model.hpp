@@ -82,7 +82,4 @@ class Spann3rModel : public StreamingModel {
   std::unique_ptr<Impl> impl_;
 };
 
-// Spann3rMemory settings of a Spann3R configuration.
-Spann3rMemoryConfig spann3r_memory_config(const ModelConfig& config);
-
 }  // namespace long3r

@@ -27,93 +27,9 @@
 #include "long3r/model/streaming.hpp"
 #include "long3r/pipeline/pinhole_intrinsics.hpp"
 #include "long3r/synth/synth.hpp"
+#include "long3r/train/train_config.hpp"
 
 namespace long3r {
-
-namespace json {
-class Value;
-}  // namespace json
-
-// ===================================================================== config
-
-struct TrainStage {
-  std::string name;
-  int64_t steps = 0;            // optimiser steps in this stage
-  int64_t frames = 5;           // sequence length N (>= 2)
-  int64_t batch_size = 1;       // sequences per step
-  double lr = 1e-4;             // peak learning rate of the stage
-  int64_t warmup_steps = 0;     // linear warm-up from 0 to lr
-  double min_lr_ratio = 0.01;   // cosine decay ends at lr * min_lr_ratio
-  bool freeze_encoder = false;  // dust3r.patch_embed / enc_blocks / enc_norm
-};
-
-struct LossConfig {
-  double alpha = 0.2;         // DUSt3R's confidence regulariser weight
-  double scale_weight = 1.0;  // weight of L_scale (the paper sums them: 1)
-  bool coarse = true;         // also supervise head 2's next-frame pointmaps
-};
-
-struct AugmentConfig {
-  double color_jitter = 0.1;  // brightness / contrast / saturation factors in [1-j, 1+j]
-  double max_crop = 0.1;      // crop side shrinks by a factor in [1 - max_crop, 1]
-};
-
-struct SynthDataConfig {
-  bool enabled = true;
-  uint64_t train_seed_begin = 1000;  // scenes [begin, begin + train_scenes)
-  int64_t train_scenes = 1000;
-  uint64_t val_seed_begin = 1000000;  // held out: must not overlap the training range
-  int64_t val_scenes = 4;
-  int64_t trajectory_frames = 240;  // length of each scene's camera path
-  double speed = 0.02;              // metres per frame of the path
-  double hfov_min_deg = 60.0, hfov_max_deg = 80.0;
-  int render_size = 0;  // square render side before cropping; 0 = image_size
-};
-
-struct DataConfig {
-  SynthDataConfig synth;
-  std::vector<std::string> tum_dirs;  // TUM-layout folders (depth, groundtruth, calibration)
-  double tum_fraction = 0.5;          // share of TUM sequences when both sources exist
-  int64_t min_stride = 1, max_stride = 4;
-  AugmentConfig augment;
-};
-
-struct ValidationConfig {
-  int64_t every = 100;    // steps; 0 = only at the end
-  int64_t sequences = 2;  // from the held-out scene seeds
-  int64_t frames = 16;
-  int64_t stride = 3;
-  int pixel_step = 2;   // subsampling of the clouds for Acc / Comp / NC
-  bool normals = true;  // NC (costs a k-NN normal estimate)
-};
-
-struct TrainConfig {
-  std::string model = "long3r_ship";  // named_model_config name or a JSON file
-  int64_t image_size = 224;           // square model input, multiple of the patch size
-  std::vector<TrainStage> stages;
-  LossConfig loss;
-  double weight_decay = 0.05;
-  double beta1 = 0.9, beta2 = 0.95;
-  double grad_clip = 1.0;    // max global L2 norm; <= 0 disables clipping
-  std::string amp = "bf16";  // CUDA autocast dtype: "bf16" or "off" (CPU is always fp32)
-  DataConfig data;
-  ValidationConfig validation;
-  int64_t checkpoint_every = 100;  // steps; 0 = only at the end
-  int64_t keep_checkpoints = 2;
-  int64_t log_every = 1;
-
-  int64_t total_steps() const;
-};
-
-// Parses the training configuration (docs/training.md); unknown keys are
-// errors so that a misspelt field is not silently defaulted. Throws
-// std::invalid_argument (json errors name the field).
-TrainConfig parse_train_config(const std::string& json_text);
-TrainConfig parse_train_config(const json::Value& root);
-void validate_train_config(const TrainConfig& config);
-std::string train_config_to_json(const TrainConfig& config);
-// A model configuration by name (named_model_config) or from a JSON file path.
-ModelConfig resolve_model_config(const std::string& name_or_path);
 
 // ================================================================== schedule
 

@@ -2,24 +2,37 @@
 //
 // Rules beyond the format's own: only F32/F16/BF16/I64 tensors, at most
 // kMaxTensorRank dimensions, every field present and no unknown ones,
-// duplicate tensor names rejected, tensor byte ranges must not overlap (gaps
-// between them are tolerated), and `__metadata__` maps strings to strings.
+// duplicate keys rejected (tensor names, metadata keys, fields), tensor byte
+// ranges must not overlap (gaps between them are tolerated), and
+// `__metadata__` maps strings to strings.
+//
+// nlohmann keeps the last of duplicate keys silently, so its parser callback
+// watches every key as it is read; the same callback bounds the nesting depth
+// and the number of values.
 #include <algorithm>
+#include <nlohmann/json.hpp>
 #include <set>
+#include <vector>
 
-#include "long3r/io/json.hpp"
 #include "long3r/io/safetensors_header.hpp"
 
 namespace long3r {
 
 namespace {
 
+using Json = nlohmann::ordered_json;
+
 constexpr std::size_t kMaxTensorRank = 16;
+// The format needs 3 levels (root, entry, shape / offsets).
+constexpr int kMaxDepth = 8;
+// About 10 values per tensor: room for 400k tensors, while a hostile 100 MB
+// header cannot make the parser allocate more than ~0.5 GB.
+constexpr std::size_t kMaxValues = 4'000'000;
 
 [[noreturn]] void fail(const std::string& what) { throw CheckpointError(what); }
 
 [[noreturn]] void fail_tensor(const std::string& name, const std::string& what) {
-  fail("tensor " + json::quote(name) + ": " + what);
+  fail("tensor " + quoted(name) + ": " + what);
 }
 
 bool parse_dtype(const std::string& s, DType* d) {
@@ -43,23 +56,28 @@ std::string shape_string(const std::vector<int64_t>& shape) {
   return s + "]";
 }
 
-TensorEntry parse_entry(const std::string& name, const json::Value& v, uint64_t data_size) {
+// Integer written without fraction or exponent that fits in int64.
+bool is_int64(const Json& v) {
+  if (v.is_number_unsigned()) return v.get<uint64_t>() <= static_cast<uint64_t>(INT64_MAX);
+  return v.is_number_integer();
+}
+
+TensorEntry parse_entry(const std::string& name, const Json& v, uint64_t data_size) {
   if (!v.is_object()) {
-    fail_tensor(
-        name, std::string("entry has type ") + json::type_name(v.type()) + ", expected an object");
+    fail_tensor(name, std::string("entry has type ") + v.type_name() + ", expected an object");
   }
-  const json::Value* dtype = nullptr;
-  const json::Value* shape = nullptr;
-  const json::Value* offsets = nullptr;
-  for (const json::Member& m : v.as_object()) {
-    if (m.first == "dtype") {
-      dtype = &m.second;
-    } else if (m.first == "shape") {
-      shape = &m.second;
-    } else if (m.first == "data_offsets") {
-      offsets = &m.second;
+  const Json* dtype = nullptr;
+  const Json* shape = nullptr;
+  const Json* offsets = nullptr;
+  for (const auto& m : v.items()) {
+    if (m.key() == "dtype") {
+      dtype = &m.value();
+    } else if (m.key() == "shape") {
+      shape = &m.value();
+    } else if (m.key() == "data_offsets") {
+      offsets = &m.value();
     } else {
-      fail_tensor(name, "unknown field " + json::quote(m.first));
+      fail_tensor(name, "unknown field " + quoted(m.key()));
     }
   }
   if (dtype == nullptr) fail_tensor(name, "missing field \"dtype\"");
@@ -69,9 +87,9 @@ TensorEntry parse_entry(const std::string& name, const json::Value& v, uint64_t 
   TensorEntry e;
   e.name = name;
   if (!dtype->is_string()) fail_tensor(name, "\"dtype\" is not a string");
-  if (!parse_dtype(dtype->as_string(), &e.dtype)) {
-    fail("unsupported dtype " + json::quote(dtype->as_string()) + " for tensor " +
-         json::quote(name) + " (supported: F32, F16, BF16, I64)");
+  if (!parse_dtype(dtype->get<std::string>(), &e.dtype)) {
+    fail("unsupported dtype " + quoted(dtype->get<std::string>()) + " for tensor " + quoted(name) +
+         " (supported: F32, F16, BF16, I64)");
   }
 
   if (!shape->is_array()) fail_tensor(name, "\"shape\" is not a list");
@@ -84,9 +102,9 @@ TensorEntry parse_entry(const std::string& name, const json::Value& v, uint64_t 
   // tensors, the byte count) overflow, even when a zero makes it empty.
   int64_t span = static_cast<int64_t>(dtype_size(e.dtype));
   bool empty = false;
-  for (const json::Value& d : shape->as_array()) {
-    if (!d.is_int()) fail_tensor(name, "\"shape\" holds a non-integer: " + d.dump());
-    const int64_t dim = d.as_int();
+  for (const Json& d : *shape) {
+    if (!is_int64(d)) fail_tensor(name, "\"shape\" holds a non-integer: " + d.dump());
+    const int64_t dim = d.get<int64_t>();
     if (dim < 0) fail_tensor(name, "negative dimension " + std::to_string(dim) + " in shape");
     e.shape.push_back(dim);
     empty = empty || dim == 0;
@@ -99,13 +117,13 @@ TensorEntry parse_entry(const std::string& name, const json::Value& v, uint64_t 
   if (!offsets->is_array() || offsets->size() != 2) {
     fail_tensor(name, "\"data_offsets\" is not a list [begin, end]");
   }
-  const json::Value& b = offsets->at(0);
-  const json::Value& en = offsets->at(1);
-  if (!b.is_int() || !en.is_int() || b.as_int() < 0 || en.as_int() < 0) {
+  const Json& b = (*offsets)[0];
+  const Json& en = (*offsets)[1];
+  if (!is_int64(b) || !is_int64(en) || b.get<int64_t>() < 0 || en.get<int64_t>() < 0) {
     fail_tensor(name, "\"data_offsets\" " + offsets->dump() + " are not non-negative integers");
   }
-  e.begin = static_cast<uint64_t>(b.as_int());
-  e.end = static_cast<uint64_t>(en.as_int());
+  e.begin = static_cast<uint64_t>(b.get<int64_t>());
+  e.end = static_cast<uint64_t>(en.get<int64_t>());
   if (e.begin > e.end) {
     fail_tensor(
         name, "data_offsets begin " + std::to_string(e.begin) + " > end " + std::to_string(e.end));
@@ -123,7 +141,83 @@ TensorEntry parse_entry(const std::string& name, const json::Value& v, uint64_t 
   return e;
 }
 
+// Rejects duplicate keys (with the tensor or metadata key they belong to),
+// nesting deeper than kMaxDepth and more than kMaxValues values while
+// nlohmann parses.
+class HeaderWatch {
+ public:
+  bool operator()(int depth, Json::parse_event_t event, Json& parsed) {
+    switch (event) {
+      case Json::parse_event_t::object_start:
+      case Json::parse_event_t::array_start:
+        if (depth >= kMaxDepth) {
+          fail("header nesting is deeper than " + std::to_string(kMaxDepth) + " levels");
+        }
+        count_value();
+        if (event == Json::parse_event_t::object_start) {
+          keys_.emplace_back();
+          owners_.push_back(depth == 1 ? last_root_key_ : std::string());
+        } else {
+          keys_.emplace_back();
+          owners_.push_back("[]");
+        }
+        break;
+      case Json::parse_event_t::object_end:
+      case Json::parse_event_t::array_end:
+        keys_.pop_back();
+        owners_.pop_back();
+        break;
+      case Json::parse_event_t::key: {
+        const std::string& k = parsed.get_ref<const std::string&>();
+        if (!keys_.back().insert(k).second) duplicate(depth, k);
+        if (depth == 1) last_root_key_ = k;
+        break;
+      }
+      case Json::parse_event_t::value:
+        count_value();
+        break;
+    }
+    return true;
+  }
+
+ private:
+  void count_value() {
+    if (++values_ > kMaxValues) {
+      fail("header holds more than " + std::to_string(kMaxValues) + " JSON values");
+    }
+  }
+  [[noreturn]] void duplicate(int depth, const std::string& k) const {
+    if (depth == 1) {
+      if (k == "__metadata__") fail("duplicate \"__metadata__\" entry");
+      fail("duplicate tensor name " + quoted(k));
+    }
+    const std::string& owner = owners_.back();
+    if (depth == 2 && owner == "__metadata__") fail("duplicate \"__metadata__\" key " + quoted(k));
+    if (depth == 2) fail_tensor(owner, "duplicate field " + quoted(k));
+    fail("duplicate key " + quoted(k) + " in the header");
+  }
+
+  std::vector<std::set<std::string>> keys_;  // per open object (arrays: empty)
+  std::vector<std::string> owners_;          // root key an open object belongs to
+  std::string last_root_key_;
+  std::size_t values_ = 0;
+};
+
 }  // namespace
+
+uint64_t decode_header_length(const uint8_t* p) {
+  uint64_t n = 0;
+  for (int i = 7; i >= 0; --i) n = (n << 8) | p[i];
+  return n;
+}
+
+void encode_header_length(uint64_t n, uint8_t out[8]) {
+  for (int i = 0; i < 8; ++i, n >>= 8) out[i] = static_cast<uint8_t>(n & 0xFF);
+}
+
+std::string quoted(const std::string& s) {
+  return Json(s).dump(-1, ' ', false, Json::error_handler_t::replace);
+}
 
 SafetensorsHeader parse_safetensors_header(const uint8_t* data, std::size_t size,
                                            uint64_t file_size) {
@@ -131,8 +225,7 @@ SafetensorsHeader parse_safetensors_header(const uint8_t* data, std::size_t size
     fail("file too short (" + std::to_string(std::min<uint64_t>(file_size, size)) +
          " bytes) to hold the 8-byte header length");
   }
-  uint64_t n = 0;
-  for (int i = 7; i >= 0; --i) n = (n << 8) | data[i];  // little-endian u64
+  const uint64_t n = decode_header_length(data);
   if (n > kMaxSafetensorsHeaderBytes) {
     fail("header length " + std::to_string(n) + " exceeds the limit of " +
          std::to_string(kMaxSafetensorsHeaderBytes) + " bytes (not a safetensors file?)");
@@ -146,48 +239,44 @@ SafetensorsHeader parse_safetensors_header(const uint8_t* data, std::size_t size
          " header bytes were provided");
   }
 
-  json::ParseOptions opt;
-  opt.max_depth = 8;  // the format needs 3 levels
-  opt.max_size = kMaxSafetensorsHeaderBytes;
-  opt.allow_duplicate_keys = true;  // reported below with the tensor name
-  // About 10 values per tensor: room for 400k tensors, while a hostile
-  // 100 MB header cannot make the parser allocate more than ~0.5 GB.
-  opt.max_values = 4'000'000;
-  json::Value root;
+  const uint8_t* begin = data + 8;
+  const uint8_t* end = begin + n;
+  // nlohmann skips a UTF-8 byte-order mark; JSON text (RFC 8259) has none.
+  if (n >= 3 && begin[0] == 0xEF && begin[1] == 0xBB && begin[2] == 0xBF) {
+    fail("header is not valid JSON: byte-order mark (file offset 8)");
+  }
+  Json root;
   try {
-    root = json::parse(reinterpret_cast<const char*>(data + 8), static_cast<std::size_t>(n), opt);
-  } catch (const json::ParseError& e) {
+    root = Json::parse(begin, end, HeaderWatch(), /*allow_exceptions=*/true,
+                       /*ignore_comments=*/false);
+  } catch (const Json::parse_error& e) {
+    // e.byte counts the bytes read, the offending one included.
+    const std::size_t at = e.byte > 0 ? e.byte - 1 : 0;
     fail(std::string("header is not valid JSON: ") + e.what() + " (file offset " +
-         std::to_string(8 + e.offset()) + ")");
+         std::to_string(8 + at) + ")");
+  } catch (const Json::exception& e) {  // e.g. a number out of the double range
+    fail(std::string("header is not valid JSON: ") + e.what());
   }
   if (!root.is_object()) {
-    fail(std::string("header has JSON type ") + json::type_name(root.type()) +
-         ", expected an object");
+    fail(std::string("header has JSON type ") + root.type_name() + ", expected an object");
   }
 
   SafetensorsHeader h;
   h.data_offset = 8 + n;
   const uint64_t data_size = file_size - h.data_offset;
-  std::set<std::string> seen;
-  bool have_metadata = false;
-  for (const json::Member& m : root.as_object()) {
-    if (m.first == "__metadata__") {
-      if (have_metadata) fail("duplicate \"__metadata__\" entry");
-      have_metadata = true;
-      if (!m.second.is_object()) fail("\"__metadata__\" is not an object");
-      for (const json::Member& kv : m.second.as_object()) {
-        if (!kv.second.is_string()) {
-          fail("\"__metadata__\" value for " + json::quote(kv.first) + " has type " +
-               json::type_name(kv.second.type()) + ", expected a string");
+  for (const auto& m : root.items()) {
+    if (m.key() == "__metadata__") {
+      if (!m.value().is_object()) fail("\"__metadata__\" is not an object");
+      for (const auto& kv : m.value().items()) {
+        if (!kv.value().is_string()) {
+          fail("\"__metadata__\" value for " + quoted(kv.key()) + " has type " +
+               kv.value().type_name() + ", expected a string");
         }
-        if (!h.metadata.emplace(kv.first, kv.second.as_string()).second) {
-          fail("duplicate \"__metadata__\" key " + json::quote(kv.first));
-        }
+        h.metadata.emplace(kv.key(), kv.value().get<std::string>());
       }
       continue;
     }
-    if (!seen.insert(m.first).second) fail("duplicate tensor name " + json::quote(m.first));
-    h.tensors.push_back(parse_entry(m.first, m.second, data_size));
+    h.tensors.push_back(parse_entry(m.key(), m.value(), data_size));
   }
 
   std::sort(h.tensors.begin(), h.tensors.end(), [](const TensorEntry& a, const TensorEntry& b) {
@@ -200,9 +289,9 @@ SafetensorsHeader parse_safetensors_header(const uint8_t* data, std::size_t size
   for (const TensorEntry& t : h.tensors) {
     if (t.begin == t.end) continue;
     if (prev != nullptr && t.begin < prev->end) {
-      fail("tensors " + json::quote(prev->name) + " [" + std::to_string(prev->begin) + ", " +
-           std::to_string(prev->end) + ") and " + json::quote(t.name) + " [" +
-           std::to_string(t.begin) + ", " + std::to_string(t.end) + ") overlap");
+      fail("tensors " + quoted(prev->name) + " [" + std::to_string(prev->begin) + ", " +
+           std::to_string(prev->end) + ") and " + quoted(t.name) + " [" + std::to_string(t.begin) +
+           ", " + std::to_string(t.end) + ") overlap");
     }
     prev = &t;
   }

@@ -23,7 +23,6 @@
 #include <set>
 #include <unordered_map>
 
-#include "long3r/io/json.hpp"
 #include "long3r/model/checkpoint.hpp"
 
 namespace long3r {

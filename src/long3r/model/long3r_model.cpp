@@ -30,25 +30,8 @@ LayerNormParams norm_params(const torch::nn::LayerNorm& n) {
 
 }  // namespace
 
-SpatioTemporalMemoryConfig long3r_memory_config(const ModelConfig& config) {
-  const Long3rConfig& l = config.long3r;
-  SpatioTemporalMemoryConfig m;
-  m.short_term_frames = l.short_term_frames;
-  m.long_term_capacity = l.long_term_capacity;
-  m.tau = l.tau;
-  m.voxel_statistic =
-      l.voxel_statistic == "percentile" ? VoxelStatistic::kPercentile : VoxelStatistic::kMin;
-  m.voxel_percentile = l.voxel_percentile;
-  m.long_term_policy =
-      l.long_term_policy == "spann3r" ? LongTermPolicy::kSpann3r : LongTermPolicy::kVoxel;
-  m.sim_thresh = l.sim_thresh;
-  return m;
-}
-
 struct Long3rModel::Impl {
-  explicit Impl(const ModelConfig& c) : config(c), net(c), memory(long3r_memory_config(c)) {
-    apply_mode();
-  }
+  explicit Impl(const ModelConfig& c) : config(c), net(c), memory(c.long3r) { apply_mode(); }
 
   void apply_mode() {
     for (auto& p : net->parameters()) p.set_requires_grad(training);

@@ -15,9 +15,8 @@
 #include <cstdio>
 #include <cstring>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <vector>
-
-#include "long3r/io/json.hpp"
 
 namespace long3r {
 
@@ -131,8 +130,7 @@ TensorFile load_safetensors(const std::string& path) {
   std::vector<uint8_t> head(static_cast<std::size_t>(std::min<uint64_t>(file_size, 8)));
   read_at(f.fd, 0, head.data(), head.size(), path, "the header length");
   if (head.size() == 8) {
-    uint64_t n = 0;
-    for (int i = 7; i >= 0; --i) n = (n << 8) | head[i];
+    const uint64_t n = decode_header_length(head.data());
     if (n <= kMaxSafetensorsHeaderBytes && n <= file_size - 8) {
       head.resize(static_cast<std::size_t>(8 + n));
       read_at(f.fd, 8, head.data() + 8, n, path, "the header");
@@ -152,7 +150,7 @@ TensorFile load_safetensors(const std::string& path) {
     const uint64_t nbytes = e.end - e.begin;
     if (nbytes > 0) {
       read_at(f.fd, h.data_offset + e.begin, t.data_ptr(), nbytes, path,
-              "tensor " + json::quote(e.name));
+              "tensor " + quoted(e.name));
     }
     out.tensors.emplace(e.name, std::move(t));
   }
@@ -176,15 +174,15 @@ void save_safetensors(const std::string& path, const std::map<std::string, at::T
       throw CheckpointError(path + ": \"__metadata__\" cannot be a tensor name");
     }
     if (!kv.second.defined()) {
-      throw CheckpointError(path + ": tensor " + json::quote(kv.first) + " is undefined");
+      throw CheckpointError(path + ": tensor " + quoted(kv.first) + " is undefined");
     }
     if (kv.second.layout() != at::kStrided) {
-      throw CheckpointError(path + ": tensor " + json::quote(kv.first) +
+      throw CheckpointError(path + ": tensor " + quoted(kv.first) +
                             " is not a dense (strided) tensor");
     }
     DType d;
     if (!from_scalar_type(kv.second.scalar_type(), &d)) {
-      throw CheckpointError(path + ": tensor " + json::quote(kv.first) + " has dtype " +
+      throw CheckpointError(path + ": tensor " + quoted(kv.first) + " has dtype " +
                             std::string(c10::toString(kv.second.scalar_type())) +
                             "; only float32, float16, bfloat16 and int64 can be saved");
     }
@@ -206,35 +204,25 @@ void save_safetensors(const std::string& path, const std::map<std::string, at::T
     offset += nbytes;
   }
 
-  std::string header = "{";
-  bool first = true;
+  // Metadata first, then the tensors by name (std::map order).
+  nlohmann::ordered_json root = nlohmann::ordered_json::object();
   if (!metadata.empty()) {
-    header += "\"__metadata__\": {";
-    for (auto kv = metadata.begin(); kv != metadata.end(); ++kv) {
-      if (kv != metadata.begin()) header += ", ";
-      json::append_quoted(header, kv->first);
-      header += ": ";
-      json::append_quoted(header, kv->second);
-    }
-    header += "}";
-    first = false;
+    nlohmann::ordered_json meta = nlohmann::ordered_json::object();
+    for (const auto& kv : metadata) meta[kv.first] = kv.second;
+    root["__metadata__"] = std::move(meta);
   }
-  for (const Item& it : items) {  // sorted by name (std::map order)
-    if (!first) header += ", ";
-    first = false;
-    json::append_quoted(header, *it.name);
-    header += ": {\"dtype\": \"";
-    header += dtype_name(it.dtype);
-    header += "\", \"shape\": [";
-    for (int64_t k = 0; k < it.t.dim(); ++k) {
-      if (k) header += ", ";
-      header += std::to_string(it.t.size(k));
-    }
+  for (const Item& it : items) {
     const auto& r = ranges[*it.name];
-    header +=
-        "], \"data_offsets\": [" + std::to_string(r.first) + ", " + std::to_string(r.second) + "]}";
+    root[*it.name] = {{"dtype", dtype_name(it.dtype)},
+                      {"shape", it.t.sizes().vec()},
+                      {"data_offsets", {r.first, r.second}}};
   }
-  header += "}";
+  std::string header;
+  try {
+    header = root.dump();
+  } catch (const nlohmann::ordered_json::type_error&) {
+    throw CheckpointError(path + ": a tensor name or metadata entry is not valid UTF-8");
+  }
   header.append((8 - header.size() % 8) % 8, ' ');
   if (header.size() > kMaxSafetensorsHeaderBytes) {
     throw CheckpointError(path + ": header of " + std::to_string(header.size()) +
@@ -247,8 +235,7 @@ void save_safetensors(const std::string& path, const std::map<std::string, at::T
   if (f.fd < 0) throw CheckpointError(tmp + ": cannot create: " + errno_text());
   try {
     uint8_t len[8];
-    uint64_t n = header.size();
-    for (int i = 0; i < 8; ++i, n >>= 8) len[i] = static_cast<uint8_t>(n & 0xFF);
+    encode_header_length(header.size(), len);
     write_all(f.fd, len, 8, tmp);
     write_all(f.fd, header.data(), header.size(), tmp);
     for (const Item* it : order) {

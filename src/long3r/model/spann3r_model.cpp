@@ -27,18 +27,6 @@ LayerNormParams norm_params(const torch::nn::LayerNorm& n) {
 
 }  // namespace
 
-Spann3rMemoryConfig spann3r_memory_config(const ModelConfig& config) {
-  const SpatialMemoryConfig& s = config.spatial_memory;
-  Spann3rMemoryConfig m;
-  m.long_mem_size = s.long_mem_size;
-  m.work_mem_size = s.work_mem_size;
-  m.attn_thresh = s.attn_thresh;
-  m.sim_thresh = s.sim_thresh;
-  m.num_patches = s.num_patches;
-  m.top_k = s.top_k;
-  return m;
-}
-
 struct Spann3rModel::Impl {
   explicit Impl(const ModelConfig& c) : config(c), net(c) {
     for (auto& p : net->parameters()) p.set_requires_grad(false);
@@ -49,7 +37,7 @@ struct Spann3rModel::Impl {
   void new_memory() {
     memory = std::make_unique<Spann3rMemory>(
         GatingNorms{norm_params(net->norm_q), norm_params(net->norm_k), norm_params(net->norm_v)},
-        spann3r_memory_config(config));
+        config.spatial_memory);
   }
 
   void reset() {

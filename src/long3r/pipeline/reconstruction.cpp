@@ -58,8 +58,7 @@ std::map<std::string, std::string> read_checkpoint_metadata(const std::string& p
   f.seekg(0);
   uint8_t len_bytes[8];
   f.read(reinterpret_cast<char*>(len_bytes), 8);
-  uint64_t n = 0;
-  for (int i = 7; i >= 0; --i) n = (n << 8) | len_bytes[i];
+  const uint64_t n = decode_header_length(len_bytes);
   if (n > kMaxSafetensorsHeaderBytes || n > file_size - 8) {
     throw CheckpointError(path + ": bad safetensors header length " + std::to_string(n));
   }

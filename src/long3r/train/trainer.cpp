@@ -19,12 +19,12 @@
 #include <fstream>
 #include <limits>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <set>
 #include <sstream>
 #include <stdexcept>
 
 #include "long3r/eval/eval.hpp"
-#include "long3r/io/json.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/safetensors.hpp"
 #include "long3r/train/train.hpp"
@@ -391,18 +391,18 @@ void Trainer::save_checkpoint() {
   fs::create_directories(tmp);
   model_->save((tmp / "weights.safetensors").string());
   torch::save(*optim_->adamw, (tmp / "optimizer.pt").string());
-  json::Value st{json::Object{}};
-  st.set("step", step_);
-  st.set("sampler_rng", sampler_->rng_state());
+  nlohmann::ordered_json st;
+  st["step"] = step_;
+  st["sampler_rng"] = sampler_->rng_state();
   {
     at::Generator gen = at::detail::getDefaultCPUGenerator();
     std::lock_guard<std::mutex> lock(gen.mutex());
-    st.set("torch_cpu_rng", to_hex(gen.get_state()));
+    st["torch_cpu_rng"] = to_hex(gen.get_state());
   }
-  st.set("wall_s", wall_offset_s_ + now_s() - start_time_);
-  st.set("seed", options_.seed);
-  st.set("model_config", model_config_to_json(model_->config()));
-  st.set("train_config", train_config_to_json(config_));
+  st["wall_s"] = wall_offset_s_ + now_s() - start_time_;
+  st["seed"] = options_.seed;
+  st["model_config"] = model_config_to_json(model_->config());
+  st["train_config"] = train_config_to_json(config_);
   write_text_atomic(tmp / "state.json", st.dump(2));
   write_text_atomic(tmp / "train_log.csv", log_rows_to_csv(log_));
   // The folder appears complete or not at all; "latest" moves only then.
@@ -425,9 +425,10 @@ void Trainer::save_checkpoint() {
 
 void Trainer::load_checkpoint(const std::string& dir_s) {
   const fs::path dir(dir_s);
-  const json::Value st = json::parse(read_text(dir / "state.json"));
-  const std::string mc = st.at("model_config").as_string();
-  if (mc != model_config_to_json(model_->config())) {
+  const auto st = nlohmann::ordered_json::parse(read_text(dir / "state.json"));
+  // Compared as configurations, not as text.
+  const std::string mc = st.at("model_config").get<std::string>();
+  if (model_config_to_json(parse_model_config(mc)) != model_config_to_json(model_->config())) {
     throw std::runtime_error("checkpoint " + dir_s +
                              " holds a different model configuration than --model-config/config");
   }
@@ -436,14 +437,14 @@ void Trainer::load_checkpoint(const std::string& dir_s) {
   model_->set_training(true);
   applied_stage_ = -1;
   torch::load(*optim_->adamw, (dir / "optimizer.pt").string(), device_);
-  step_ = st.at("step").as_int();
-  sampler_->set_rng_state(st.at("sampler_rng").as_string());
+  step_ = st.at("step").get<int64_t>();
+  sampler_->set_rng_state(st.at("sampler_rng").get<std::string>());
   {
     at::Generator gen = at::detail::getDefaultCPUGenerator();
     std::lock_guard<std::mutex> lock(gen.mutex());
-    gen.set_state(from_hex(st.at("torch_cpu_rng").as_string()));
+    gen.set_state(from_hex(st.at("torch_cpu_rng").get<std::string>()));
   }
-  wall_offset_s_ = st.at("wall_s").as_double();
+  wall_offset_s_ = st.at("wall_s").get<double>();
   start_time_ = now_s();
   // The log up to the checkpoint (a crash may have logged further steps).
   log_ = read_log_csv(dir / "train_log.csv");

@@ -1,0 +1,75 @@
+// What a config struct's header needs to describe its fields, without any JSON
+// library: the error type, a checker for validate() that names the field, and
+// name lookups of enums (see include/long3r/io/config_json.hpp for the field
+// lists and the JSON side).
+#pragma once
+
+#include <stdexcept>
+#include <string>
+#include <type_traits>
+
+namespace long3r {
+
+// Malformed or unsupported configuration (model, training, nodelet parameters);
+// the message names the field, e.g. "model config: dust3r.enc_num_heads: ...".
+class ConfigError : public std::invalid_argument {
+ public:
+  using std::invalid_argument::invalid_argument;
+};
+
+namespace config {
+
+// Return type of a struct's field list, so that each struct's
+//   template <class S, class V> config::FieldsOf<S, MyConfig> visit_fields(S& s, V& v)
+// (S = MyConfig or const MyConfig) is an overload of its own.
+template <class S, class T>
+using FieldsOf = std::enable_if_t<std::is_same<std::remove_const_t<S>, T>::value>;
+
+// For validate(): require(ok, "field", "must be positive") throws
+// ConfigError("<what>: <path>.field: must be positive").
+struct FieldCheck {
+  std::string what;  // "model config", "training config"
+  std::string path;  // of the struct, e.g. "spatial_memory"; empty at the top level
+
+  std::string field(const std::string& name) const {
+    return path.empty() ? name : path + "." + name;
+  }
+  [[noreturn]] void fail(const std::string& name, const std::string& problem) const {
+    throw ConfigError(what + ": " + field(name) + ": " + problem);
+  }
+  void require(bool ok, const std::string& name, const std::string& problem) const {
+    if (!ok) fail(name, problem);
+  }
+};
+
+// Enum <-> name through the enum's ADL-found table
+//   const std::array<std::pair<E, const char*>, N>& enum_names(E);
+template <class E>
+const char* enum_name(E value) {
+  for (const auto& entry : enum_names(E{})) {
+    if (entry.first == value) return entry.second;
+  }
+  return "?";
+}
+template <class E>
+bool enum_from_name(const std::string& name, E* value) {
+  for (const auto& entry : enum_names(E{})) {
+    if (name == entry.second) {
+      *value = entry.first;
+      return true;
+    }
+  }
+  return false;
+}
+// "\"a\" or \"b\"", for messages.
+template <class E>
+std::string enum_choices() {
+  std::string s;
+  for (const auto& entry : enum_names(E{})) {
+    s += std::string(s.empty() ? "" : " or ") + "\"" + entry.second + "\"";
+  }
+  return s;
+}
+
+}  // namespace config
+}  // namespace long3r

@@ -1,0 +1,170 @@
+// Training configuration (docs/training.md), torch-free: the curriculum
+// stages, loss weights, optimiser, data sources, validation and checkpointing,
+// each struct with its defaults and its field list for the JSON file.
+#pragma once
+
+#include <cstdint>
+#include <nlohmann/json_fwd.hpp>
+#include <string>
+#include <vector>
+
+#include "long3r/io/config_fields.hpp"
+#include "long3r/model/model_config.hpp"
+
+namespace long3r {
+
+struct TrainStage {
+  std::string name;
+  int64_t steps = 0;            // optimiser steps in this stage
+  int64_t frames = 5;           // sequence length N (>= 2)
+  int64_t batch_size = 1;       // sequences per step
+  double lr = 1e-4;             // peak learning rate of the stage
+  int64_t warmup_steps = 0;     // linear warm-up from 0 to lr
+  double min_lr_ratio = 0.01;   // cosine decay ends at lr * min_lr_ratio
+  bool freeze_encoder = false;  // dust3r.patch_embed / enc_blocks / enc_norm
+};
+
+struct LossConfig {
+  double alpha = 0.2;         // DUSt3R's confidence regulariser weight
+  double scale_weight = 1.0;  // weight of L_scale (the paper sums them: 1)
+  bool coarse = true;         // also supervise head 2's next-frame pointmaps
+};
+
+struct AugmentConfig {
+  double color_jitter = 0.1;  // brightness / contrast / saturation factors in [1-j, 1+j]
+  double max_crop = 0.1;      // crop side shrinks by a factor in [1 - max_crop, 1]
+};
+
+struct SynthDataConfig {
+  bool enabled = true;
+  uint64_t train_seed_begin = 1000;  // scenes [begin, begin + train_scenes)
+  int64_t train_scenes = 1000;
+  uint64_t val_seed_begin = 1000000;  // held out: must not overlap the training range
+  int64_t val_scenes = 4;
+  int64_t trajectory_frames = 240;  // length of each scene's camera path
+  double speed = 0.02;              // metres per frame of the path
+  double hfov_min_deg = 60.0, hfov_max_deg = 80.0;
+  int render_size = 0;  // square render side before cropping; 0 = image_size
+};
+
+struct DataConfig {
+  SynthDataConfig synth;
+  std::vector<std::string> tum_dirs;  // TUM-layout folders (depth, groundtruth, calibration)
+  double tum_fraction = 0.5;          // share of TUM sequences when both sources exist
+  int64_t min_stride = 1, max_stride = 4;
+  AugmentConfig augment;
+};
+
+struct ValidationConfig {
+  int64_t every = 100;    // steps; 0 = only at the end
+  int64_t sequences = 2;  // from the held-out scene seeds
+  int64_t frames = 16;
+  int64_t stride = 3;
+  int pixel_step = 2;   // subsampling of the clouds for Acc / Comp / NC
+  bool normals = true;  // NC (costs a k-NN normal estimate)
+};
+
+struct TrainConfig {
+  std::string model = "long3r_ship";  // named_model_config name or a JSON file
+  int64_t image_size = 224;           // square model input, multiple of the patch size
+  std::vector<TrainStage> stages;
+  LossConfig loss;
+  double weight_decay = 0.05;
+  double beta1 = 0.9, beta2 = 0.95;
+  double grad_clip = 1.0;    // max global L2 norm; <= 0 disables clipping
+  std::string amp = "bf16";  // CUDA autocast dtype: "bf16" or "off" (CPU is always fp32)
+  DataConfig data;
+  ValidationConfig validation;
+  int64_t checkpoint_every = 100;  // steps; 0 = only at the end
+  int64_t keep_checkpoints = 2;
+  int64_t log_every = 1;
+
+  int64_t total_steps() const;
+};
+
+// Field lists (JSON keys in docs/training.md; see include/long3r/io/config_json.hpp).
+template <class S, class V>
+config::FieldsOf<S, TrainStage> visit_fields(S& s, V& v) {
+  v.derive(s.name, v.path());  // unnamed stages are called by their place
+  v("name", s.name);
+  v("steps", s.steps);
+  v("frames", s.frames);
+  v("batch_size", s.batch_size);
+  v("lr", s.lr);
+  v("warmup_steps", s.warmup_steps);
+  v("min_lr_ratio", s.min_lr_ratio);
+  v("freeze_encoder", s.freeze_encoder);
+}
+template <class S, class V>
+config::FieldsOf<S, LossConfig> visit_fields(S& s, V& v) {
+  v("alpha", s.alpha);
+  v("scale_weight", s.scale_weight);
+  v("coarse", s.coarse);
+}
+template <class S, class V>
+config::FieldsOf<S, AugmentConfig> visit_fields(S& s, V& v) {
+  v("color_jitter", s.color_jitter);
+  v("max_crop", s.max_crop);
+}
+template <class S, class V>
+config::FieldsOf<S, SynthDataConfig> visit_fields(S& s, V& v) {
+  v("enabled", s.enabled);
+  v("train_seed_begin", s.train_seed_begin);
+  v("train_scenes", s.train_scenes);
+  v("val_seed_begin", s.val_seed_begin);
+  v("val_scenes", s.val_scenes);
+  v("trajectory_frames", s.trajectory_frames);
+  v("speed", s.speed);
+  v("hfov_min_deg", s.hfov_min_deg);
+  v("hfov_max_deg", s.hfov_max_deg);
+  v("render_size", s.render_size);
+}
+template <class S, class V>
+config::FieldsOf<S, DataConfig> visit_fields(S& s, V& v) {
+  v("synth", s.synth);
+  v("tum_dirs", s.tum_dirs);
+  v("tum_fraction", s.tum_fraction);
+  v("min_stride", s.min_stride);
+  v("max_stride", s.max_stride);
+  v("augment", s.augment);
+}
+template <class S, class V>
+config::FieldsOf<S, ValidationConfig> visit_fields(S& s, V& v) {
+  v("every", s.every);
+  v("sequences", s.sequences);
+  v("frames", s.frames);
+  v("stride", s.stride);
+  v("pixel_step", s.pixel_step);
+  v("normals", s.normals);
+}
+template <class S, class V>
+config::FieldsOf<S, TrainConfig> visit_fields(S& s, V& v) {
+  v("model", s.model);
+  v("image_size", s.image_size);
+  v("stages", s.stages);
+  v("loss", s.loss);
+  v.section("optimizer", [&](auto& o) {
+    o("weight_decay", s.weight_decay);
+    o("beta1", s.beta1);
+    o("beta2", s.beta2);
+    o("grad_clip", s.grad_clip);
+  });
+  v("amp", s.amp);
+  v("data", s.data);
+  v("validation", s.validation);
+  v("checkpoint_every", s.checkpoint_every);
+  v("keep_checkpoints", s.keep_checkpoints);
+  v("log_every", s.log_every);
+}
+
+// Parses the training configuration (docs/training.md); unknown keys are
+// errors (the key "comment" is free text) so that a misspelt field is not
+// silently defaulted. Throws ConfigError ("training config: <field>: ...").
+TrainConfig parse_train_config(const std::string& json_text);
+TrainConfig parse_train_config(const nlohmann::ordered_json& root);
+void validate_train_config(const TrainConfig& config);
+std::string train_config_to_json(const TrainConfig& config);
+// A model configuration by name (named_model_config) or from a JSON file path.
+ModelConfig resolve_model_config(const std::string& name_or_path);
+
+}  // namespace long3r
