@@ -7,13 +7,13 @@
 
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 #include <memory>
 #include <stdexcept>
 #include <string>
 #include <thread>
 #include <vector>
 
+#include "long3r/io/atomic_file.hpp"
 #include "long3r/io/json.hpp"
 #include "long3r/model/checkpoint.hpp"
 #include "long3r/model/model_config.hpp"
@@ -265,9 +265,7 @@ int main(int argc, char** argv) {
       root.set("seed_begin", static_cast<int64_t>(seed_begin));
       root.set("sequences", per_seq);
       root.set("mean", mean);
-      std::ofstream out(json_path);
-      out << root.dump(2) << "\n";
-      if (!out) throw std::runtime_error("cannot write " + json_path);
+      long3r::write_file_atomically(json_path, root.dump(2) + "\n");
     }
   } catch (const std::exception& e) {
     std::fprintf(stderr, "long3r_model_eval: %s\n", e.what());
