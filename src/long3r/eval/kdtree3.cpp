@@ -110,14 +110,17 @@ void KdTree3::build(const std::vector<Eigen::Vector3f>& points) {
 }
 
 int KdTree3::nearest(const Eigen::Vector3f& query, float* squared_distance) const {
-  int best = -1;
-  float best_d2 = std::numeric_limits<float>::infinity();
+  // Two slots for k = 1: GCC cannot see that the insertion never shifts then
+  // (-Warray-bounds).
+  int best[2] = {-1, -1};
+  float best_d2[2] = {std::numeric_limits<float>::infinity(),
+                      std::numeric_limits<float>::infinity()};
   if (index_) {
-    ExactKnn result(points_, query, 1, &best, &best_d2);
+    ExactKnn result(points_, query, 1, best, best_d2);
     index_->tree.findNeighbors(result, query.data(), nanoflann::SearchParams());
   }
-  if (squared_distance) *squared_distance = best_d2;
-  return best;
+  if (squared_distance) *squared_distance = best_d2[0];
+  return best[0];
 }
 
 void KdTree3::knn(const Eigen::Vector3f& query, int k, std::vector<int>* indices,
