@@ -2,18 +2,19 @@
 // completion, normal consistency) metrics on TUM-format data; writes a JSON,
 // prints a table and draws plots. See docs/evaluation.md.
 #include <nlohmann/json.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <iostream>
 #include <optional>
 #include <sstream>
 #include <string>
 
+#include "long3r/dataset/image_file.hpp"
+#include "long3r/dataset/point_cloud_io.hpp"
 #include "long3r/dataset/tum_dataset.hpp"
 #include "long3r/eval/eval.hpp"
+#include "long3r/io/atomic_file.hpp"
 
 namespace {
 
@@ -204,8 +205,8 @@ int main(int argc, char** argv) {
       std::snprintf(title, sizeof(title), "ATE %.2f cm  RPE %.2f cm / %.2f deg (delta %d)",
                     100.0 * tm->ate.rmse, 100.0 * tm->rpe_translation.rmse,
                     tm->rpe_rotation_deg.rmse, topt.rpe_delta);
-      cv::imwrite((fs::path(out_dir) / "trajectory.png").string(),
-                  plot_trajectory_top_view(rp, ep, up, title));
+      write_image_atomically((fs::path(out_dir) / "trajectory.png").string(),
+                             plot_trajectory_top_view(rp, ep, up, title));
     }
 
     std::vector<Eigen::Vector3f> gt_cloud;
@@ -232,7 +233,7 @@ int main(int argc, char** argv) {
       }
       if (voxel > 0) gt_cloud = voxel_downsample(gt_cloud, voxel);
       if (save_gt_cloud) {
-        save_point_cloud_ply((fs::path(out_dir) / "gt_cloud.ply").string(), gt_cloud);
+        save_point_cloud((fs::path(out_dir) / "gt_cloud.ply").string(), gt_cloud);
         std::printf("%-28s %12zu\n", "GT cloud points (saved)", gt_cloud.size());
       }
     }
@@ -290,14 +291,14 @@ int main(int argc, char** argv) {
         std::printf("%-28s %12.4f\n", "NC median", m.nc_median);
       }
       std::printf("%-28s %12.4f\n", "Comp ratio (<5cm)", m.completion_ratio);
-      cv::imwrite((fs::path(out_dir) / "map_error.png").string(),
-                  plot_error_top_view(rr.pred_aligned, m.accuracy_errors, gt_cloud,
-                                      m.completion_errors, up, plot_max));
+      write_image_atomically((fs::path(out_dir) / "map_error.png").string(),
+                             plot_error_top_view(rr.pred_aligned, m.accuracy_errors, gt_cloud,
+                                                 m.completion_errors, up, plot_max));
       if (save_aligned)
-        save_point_cloud_ply((fs::path(out_dir) / "map_aligned.ply").string(), rr.pred_aligned);
+        save_point_cloud((fs::path(out_dir) / "map_aligned.ply").string(), rr.pred_aligned);
     }
     const std::string json_path = (fs::path(out_dir) / "metrics.json").string();
-    std::ofstream(json_path) << js.dump(2) << "\n";
+    write_file_atomically(json_path, js.dump(2) + "\n");
     std::printf("wrote %s\n", json_path.c_str());
   } catch (const std::exception& e) {
     std::fprintf(stderr, "long3r_eval: %s\n", e.what());

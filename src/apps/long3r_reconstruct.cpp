@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "long3r/dataset/tum_dataset.hpp"
+#include "long3r/io/atomic_file.hpp"
 #include "long3r/model/threads.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 
@@ -170,10 +171,11 @@ int main(int argc, char** argv) {
     Reconstruction rec(load_streaming_model(model_path), cfg);
     rec.set_calibration(calib);
     fs::create_directories(out_dir);
-    std::ofstream csv(fs::path(out_dir) / "frames.csv");
-    csv << "frame,stamp,preprocess_ms,model_ms,encode_ms,decode_ms,memory_ms,intrinsics_ms,"
-           "pose_ms,map_ms,total_ms,mem_short,mem_long,mem_relevant,pnp_status,pnp_inliers,"
-           "added_to_map,map_points,rss_kb\n";
+    AtomicFile csv((fs::path(out_dir) / "frames.csv").string());  // appears at the end, whole
+    csv.write(
+        "frame,stamp,preprocess_ms,model_ms,encode_ms,decode_ms,memory_ms,intrinsics_ms,"
+        "pose_ms,map_ms,total_ms,mem_short,mem_long,mem_relevant,pnp_status,pnp_inliers,"
+        "added_to_map,map_points,rss_kb\n");
     const bool tty = isatty(fileno(stdout));
     std::vector<double> frame_ms;
     long peak_rss = 0;
@@ -193,7 +195,7 @@ int main(int argc, char** argv) {
           static_cast<long long>(r.memory.long_tokens),
           static_cast<long long>(r.memory.relevant_tokens), to_string(r.pose.status),
           r.pose.inliers, r.added_to_map ? 1 : 0, r.map_points, rss);
-      csv << line;
+      csv.write(line);
       const double fps = t.total_ms > 0 ? 1000.0 / t.total_ms : 0.0;
       if (tty) {
         std::printf("\rframe %lld  %.1f FPS  pose %s  map %zu pts   ",
@@ -234,7 +236,7 @@ int main(int argc, char** argv) {
     if (auto r = rec.flush()) record(*r);
     if (tty) std::printf("\n");
     if (used == 0) throw std::runtime_error("no readable frames in " + input);
-    csv.close();
+    csv.commit();
 
     rec.map().save((fs::path(out_dir) / "map.ply").string());
     PoseTrajectory traj;

@@ -1,7 +1,11 @@
+// KdTree3 (nanoflann underneath) against brute force: the same squared
+// distances, bit for bit, and the same neighbours in (distance, index) order.
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <limits>
 #include <random>
+#include <utility>
 
 #include "long3r/eval/kdtree3.hpp"
 
@@ -34,10 +38,21 @@ TEST(EvalKdTree, MatchesBruteForce) {
     float best;
     const int n = tree.nearest(query, &best);
     EXPECT_EQ(best, brute[0].first);
-    EXPECT_EQ((pts[n] - query).squaredNorm(), brute[0].first);
+    EXPECT_EQ(n, brute[0].second);
     tree.knn(query, 7, &idx, &d2);
     ASSERT_EQ(idx.size(), 7u);
-    for (int k = 0; k < 7; ++k) EXPECT_EQ(d2[k], brute[k].first) << "rank " << k;
+    for (int k = 0; k < 7; ++k) {
+      EXPECT_EQ(d2[k], brute[k].first) << "rank " << k;
+      EXPECT_EQ(idx[k], brute[k].second) << "rank " << k;
+    }
+  }
+  // Queries on the duplicated points: distance 0 twice, lowest index first.
+  for (int i = 0; i < 50; ++i) {
+    float best;
+    EXPECT_EQ(tree.nearest(pts[i], &best), i);
+    EXPECT_EQ(best, 0.0f);
+    tree.knn(pts[i], 2, &idx, nullptr);
+    EXPECT_EQ(idx, (std::vector<int>{i, 3000 + i}));
   }
 }
 
@@ -45,13 +60,27 @@ TEST(EvalKdTree, EmptyAndSmall) {
   long3r::KdTree3 empty;
   float d2 = 0;
   EXPECT_EQ(empty.nearest(Eigen::Vector3f::Zero(), &d2), -1);
-  const long3r::KdTree3 two({Eigen::Vector3f(0, 0, 0), Eigen::Vector3f(1, 0, 0)});
+  EXPECT_EQ(d2, std::numeric_limits<float>::infinity());
+  std::vector<int> none{1};
+  empty.knn(Eigen::Vector3f::Zero(), 3, &none, nullptr);
+  EXPECT_TRUE(none.empty());
+  long3r::KdTree3 two({Eigen::Vector3f(0, 0, 0), Eigen::Vector3f(1, 0, 0)});
   std::vector<int> idx;
   std::vector<float> dd;
   two.knn(Eigen::Vector3f(0.9f, 0, 0), 5, &idx, &dd);
   ASSERT_EQ(idx.size(), 2u);
   EXPECT_EQ(idx[0], 1);
   EXPECT_EQ(idx[1], 0);
+  const Eigen::Vector3f q(0.9f, 0, 0);
+  EXPECT_EQ(dd,
+            (std::vector<float>{(q - Eigen::Vector3f(1, 0, 0)).squaredNorm(), q.squaredNorm()}));
+  // A moved tree keeps answering over its own copy of the points.
+  long3r::KdTree3 moved(std::move(two));
+  EXPECT_EQ(moved.nearest(Eigen::Vector3f(0.1f, 0, 0)), 0);
+  long3r::KdTree3 assigned;
+  assigned = std::move(moved);
+  EXPECT_EQ(assigned.size(), 2u);
+  EXPECT_EQ(assigned.nearest(Eigen::Vector3f(0.8f, 0, 0)), 1);
 }
 
 // A degenerate prediction (an untrained model collapses to a blob) queried
@@ -76,12 +105,31 @@ TEST(EvalKdTree, FarQueriesAndCoincidentPoints) {
     const int i = tree.nearest(query, &best);
     EXPECT_EQ(best, brute[0].first);
     ASSERT_GE(i, 0);
+    EXPECT_EQ(i, brute[0].second);
     EXPECT_EQ((pts[i] - query).squaredNorm(), best);
     tree.knn(query, 9, &idx, &d2);
     ASSERT_EQ(idx.size(), 9u);
     for (int k = 0; k < 9; ++k) {
       EXPECT_EQ(d2[k], brute[k].first) << "rank " << k;
+      EXPECT_EQ(idx[k], brute[k].second) << "rank " << k;
       EXPECT_EQ((pts[idx[k]] - query).squaredNorm(), d2[k]);
+    }
+  }
+  // On the coincident points: 30 neighbours at distance 0, the lowest indices.
+  tree.knn(same, 30, &idx, &d2);
+  ASSERT_EQ(idx.size(), 30u);
+  for (int k = 0; k < 30; ++k) {
+    EXPECT_EQ(idx[k], 2000 + k);
+    EXPECT_EQ(d2[k], 0.0f);
+  }
+  // Very far queries (metres to kilometres from a centimetre blob).
+  for (float far : {50.0f, 1e3f, 1e5f}) {
+    const Eigen::Vector3f query(far, -0.5f * far, 0.25f * far);
+    const auto brute = by_distance(pts, query);
+    tree.knn(query, 5, &idx, &d2);
+    for (int k = 0; k < 5; ++k) {
+      EXPECT_EQ(d2[k], brute[k].first) << far << " rank " << k;
+      EXPECT_EQ(idx[k], brute[k].second) << far << " rank " << k;
     }
   }
 }

@@ -1,8 +1,6 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <filesystem>
-#include <fstream>
 #include <random>
 
 #include "long3r/eval/eval.hpp"
@@ -59,13 +57,6 @@ std::vector<Eigen::Vector3f> transform_points(const Sim3& s,
   std::vector<Eigen::Vector3f> out;
   for (const auto& x : p) out.push_back((s * x.cast<double>()).cast<float>());
   return out;
-}
-
-std::string temp_dir(const std::string& name) {
-  const auto d = std::filesystem::path(LONG3R_BINARY_DIR) / "test_tmp" / name;
-  std::filesystem::remove_all(d);
-  std::filesystem::create_directories(d);
-  return d.string();
 }
 
 }  // namespace
@@ -195,34 +186,4 @@ TEST(EvalReconstruction, VoxelDownsampleAveragesPerVoxel) {
   EXPECT_TRUE(v[0].isApprox(Eigen::Vector3f(0.02f, 0.03f, 0.04f)));
   EXPECT_TRUE(v[1].isApprox(Eigen::Vector3f(1.01f, 0.0f, 0.0f)));
   EXPECT_TRUE(v[2].isApprox(Eigen::Vector3f(-0.02f, 0.0f, 0.0f)));
-}
-
-TEST(EvalPointIo, PlyAndXyzRoundTrip) {
-  const std::string dir = temp_dir("point_io");
-  const auto pts = box_surface(20, 4);
-  std::vector<cv::Vec3b> colours(pts.size(), cv::Vec3b(1, 2, 3));
-  save_point_cloud_ply(dir + "/a.ply", pts, &colours);
-  EXPECT_EQ(load_point_cloud(dir + "/a.ply"), pts);
-
-  {
-    std::ofstream ascii(dir + "/b.ply");
-    ascii << "ply\nformat ascii 1.0\ncomment test\nelement vertex 2\nproperty double x\n"
-             "property uchar red\nproperty double y\nproperty double z\n"
-             "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
-             "1.5 255 2.5 -3\n4 0 5 6\n3 0 1 1\n";
-  }
-  const auto b = load_point_cloud(dir + "/b.ply");
-  ASSERT_EQ(b.size(), 2u);
-  EXPECT_EQ(b[0], Eigen::Vector3f(1.5f, 2.5f, -3.0f));
-  EXPECT_EQ(b[1], Eigen::Vector3f(4.0f, 5.0f, 6.0f));
-
-  {
-    std::ofstream xyz(dir + "/c.xyz");
-    xyz << "# x y z\n1 2 3\n\n4,5,6,0.5\n";
-  }
-  const auto c = load_point_cloud(dir + "/c.xyz");
-  ASSERT_EQ(c.size(), 2u);
-  EXPECT_EQ(c[1], Eigen::Vector3f(4.0f, 5.0f, 6.0f));
-  EXPECT_THROW(load_point_cloud(dir + "/missing.ply"), std::runtime_error);
-  EXPECT_THROW(load_point_cloud(dir + "/c.unknown"), std::runtime_error);
 }

@@ -49,14 +49,7 @@ ErrorStatistics error_statistics(const std::vector<double>& errors);
 double median_of(std::vector<double> values);
 
 // ------------------------------------------------------------- point clouds
-
-// Reads .ply (ascii, binary_little_endian or binary_big_endian; vertex x y z
-// as float or double, other properties skipped), .pcd (via PCL), or
-// .xyz/.txt ("x y z" per line, extra columns ignored). Throws std::runtime_error.
-std::vector<Eigen::Vector3f> load_point_cloud(const std::string& path);
-// Binary little-endian PLY; colours (BGR 8-bit, as OpenCV) optional.
-void save_point_cloud_ply(const std::string& path, const std::vector<Eigen::Vector3f>& points,
-                          const std::vector<cv::Vec3b>* colours = nullptr);
+// (files: long3r/dataset/point_cloud_io.hpp)
 
 // Centroid of the points in each voxel (cubes of `voxel` metres), in order of
 // first occurrence. voxel <= 0 returns the input.

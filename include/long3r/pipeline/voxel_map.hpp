@@ -33,6 +33,8 @@
 #include <unordered_map>
 #include <vector>
 
+#include "long3r/dataset/point_cloud_io.hpp"
+
 namespace long3r {
 
 struct VoxelMapConfig {
@@ -40,8 +42,6 @@ struct VoxelMapConfig {
   std::size_t max_points = 2000000;  // hard cap on voxels (= points), > 0
   float conf_threshold = 3.0f;       // model confidence (>= 1); pixels below are not fused
 };
-
-using Rgb8 = std::array<std::uint8_t, 3>;  // red, green, blue
 
 // Points and colours of the map, index-aligned (RGB), in unspecified order.
 struct MapSnapshot {
@@ -129,13 +129,12 @@ class VoxelMap {
   std::uint64_t revision_ = 0;
 };
 
-// Writes a coloured point cloud atomically: the data goes to a temporary file
-// beside `path` (same directory), which is flushed, synced and renamed over
-// `path`; on any error the temporary is removed, `path` is untouched and
-// std::runtime_error says what failed. The extension (case-insensitive)
+// Writes a coloured point cloud atomically (see point_cloud_io.hpp and
+// atomic_file.hpp: on any error `path` is untouched, no temporary is left and
+// the std::runtime_error says what failed). The extension (case-insensitive)
 // selects the format:
-//   .ply  binary_little_endian 1.0 (or ascii): element vertex with
-//         float x, y, z and uchar red, green, blue
+//   .ply  binary_little_endian 1.0 (or ascii), "comment long3r map": element
+//         vertex with float x, y, z and uchar red, green, blue
 //   .pcd  PCD v0.7, FIELDS x y z rgb, TYPE F F F U, rgb = r << 16 | g << 8 | b,
 //         DATA binary (or ascii)
 // Any other extension throws std::invalid_argument naming it. colors: RGB,

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <cstdarg>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -13,11 +14,30 @@
 #include <stdexcept>
 #include <tuple>
 
+#include "long3r/io/atomic_file.hpp"
+
 namespace long3r {
 
 namespace fs = std::filesystem;
 
 namespace {
+
+// printf onto the end of *out (file text is built in memory, then written at once).
+__attribute__((format(printf, 2, 3))) void append_printf(std::string* out, const char* format,
+                                                         ...) {
+  va_list args, again;
+  va_start(args, format);
+  va_copy(again, args);
+  const int n = std::vsnprintf(nullptr, 0, format, args);
+  va_end(args);
+  if (n > 0) {
+    const size_t old = out->size();
+    out->resize(old + static_cast<size_t>(n) + 1);
+    std::vsnprintf(out->data() + old, static_cast<size_t>(n) + 1, format, again);
+    out->resize(old + static_cast<size_t>(n));
+  }
+  va_end(again);
+}
 
 // Lines of a text file without comments ('#') and blank lines; commas become
 // spaces. Keeps the 1-based line number for error messages.
@@ -85,10 +105,9 @@ void write_tum_trajectory(const std::string& path, const PoseTrajectory& traject
   if (trajectory.stamps.size() != trajectory.poses.size()) {
     throw std::invalid_argument("write_tum_trajectory: stamps and poses differ in size");
   }
-  FILE* f = std::fopen(path.c_str(), "w");
-  if (!f) throw std::runtime_error("cannot write " + path);
-  if (!header_comment.empty()) std::fprintf(f, "# %s\n", header_comment.c_str());
-  std::fprintf(f, "# timestamp tx ty tz qx qy qz qw\n");
+  std::string text;
+  if (!header_comment.empty()) text += "# " + header_comment + "\n";
+  text += "# timestamp tx ty tz qx qy qz qw\n";
   for (size_t i = 0; i < trajectory.size(); ++i) {
     const Eigen::Isometry3d& p = trajectory.poses[i];
     Eigen::Quaterniond q(p.rotation());
@@ -96,10 +115,10 @@ void write_tum_trajectory(const std::string& path, const PoseTrajectory& traject
     // A fixed sign (qw >= 0) makes the text a function of the rotation alone.
     if (q.w() < 0.0) q.coeffs() = -q.coeffs();
     const Eigen::Vector3d t = p.translation();
-    std::fprintf(f, "%.6f %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", trajectory.stamps[i], t.x(), t.y(),
-                 t.z(), q.x(), q.y(), q.z(), q.w());
+    append_printf(&text, "%.6f %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", trajectory.stamps[i], t.x(),
+                  t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
   }
-  if (std::fclose(f) != 0) throw std::runtime_error("error writing " + path);
+  write_file_atomically(path, text);
 }
 
 PinholeIntrinsics read_calibration_file(const std::string& path) {
@@ -123,13 +142,11 @@ PinholeIntrinsics read_calibration_file(const std::string& path) {
 }
 
 void write_calibration_file(const std::string& path, const PinholeIntrinsics& k) {
-  FILE* f = std::fopen(path.c_str(), "w");
-  if (!f) throw std::runtime_error("cannot write " + path);
-  std::fprintf(f,
-               "# pinhole intrinsics in pixels; pixel centres at integer coordinates\n"
-               "# fx fy cx cy width height\n");
-  std::fprintf(f, "%.9g %.9g %.9g %.9g %d %d\n", k.fx, k.fy, k.cx, k.cy, k.width, k.height);
-  if (std::fclose(f) != 0) throw std::runtime_error("error writing " + path);
+  std::string text =
+      "# pinhole intrinsics in pixels; pixel centres at integer coordinates\n"
+      "# fx fy cx cy width height\n";
+  append_printf(&text, "%.9g %.9g %.9g %.9g %d %d\n", k.fx, k.fy, k.cx, k.cy, k.width, k.height);
+  write_file_atomically(path, text);
 }
 
 std::vector<TimestampedPath> read_tum_file_list(const std::string& path) {

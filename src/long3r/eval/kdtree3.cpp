@@ -1,159 +1,151 @@
 #include "long3r/eval/kdtree3.hpp"
 
+#include <nanoflann.hpp>
+
 #include <algorithm>
+#include <cmath>
+#include <cstdint>
 #include <limits>
 #include <stdexcept>
+#include <utility>
 
 namespace long3r {
 
 namespace {
-constexpr int32_t kLeafSize = 8;
 
-// Fixed-capacity sorted list of the best k candidates (k is small).
-class BestK {
+// nanoflann's view of the points.
+struct Cloud {
+  const std::vector<Eigen::Vector3f>* points;
+  size_t kdtree_get_point_count() const { return points->size(); }
+  float kdtree_get_pt(size_t i, size_t dim) const { return (*points)[i][static_cast<int>(dim)]; }
+  template <class Box>
+  bool kdtree_get_bbox(Box&) const {
+    return false;
+  }
+};
+
+// Distances in double inside the tree: its box bounds, accumulated level by
+// level, then carry no rounding worth the name.
+using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Cloud, double>,
+                                                 Cloud, 3, uint32_t>;
+
+// The k best (squared distance, index) pairs seen, in that order, with the
+// distance computed as brute force does ((point - query).squaredNorm() in
+// float). nanoflann offers only points closer than worstDist() (in its double
+// distance, which differs from the float one by a few float roundings) and
+// skips subtrees whose box is not closer; worstDist() is therefore the k-th
+// float distance widened by 2^-18 (over ten times those roundings) and one
+// step up, so that every point that can still enter the list, ties at the
+// k-th distance included, is offered.
+class ExactKnn {
  public:
-  explicit BestK(int k) : k_(k) {
-    idx_.reserve(k);
-    d2_.reserve(k);
-  }
-  float worst() const {
-    return static_cast<int>(d2_.size()) < k_ ? std::numeric_limits<float>::infinity() : d2_.back();
-  }
-  void offer(int index, float d2) {
-    if (d2 >= worst()) return;
-    auto pos = std::upper_bound(d2_.begin(), d2_.end(), d2) - d2_.begin();
-    if (static_cast<int>(d2_.size()) == k_) {
-      d2_.pop_back();
-      idx_.pop_back();
+  ExactKnn(const std::vector<Eigen::Vector3f>& points, const Eigen::Vector3f& query, int k,
+           int* idx, float* d2)
+      : points_(points), query_(query), k_(k), idx_(idx), d2_(d2) {}
+
+  size_t size() const { return static_cast<size_t>(count_); }
+  bool full() const { return count_ == k_; }
+  double worstDist() const { return bound_; }
+
+  bool addPoint(double /*nanoflann's distance*/, uint32_t index) {
+    const int i = static_cast<int>(index);
+    const float d = (points_[index] - query_).squaredNorm();
+    if (full() && !(d < d2_[k_ - 1] || (d == d2_[k_ - 1] && i < idx_[k_ - 1]))) return true;
+    int pos = count_ < k_ ? count_++ : k_ - 1;
+    while (pos > 0 && (d < d2_[pos - 1] || (d == d2_[pos - 1] && i < idx_[pos - 1]))) {
+      d2_[pos] = d2_[pos - 1];
+      idx_[pos] = idx_[pos - 1];
+      --pos;
     }
-    d2_.insert(d2_.begin() + pos, d2);
-    idx_.insert(idx_.begin() + pos, index);
+    d2_[pos] = d;
+    idx_[pos] = i;
+    if (full()) {
+      const double w = d2_[k_ - 1];
+      bound_ = std::nextafter(w + w * 0x1p-18, std::numeric_limits<double>::infinity());
+    }
+    return true;
   }
-  std::vector<int> idx_;
-  std::vector<float> d2_;
 
  private:
-  int k_;
+  const std::vector<Eigen::Vector3f>& points_;
+  const Eigen::Vector3f query_;
+  const int k_;
+  int* idx_;
+  float* d2_;
+  int count_ = 0;
+  double bound_ = std::numeric_limits<double>::infinity();
 };
+
 }  // namespace
 
+struct KdTree3::Index {
+  Cloud cloud;
+  Tree tree;
+  explicit Index(const std::vector<Eigen::Vector3f>* points)
+      : cloud{points}, tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10)) {}
+};
+
+KdTree3::KdTree3() = default;
+KdTree3::KdTree3(const std::vector<Eigen::Vector3f>& points) { build(points); }
+KdTree3::~KdTree3() = default;
+// The index refers to the points_ member: after a move, to the new owner's.
+KdTree3::KdTree3(KdTree3&& other) noexcept
+    : points_(std::move(other.points_)), index_(std::move(other.index_)) {
+  if (index_) index_->cloud.points = &points_;
+}
+KdTree3& KdTree3::operator=(KdTree3&& other) noexcept {
+  points_ = std::move(other.points_);
+  index_ = std::move(other.index_);
+  if (index_) index_->cloud.points = &points_;
+  return *this;
+}
+
 void KdTree3::build(const std::vector<Eigen::Vector3f>& points) {
-  if (points.size() > static_cast<size_t>(std::numeric_limits<int32_t>::max() / 2)) {
+  if (points.size() > static_cast<size_t>(std::numeric_limits<int32_t>::max())) {
     throw std::invalid_argument("KdTree3: too many points");
   }
+  index_.reset();
   points_ = points;
-  order_.resize(points_.size());
-  for (size_t i = 0; i < order_.size(); ++i) order_[i] = static_cast<int32_t>(i);
-  nodes_.clear();
-  nodes_.reserve(2 * points_.size() / kLeafSize + 2);
-  if (!points_.empty()) build_node(0, static_cast<int32_t>(points_.size()));
-}
-
-int32_t KdTree3::build_node(int32_t begin, int32_t end) {
-  const int32_t id = static_cast<int32_t>(nodes_.size());
-  nodes_.emplace_back();
-  Eigen::Vector3f lo = points_[order_[begin]], hi = lo;
-  for (int32_t i = begin + 1; i < end; ++i) {
-    lo = lo.cwiseMin(points_[order_[i]]);
-    hi = hi.cwiseMax(points_[order_[i]]);
-  }
-  Node& node = nodes_[id];
-  node.begin = begin;
-  node.end = end;
-  node.lo = lo;
-  node.hi = hi;
-  if (end - begin <= kLeafSize) return id;
-
-  int axis = 0;
-  (hi - lo).maxCoeff(&axis);
-  if (!(hi(axis) > lo(axis))) {
-    // All points equal: one leaf, lowest index first (the tie-break of nearest).
-    std::sort(order_.begin() + begin, order_.begin() + end);
-    node.coincident = true;
-    return id;
-  }
-
-  const int32_t mid = begin + (end - begin) / 2;
-  std::nth_element(order_.begin() + begin, order_.begin() + mid, order_.begin() + end,
-                   [&](int32_t a, int32_t b) { return points_[a](axis) < points_[b](axis); });
-  const int32_t left = build_node(begin, mid);
-  const int32_t right = build_node(mid, end);
-  // nodes_ may have reallocated: index again.
-  nodes_[id].axis = axis;
-  nodes_[id].left = left;
-  nodes_[id].right = right;
-  return id;
-}
-
-template <typename BoundFn, typename LeafFn>
-void KdTree3::traverse(const Eigen::Vector3f& query, BoundFn current_bound,
-                       LeafFn visit_leaf) const {
-  // Explicit stack of (node, squared distance from the query to its box).
-  struct Item {
-    int32_t node;
-    float bound;
-  };
-  Item stack[128];
-  int top = 0;
-  stack[top++] = {0, box_distance2(nodes_[0], query)};
-  while (top > 0) {
-    const Item item = stack[--top];
-    if (item.bound >= current_bound()) continue;
-    const Node& n = nodes_[item.node];
-    if (n.axis < 0) {
-      visit_leaf(n);
-      continue;
-    }
-    const float dl = box_distance2(nodes_[n.left], query);
-    const float dr = box_distance2(nodes_[n.right], query);
-    // Far side first so the near side is popped (and searched) next.
-    stack[top++] = {dl <= dr ? n.right : n.left, std::max(dl, dr)};
-    stack[top++] = {dl <= dr ? n.left : n.right, std::min(dl, dr)};
-  }
+  if (!points_.empty()) index_ = std::make_unique<Index>(&points_);
 }
 
 int KdTree3::nearest(const Eigen::Vector3f& query, float* squared_distance) const {
-  if (points_.empty()) {
-    if (squared_distance) *squared_distance = std::numeric_limits<float>::infinity();
-    return -1;
+  // Two slots for k = 1: GCC cannot see that the insertion never shifts then
+  // (-Warray-bounds).
+  int best[2] = {-1, -1};
+  float best_d2[2] = {std::numeric_limits<float>::infinity(),
+                      std::numeric_limits<float>::infinity()};
+  if (index_) {
+    ExactKnn result(points_, query, 1, best, best_d2);
+    index_->tree.findNeighbors(result, query.data(), nanoflann::SearchParams());
   }
-  int best = -1;
-  float best_d2 = std::numeric_limits<float>::infinity();
-  traverse(
-      query, [&] { return best_d2; },
-      [&](const Node& n) {
-        const int32_t end = n.coincident ? n.begin + 1 : n.end;
-        for (int32_t i = n.begin; i < end; ++i) {
-          const int32_t p = order_[i];
-          const float d2 = (points_[p] - query).squaredNorm();
-          if (d2 < best_d2 || (d2 == best_d2 && p < best)) {
-            best_d2 = d2;
-            best = p;
-          }
-        }
-      });
-  if (squared_distance) *squared_distance = best_d2;
-  return best;
+  if (squared_distance) *squared_distance = best_d2[0];
+  return best[0];
 }
 
 void KdTree3::knn(const Eigen::Vector3f& query, int k, std::vector<int>* indices,
                   std::vector<float>* squared_distances) const {
-  indices->clear();
-  if (squared_distances) squared_distances->clear();
   k = std::min<int>(k, static_cast<int>(points_.size()));
-  if (k <= 0) return;
-  BestK best(k);
-  traverse(
-      query, [&] { return best.worst(); },
-      [&](const Node& n) {
-        const int32_t end = n.coincident ? std::min(n.end, n.begin + k) : n.end;
-        for (int32_t i = n.begin; i < end; ++i) {
-          const int32_t p = order_[i];
-          best.offer(p, (points_[p] - query).squaredNorm());
-        }
-      });
-  *indices = std::move(best.idx_);
-  if (squared_distances) *squared_distances = std::move(best.d2_);
+  if (k <= 0) {
+    indices->clear();
+    if (squared_distances) squared_distances->clear();
+    return;
+  }
+  indices->resize(static_cast<size_t>(k));
+  // Without a distance output (normal estimation) small k needs no heap.
+  constexpr int kStack = 64;
+  float stack[kStack];
+  std::vector<float> heap;
+  float* d2 = stack;
+  if (squared_distances) {
+    squared_distances->resize(static_cast<size_t>(k));
+    d2 = squared_distances->data();
+  } else if (k > kStack) {
+    heap.resize(static_cast<size_t>(k));
+    d2 = heap.data();
+  }
+  ExactKnn result(points_, query, k, indices->data(), d2);
+  index_->tree.findNeighbors(result, query.data(), nanoflann::SearchParams());
 }
 
 }  // namespace long3r

@@ -18,6 +18,8 @@
 #include <nlohmann/json.hpp>
 #include <vector>
 
+#include "long3r/io/atomic_file.hpp"
+
 namespace long3r {
 
 namespace {
@@ -96,20 +98,6 @@ void read_at(int fd, uint64_t offset, void* dst, uint64_t n, const std::string& 
     p += r;
     offset += static_cast<uint64_t>(r);
     n -= static_cast<uint64_t>(r);
-  }
-}
-
-void write_all(int fd, const void* src, std::size_t n, const std::string& path) {
-  const auto* p = static_cast<const char*>(src);
-  while (n > 0) {
-    const std::size_t chunk = std::min<std::size_t>(n, 1u << 30);
-    const ssize_t w = ::write(fd, p, chunk);
-    if (w < 0) {
-      if (errno == EINTR) continue;
-      throw CheckpointError(path + ": write error: " + errno_text());
-    }
-    p += w;
-    n -= static_cast<std::size_t>(w);
   }
 }
 
@@ -229,39 +217,19 @@ void save_safetensors(const std::string& path, const std::map<std::string, at::T
                           " bytes exceeds the format limit");
   }
 
-  const std::string tmp = path + ".tmp." + std::to_string(::getpid());
-  Fd f;
-  f.fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (f.fd < 0) throw CheckpointError(tmp + ": cannot create: " + errno_text());
   try {
+    AtomicFile file(path);
     uint8_t len[8];
     encode_header_length(header.size(), len);
-    write_all(f.fd, len, 8, tmp);
-    write_all(f.fd, header.data(), header.size(), tmp);
+    file.write(len, 8);
+    file.write(header);
     for (const Item* it : order) {
       const uint64_t nbytes = static_cast<uint64_t>(it->t.numel()) * dtype_size(it->dtype);
-      if (nbytes > 0) write_all(f.fd, it->t.data_ptr(), static_cast<std::size_t>(nbytes), tmp);
+      if (nbytes > 0) file.write(it->t.data_ptr(), static_cast<std::size_t>(nbytes));
     }
-    if (::fsync(f.fd) != 0) throw CheckpointError(tmp + ": fsync failed: " + errno_text());
-    const int fd = f.fd;
-    f.fd = -1;
-    if (::close(fd) != 0) throw CheckpointError(tmp + ": close failed: " + errno_text());
-    if (::rename(tmp.c_str(), path.c_str()) != 0) {
-      throw CheckpointError(path + ": cannot rename " + tmp + " into place: " + errno_text());
-    }
-  } catch (...) {
-    ::unlink(tmp.c_str());
-    throw;
-  }
-  // Make the rename itself durable; failure here leaves a complete file, so it
-  // is not reported.
-  std::string dir = ".";
-  const auto slash = path.find_last_of('/');
-  if (slash != std::string::npos) dir = slash == 0 ? "/" : path.substr(0, slash);
-  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dfd >= 0) {
-    ::fsync(dfd);
-    ::close(dfd);
+    file.commit();
+  } catch (const AtomicWriteError& e) {
+    throw CheckpointError(e.what());
   }
 }
 

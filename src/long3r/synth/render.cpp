@@ -8,11 +8,13 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
+#include <sstream>
 #include <stdexcept>
 #include <thread>
 
+#include "long3r/dataset/image_file.hpp"
 #include "long3r/dataset/tum_dataset.hpp"
+#include "long3r/io/atomic_file.hpp"
 #include "long3r/synth/synth.hpp"
 
 namespace long3r::synth {
@@ -193,18 +195,15 @@ WriteStats write_tum_sequence(const Sequence& seq, const std::string& dir,
 
   const PinholeIntrinsics& k = seq.config.intrinsics;
   write_calibration_file((root / "calibration.txt").string(), k);
-  {
-    std::ofstream js(root / "scene.json");
-    js << scene_json(seq).dump(1) << "\n";
-    if (!js) throw std::runtime_error("cannot write scene.json in " + dir);
-  }
+  write_file_atomically((root / "scene.json").string(), scene_json(seq).dump(1) + "\n");
   PoseTrajectory gt;
   gt.stamps = seq.stamps;
   gt.poses = seq.poses;
   write_tum_trajectory((root / "groundtruth.txt").string(), gt,
                        "ground truth T_W_C (camera optical frame: x right, y down, z forward)");
 
-  std::ofstream rgb_list(root / "rgb.txt"), depth_list(root / "depth.txt");
+  // The lists are written last, so that they only ever name images on disk.
+  std::ostringstream rgb_list, depth_list;
   rgb_list << "# color images\n# file: long3r_synth\n# timestamp filename\n";
   depth_list << "# depth maps (uint16, metres * " << kTumDepthFactor
              << ")\n# file: long3r_synth\n# timestamp filename\n";
@@ -226,10 +225,8 @@ WriteStats write_tum_sequence(const Sequence& seq, const std::string& dir,
       }
     }
     const std::string name = stamp_name(seq.stamps[i]) + ".png";
-    if (!cv::imwrite((root / "rgb" / name).string(), f.bgr, png_params) ||
-        !cv::imwrite((root / "depth" / name).string(), depth16, png_params)) {
-      throw std::runtime_error("cannot write frame images in " + dir);
-    }
+    write_image_atomically((root / "rgb" / name).string(), f.bgr, png_params);
+    write_image_atomically((root / "depth" / name).string(), depth16, png_params);
     rgb_list << stamp_name(seq.stamps[i]) << " rgb/" << name << "\n";
     depth_list << stamp_name(seq.stamps[i]) << " depth/" << name << "\n";
     const auto t2 = clock::now();
@@ -238,7 +235,8 @@ WriteStats write_tum_sequence(const Sequence& seq, const std::string& dir,
     ++stats.frames;
     if (progress) progress(i + 1, n);
   }
-  if (!rgb_list || !depth_list) throw std::runtime_error("cannot write file lists in " + dir);
+  write_file_atomically((root / "rgb.txt").string(), rgb_list.str());
+  write_file_atomically((root / "depth.txt").string(), depth_list.str());
   return stats;
 }
 

@@ -3,7 +3,6 @@
 #include <ATen/ATen.h>
 #include <ATen/Parallel.h>
 #include <c10/core/InferenceMode.h>
-#include <opencv2/imgcodecs.hpp>
 
 #include <chrono>
 #include <cmath>
@@ -11,6 +10,7 @@
 #include <optional>
 #include <stdexcept>
 
+#include "long3r/dataset/image_file.hpp"
 #include "long3r/eval/eval.hpp"
 #include "long3r/pipeline/intrinsics.hpp"
 #include "long3r/pipeline/pose.hpp"
@@ -127,9 +127,7 @@ PredictionMetrics evaluate_prediction(const SequencePrediction& prediction,
     const cv::Mat img =
         plot_error_top_view(aligned, rm.accuracy_errors, gt_pts, rm.completion_errors,
                             estimate_up_axis(sample.T_C0_C), options.picture_max_error_m);
-    if (!cv::imwrite(options.picture_path, img)) {
-      throw std::runtime_error("cannot write " + options.picture_path);
-    }
+    write_image_atomically(options.picture_path, img);
   }
   m.acc_mean = rm.accuracy_mean;
   m.acc_median = rm.accuracy_median;

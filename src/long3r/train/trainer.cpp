@@ -9,7 +9,6 @@
 #include <torch/nn/module.h>
 #include <torch/optim/adamw.h>
 #include <torch/serialize.h>
-#include <opencv2/imgcodecs.hpp>
 
 #include <algorithm>
 #include <chrono>
@@ -24,7 +23,9 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "long3r/dataset/image_file.hpp"
 #include "long3r/eval/eval.hpp"
+#include "long3r/io/atomic_file.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/safetensors.hpp"
 #include "long3r/train/train.hpp"
@@ -45,19 +46,6 @@ std::string read_text(const fs::path& p) {
   std::stringstream ss;
   ss << in.rdbuf();
   return ss.str();
-}
-
-// Write-then-rename, so that a crash never leaves a half-written file.
-void write_text_atomic(const fs::path& p, const std::string& text) {
-  const fs::path tmp = p.string() + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    if (!out) throw std::runtime_error("cannot write " + tmp.string());
-    out << text;
-    out.flush();
-    if (!out) throw std::runtime_error("write failed: " + tmp.string());
-  }
-  fs::rename(tmp, p);
 }
 
 std::string to_hex(const at::Tensor& bytes) {
@@ -390,7 +378,11 @@ void Trainer::save_checkpoint() {
   fs::remove_all(tmp);
   fs::create_directories(tmp);
   model_->save((tmp / "weights.safetensors").string());
-  torch::save(*optim_->adamw, (tmp / "optimizer.pt").string());
+  {
+    std::ostringstream optimizer;
+    torch::save(*optim_->adamw, optimizer);
+    write_file_atomically((tmp / "optimizer.pt").string(), optimizer.str());
+  }
   nlohmann::ordered_json st;
   st["step"] = step_;
   st["sampler_rng"] = sampler_->rng_state();
@@ -403,12 +395,13 @@ void Trainer::save_checkpoint() {
   st["seed"] = options_.seed;
   st["model_config"] = model_config_to_json(model_->config());
   st["train_config"] = train_config_to_json(config_);
-  write_text_atomic(tmp / "state.json", st.dump(2));
-  write_text_atomic(tmp / "train_log.csv", log_rows_to_csv(log_));
+  write_file_atomically((tmp / "state.json").string(), st.dump(2));
+  write_file_atomically((tmp / "train_log.csv").string(), log_rows_to_csv(log_));
   // The folder appears complete or not at all; "latest" moves only then.
   fs::remove_all(dir);
   fs::rename(tmp, dir);
-  write_text_atomic(root / "latest", std::string(name) + "\n");
+  sync_directory(root.string());
+  write_file_atomically((root / "latest").string(), std::string(name) + "\n");
   std::vector<fs::path> old;
   for (const auto& e : fs::directory_iterator(root)) {
     const std::string n = e.path().filename().string();
@@ -453,13 +446,9 @@ void Trainer::load_checkpoint(const std::string& dir_s) {
 void Trainer::write_outputs() {
   const fs::path out(options_.out_dir);
   model_->save((out / "model.safetensors").string());
-  write_text_atomic(out / "train_log.csv", log_rows_to_csv(log_));
-  const fs::path tmp = out / "loss_curve.tmp.png";
-  if (!cv::imwrite(tmp.string(), plot_training_curves(log_))) {
-    throw std::runtime_error("cannot write " + tmp.string());
-  }
-  fs::rename(tmp, out / "loss_curve.png");
-  write_text_atomic(out / "train_config.json", train_config_to_json(config_));
+  write_file_atomically((out / "train_log.csv").string(), log_rows_to_csv(log_));
+  write_image_atomically((out / "loss_curve.png").string(), plot_training_curves(log_));
+  write_file_atomically((out / "train_config.json").string(), train_config_to_json(config_));
 }
 
 void Trainer::run() {
