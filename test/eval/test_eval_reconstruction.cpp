@@ -6,6 +6,7 @@
 #include <random>
 
 #include "long3r/eval/eval.hpp"
+#include "support/test_support.hpp"
 
 using namespace long3r;
 
@@ -61,12 +62,7 @@ std::vector<Eigen::Vector3f> transform_points(const Sim3& s,
   return out;
 }
 
-std::string temp_dir(const std::string& name) {
-  const auto d = std::filesystem::path(LONG3R_BINARY_DIR) / "test_tmp" / name;
-  std::filesystem::remove_all(d);
-  std::filesystem::create_directories(d);
-  return d.string();
-}
+using test::scratch_dir;
 
 }  // namespace
 
@@ -198,7 +194,7 @@ TEST(EvalReconstruction, VoxelDownsampleAveragesPerVoxel) {
 }
 
 TEST(EvalPointIo, PlyAndXyzRoundTrip) {
-  const std::string dir = temp_dir("point_io");
+  const std::string dir = scratch_dir("point_io");
   const auto pts = box_surface(20, 4);
   std::vector<cv::Vec3b> colours(pts.size(), cv::Vec3b(1, 2, 3));
   save_point_cloud_ply(dir + "/a.ply", pts, &colours);
