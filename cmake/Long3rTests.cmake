@@ -13,6 +13,23 @@ include(GoogleTest)
 #                       PCL and Eigen side.
 # Each gtest case becomes its own ctest entry, so ctest's summary counts
 # individual tests.
+# The shared fixtures, compiled once: long3r_test_support (libtorch only) for
+# both binaries, long3r_cv_test_support (OpenCV, Eigen) for the second.
+function(long3r_add_test_support name)
+  cmake_parse_arguments(ARG "" "" "SOURCES;LIBS" ${ARGN})
+  add_library(${name} STATIC ${ARG_SOURCES})
+  target_link_libraries(${name} PUBLIC ${ARG_LIBS} GTest::gtest)
+  target_include_directories(${name} PUBLIC ${PROJECT_SOURCE_DIR}/test)
+  target_compile_options(${name} PRIVATE ${LONG3R_WARNINGS})
+  target_compile_definitions(${name} PRIVATE LONG3R_BINARY_DIR="${PROJECT_BINARY_DIR}")
+endfunction()
+long3r_add_test_support(long3r_test_support
+  SOURCES test/support/test_support.cpp LIBS long3r_model)
+if(LONG3R_HAVE_CV)
+  long3r_add_test_support(long3r_cv_test_support
+    SOURCES test/support/cv_test_support.cpp LIBS long3r_pipeline long3r_test_support)
+endif()
+
 function(long3r_add_gtest_binary name)
   cmake_parse_arguments(ARG "" "" "FOLDERS;LIBS" ${ARGN})
   set(srcs)
@@ -37,10 +54,11 @@ function(long3r_add_gtest_binary name)
     PROPERTIES ENVIRONMENT "OMP_NUM_THREADS=2;OPENBLAS_NUM_THREADS=1")
 endfunction()
 
-long3r_add_gtest_binary(long3r_model_tests FOLDERS io model memory LIBS long3r_model)
+long3r_add_gtest_binary(long3r_model_tests FOLDERS io model memory
+  LIBS long3r_model long3r_test_support)
 if(LONG3R_HAVE_CV)
   long3r_add_gtest_binary(long3r_cv_tests
-    FOLDERS pipeline dataset eval synth train LIBS long3r_train)
+    FOLDERS pipeline dataset eval synth train LIBS long3r_train long3r_cv_test_support)
 endif()
 
 # Extra test registrations owned by each module (golden parity, fuzz corpus,

@@ -181,6 +181,7 @@ int main(int argc, char** argv) {
     long peak_rss = 0;
     auto record = [&](const FrameResult& r) {
       const StageTimings& t = r.timings;
+      const StepStats& m = r.model;
       const long rss = rss_kb();
       peak_rss = std::max(peak_rss, rss);
       frame_ms.push_back(t.total_ms);
@@ -189,12 +190,11 @@ int main(int argc, char** argv) {
           line, sizeof line,
           "%lld,%.6f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%lld,%lld,%lld,%s,%d,%d,"
           "%zu,%ld\n",
-          static_cast<long long>(r.frame_index), r.stamp, t.preprocess_ms, t.model_ms, t.encode_ms,
-          t.decode_ms, t.memory_ms, t.intrinsics_ms, t.pose_ms, t.map_ms, t.total_ms,
-          static_cast<long long>(r.memory.short_tokens),
-          static_cast<long long>(r.memory.long_tokens),
-          static_cast<long long>(r.memory.relevant_tokens), to_string(r.pose.status),
-          r.pose.inliers, r.added_to_map ? 1 : 0, r.map_points, rss);
+          static_cast<long long>(r.frame_index), r.stamp, t.preprocess_ms, t.model_ms, m.encode_ms,
+          m.decode_ms, m.memory_ms, t.intrinsics_ms, t.pose_ms, t.map_ms, t.total_ms,
+          static_cast<long long>(m.mem_short_tokens), static_cast<long long>(m.mem_long_tokens),
+          static_cast<long long>(m.relevant_tokens), to_string(r.pose.status), r.pose.inliers,
+          r.added_to_map ? 1 : 0, r.map_points, rss);
       csv.write(line);
       const double fps = t.total_ms > 0 ? 1000.0 / t.total_ms : 0.0;
       if (tty) {

@@ -239,9 +239,9 @@ void Long3rNodelet::publishResult(const long3r::FrameResult& r) {
   }
   ++frames_processed_;
   last_latency_s_ = (ros::Time::now() - header.stamp).toSec();
-  mem_short_ = r.memory.short_tokens;
-  mem_long_ = r.memory.long_tokens;
-  mem_relevant_ = r.memory.relevant_tokens;
+  mem_short_ = r.model.mem_short_tokens;
+  mem_long_ = r.model.mem_long_tokens;
+  mem_relevant_ = r.model.relevant_tokens;
 
   if (!r.pose.ok()) {
     NODELET_WARN_THROTTLE(5.0, "frame %ld: pose estimation failed (%s); not added to the map",

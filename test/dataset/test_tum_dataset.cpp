@@ -7,22 +7,14 @@
 
 #include "long3r/dataset/tum_dataset.hpp"
 #include "long3r/synth/synth.hpp"
+#include "support/test_support.hpp"
 
 using namespace long3r;
 
 namespace {
 
-std::string temp_dir(const std::string& name) {
-  const auto d = std::filesystem::path(LONG3R_BINARY_DIR) / "test_tmp" / name;
-  std::filesystem::remove_all(d);
-  std::filesystem::create_directories(d);
-  return d.string();
-}
-
-void write(const std::string& path, const std::string& text) {
-  std::ofstream out(path);
-  out << text;
-}
+using test::scratch_dir;
+using test::write_file;
 
 }  // namespace
 
@@ -33,7 +25,7 @@ TEST(TumDataset, RoundTripsWhatTheGeneratorWrites) {
   cfg.intrinsics = PinholeIntrinsics::from_hfov(80, 60, 65.0);
   cfg.start_time = 1305031102.175304;  // a TUM-like epoch stamp
   const synth::Sequence seq = synth::generate_sequence(cfg);
-  const std::string dir = temp_dir("tum_roundtrip");
+  const std::string dir = scratch_dir("tum_roundtrip");
   synth::write_tum_sequence(seq, dir);
 
   const TumDataset ds = TumDataset::open(dir);
@@ -69,7 +61,7 @@ TEST(TumDataset, RoundTripsWhatTheGeneratorWrites) {
 }
 
 TEST(TumDataset, TrajectoryAndCalibrationFiles) {
-  const std::string dir = temp_dir("tum_files");
+  const std::string dir = scratch_dir("tum_files");
   PoseTrajectory t;
   for (int i = 0; i < 3; ++i) {
     Eigen::Isometry3d p = Eigen::Isometry3d::Identity();
@@ -87,20 +79,20 @@ TEST(TumDataset, TrajectoryAndCalibrationFiles) {
     EXPECT_LT((r.poses[i].matrix() - t.poses[i].matrix()).norm(), 1e-8);
   }
   // Unnormalised quaternions are normalised; commas accepted; bad lines rejected.
-  write(dir + "/u.txt", "# c\n1.0, 0,0,0, 0,0,0,2\n\n");
+  write_file(dir + "/u.txt", "# c\n1.0, 0,0,0, 0,0,0,2\n\n");
   EXPECT_LT(
       (read_tum_trajectory(dir + "/u.txt").poses[0].linear() - Eigen::Matrix3d::Identity()).norm(),
       1e-12);
-  write(dir + "/bad.txt", "1.0 0 0 0 0 0 0\n");
+  write_file(dir + "/bad.txt", "1.0 0 0 0 0 0 0\n");
   EXPECT_THROW(read_tum_trajectory(dir + "/bad.txt"), std::runtime_error);
   EXPECT_THROW(read_tum_trajectory(dir + "/missing.txt"), std::runtime_error);
 
-  write(dir + "/calib4.txt", "# fx fy cx cy\n525.0 526.0 319.5 239.5\n");
+  write_file(dir + "/calib4.txt", "# fx fy cx cy\n525.0 526.0 319.5 239.5\n");
   const PinholeIntrinsics k4 = read_calibration_file(dir + "/calib4.txt");
   EXPECT_EQ(k4.fx, 525.0);
   EXPECT_EQ(k4.cy, 239.5);
   EXPECT_EQ(k4.width, 0);
-  write(dir + "/calib_bad.txt", "525 0 1 1\n");
+  write_file(dir + "/calib_bad.txt", "525 0 1 1\n");
   EXPECT_THROW(read_calibration_file(dir + "/calib_bad.txt"), std::runtime_error);
 }
 
@@ -121,15 +113,15 @@ TEST(TumDataset, AssociationIsTumsGreedyClosestFirst) {
 
 TEST(TumDataset, OpensHandWrittenTumFolder) {
   // rgb at 30 Hz, depth slightly off and one missing, ground truth at 100 Hz.
-  const std::string dir = temp_dir("tum_hand");
+  const std::string dir = scratch_dir("tum_hand");
   std::filesystem::create_directories(dir + "/rgb");
-  write(dir + "/rgb.txt",
-        "# color\n1.000 rgb/a.png\n1.033 rgb/b.png\n1.066 rgb/c.png\n5.0 rgb/d.png\n");
-  write(dir + "/depth.txt", "1.002 depth/a.png\n1.064 depth/c.png\n");
+  write_file(dir + "/rgb.txt",
+             "# color\n1.000 rgb/a.png\n1.033 rgb/b.png\n1.066 rgb/c.png\n5.0 rgb/d.png\n");
+  write_file(dir + "/depth.txt", "1.002 depth/a.png\n1.064 depth/c.png\n");
   std::string gt = "# timestamp tx ty tz qx qy qz qw\n";
   for (int i = 0; i < 20; ++i)
     gt += std::to_string(0.995 + 0.01 * i) + " " + std::to_string(i) + " 0 0 0 0 0 1\n";
-  write(dir + "/groundtruth.txt", gt);
+  write_file(dir + "/groundtruth.txt", gt);
   TumDataset ds = TumDataset::open(dir);
   ASSERT_EQ(ds.size(), 4u);
   EXPECT_FALSE(ds.calibration().has_value());
@@ -151,12 +143,12 @@ TEST(TumDataset, OpensHandWrittenTumFolder) {
 }
 
 TEST(TumDataset, ImageFolderInNaturalOrder) {
-  const std::string dir = temp_dir("image_folder");
+  const std::string dir = scratch_dir("image_folder");
   const cv::Mat img(4, 5, CV_8UC3, cv::Scalar(1, 2, 3));
   for (const char* n : {"frame10.png", "frame2.png", "frame1.PNG", "frame02b.jpg"}) {
     cv::imwrite(dir + "/" + n, img);
   }
-  write(dir + "/notes.txt", "not an image");
+  write_file(dir + "/notes.txt", "not an image");
   const ImageFolder f = ImageFolder::open(dir);
   ASSERT_EQ(f.size(), 4u);
   auto name = [&](size_t i) { return std::filesystem::path(f.path(i)).filename().string(); };

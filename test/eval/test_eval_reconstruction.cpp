@@ -4,6 +4,7 @@
 #include <random>
 
 #include "long3r/eval/eval.hpp"
+#include "support/test_support.hpp"
 
 using namespace long3r;
 

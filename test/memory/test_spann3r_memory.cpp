@@ -21,6 +21,7 @@
 
 #include "long3r/memory/spann3r_memory.hpp"
 #include "long3r/model/safetensors.hpp"
+#include "support/test_support.hpp"
 
 namespace {
 
@@ -35,14 +36,7 @@ constexpr double kRelTol = 1e-4;
 // threshold is >= 1e-3 (>= 0.05 with topk-tied tokens in the window).
 constexpr double kSimTol = 1e-5;
 
-double rel_diff(const at::Tensor& x, const at::Tensor& ref) {
-  EXPECT_EQ(x.sizes(), ref.sizes());
-  if (x.sizes() != ref.sizes()) return std::numeric_limits<double>::infinity();
-  const double diff = (x.to(at::kDouble) - ref.to(at::kDouble)).abs().max().item<double>();
-  const double scale = ref.to(at::kDouble).abs().max().item<double>();
-  if (scale == 0.0) return diff == 0.0 ? 0.0 : std::numeric_limits<double>::infinity();
-  return diff / scale;
-}
+using long3r::test::rel_diff;
 
 std::vector<int64_t> to_vec(const at::Tensor& t) {
   const at::Tensor c = t.to(at::kLong).contiguous().reshape({-1});

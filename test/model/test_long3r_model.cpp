@@ -19,6 +19,7 @@
 #include "long3r/model/long3r_modules.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/safetensors.hpp"
+#include "support/test_support.hpp"
 
 namespace {
 
@@ -38,7 +39,7 @@ at::Tensor frame(int64_t t, int64_t H = 64, int64_t W = 64, double phase = 0.0) 
       .unsqueeze(0);
 }
 
-long3r::ModelConfig tiny() { return long3r::named_model_config("long3r_tiny"); }
+constexpr auto tiny = long3r::test::tiny_long3r_config;
 
 void copy_weights(long3r::Long3rModel& from, long3r::Long3rModel& to) {
   std::map<std::string, at::Tensor> t;

@@ -12,34 +12,14 @@
 
 #include "long3r/model/checkpoint.hpp"
 #include "long3r/model/modules.hpp"
+#include "support/test_support.hpp"
 
 namespace {
 
 namespace m = long3r::model;
 
-// A small random DUSt3R (tiny widths like the golden models).
-long3r::Dust3rConfig tiny_dust3r() {
-  long3r::Dust3rConfig c;
-  c.enc_embed_dim = 32;
-  c.enc_depth = 2;
-  c.enc_num_heads = 2;
-  c.dec_embed_dim = 16;
-  c.dec_depth = 4;
-  c.dec_num_heads = 2;
-  c.dpt.feature_dim = 8;
-  c.dpt.last_dim = 6;
-  c.dpt.layer_dims = {4, 6, 8, 8};
-  c.dpt.hooks = {0, 2, 3, 4};
-  c.dpt.dim_tokens = {32, 16, 16, 16};
-  return c;
-}
-
-// Copies every parameter of `from` into `to` (same architecture).
-void copy_weights(torch::nn::Module& from, torch::nn::Module& to) {
-  std::map<std::string, at::Tensor> t;
-  for (const auto& kv : from.named_parameters()) t[kv.key()] = kv.value().detach();
-  long3r::load_module_strict(to, t, "copy");
-}
+using long3r::test::copy_parameters;
+using long3r::test::tiny_dust3r_config;
 
 TEST(ModelBlocks, AttentionMatchesHandComputation) {
   torch::manual_seed(1);
@@ -84,7 +64,7 @@ TEST(ModelBlocks, BlockShapesAndResidual) {
 
 TEST(ModelBlocks, Dust3rShapesForOddGrids) {
   torch::manual_seed(4);
-  m::Dust3rNet net(tiny_dust3r());
+  m::Dust3rNet net(tiny_dust3r_config());
   c10::InferenceMode guard;
   // 3x5 and 5x7 patch grids exercise the refinenet4 crop.
   for (const auto& hw : std::vector<std::pair<int64_t, int64_t>>{{48, 80}, {80, 112}, {32, 32}}) {
@@ -110,7 +90,7 @@ TEST(ModelBlocks, Dust3rShapesForOddGrids) {
 }
 
 TEST(ModelBlocks, PostprocessExpModes) {
-  long3r::Dust3rConfig c = tiny_dust3r();
+  long3r::Dust3rConfig c = tiny_dust3r_config();
   at::Tensor raw = at::zeros({1, 4, 1, 2});
   raw[0][0][0][0] = 3.0;  // xyz = (3, 4, 0), |xyz| = 5
   raw[0][1][0][0] = 4.0;
@@ -135,12 +115,12 @@ TEST(ModelBlocks, PostprocessExpModes) {
 
 TEST(ModelBlocks, PortraitOutputsAreTransposedWithLandscapeOnly) {
   torch::manual_seed(5);
-  long3r::Dust3rConfig c = tiny_dust3r();
+  long3r::Dust3rConfig c = tiny_dust3r_config();
   c.landscape_only = true;
   m::Dust3rNet land_only(c);
   c.landscape_only = false;
   m::Dust3rNet free(c);
-  copy_weights(*land_only, *free);
+  copy_parameters(*land_only, *free);
   c10::InferenceMode guard;
 
   // Portrait: same head run, outputs transposed to [B, W, H, .].

@@ -12,15 +12,13 @@
 #include "long3r/model/dust3r_model.hpp"
 #include "long3r/model/safetensors.hpp"
 #include "long3r/model/spann3r_model.hpp"
+#include "support/test_support.hpp"
 
 namespace {
 
 const std::string kGolden = std::string(LONG3R_SHARED_DIR) + "/golden/";
 
-double rel_diff(const at::Tensor& got, const at::Tensor& want) {
-  return (got.to(at::kDouble) - want.to(at::kDouble)).abs().max().item<double>() /
-         want.to(at::kDouble).abs().max().item<double>();
-}
+using long3r::test::rel_diff;
 
 // The message of the CheckpointError that loading `tensors` throws.
 template <typename Model>

@@ -9,6 +9,7 @@
 #include <stdexcept>
 
 #include "long3r/pipeline/intrinsics.hpp"
+#include "support/cv_test_support.hpp"
 
 namespace long3r {
 namespace {
@@ -16,31 +17,15 @@ namespace {
 // Pointmap of a camera with focal f and principal point at the image centre,
 // random depths in [1, 5]; conf 5 everywhere.
 void make_pointmap(int w, int h, double f, uint64_t seed, cv::Mat& pts, cv::Mat& conf) {
-  pts.create(h, w, CV_32FC3);
-  conf.create(h, w, CV_32FC1);
-  conf.setTo(5.0f);
+  const PinholeIntrinsics k{f, f, 0.5 * (w - 1), 0.5 * (h - 1), w, h};
   cv::RNG rng(seed);
-  const double cx = 0.5 * (w - 1), cy = 0.5 * (h - 1);
-  for (int v = 0; v < h; ++v) {
-    for (int u = 0; u < w; ++u) {
-      const double d = rng.uniform(1.0, 5.0);
-      pts.at<cv::Vec3f>(v, u) =
-          cv::Vec3f(static_cast<float>((u - cx) / f * d), static_cast<float>((v - cy) / f * d),
-                    static_cast<float>(d));
-    }
-  }
+  pts = test::pointmap_from_depth(k, Eigen::Isometry3d::Identity(),
+                                  [&](int, int) { return rng.uniform(1.0, 5.0); });
+  conf = cv::Mat(h, w, CV_32FC1, cv::Scalar(5.0f));
 }
 
-PinholeIntrinsics source_camera() {
-  PinholeIntrinsics k;
-  k.fx = 525.0;
-  k.fy = 523.5;
-  k.cx = 319.5;
-  k.cy = 239.5;
-  k.width = 640;
-  k.height = 480;
-  return k;
-}
+// A TUM-like 640 x 480 calibration.
+PinholeIntrinsics source_camera() { return {525.0, 523.5, 319.5, 239.5, 640, 480}; }
 
 TEST(PinholeIntrinsics, CalibrationThroughResizeAndCropIsExact) {
   const PinholeIntrinsics src = source_camera();

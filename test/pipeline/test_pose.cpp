@@ -8,20 +8,13 @@
 #include <stdexcept>
 
 #include "long3r/pipeline/pose.hpp"
+#include "support/cv_test_support.hpp"
 
 namespace long3r {
 namespace {
 
-PinholeIntrinsics model_camera() {
-  PinholeIntrinsics k;
-  k.fx = 200.0;
-  k.fy = 201.0;
-  k.cx = 111.5;
-  k.cy = 112.0;
-  k.width = 224;
-  k.height = 224;
-  return k;
-}
+// A camera at model resolution (224 x 224).
+PinholeIntrinsics model_camera() { return {200.0, 201.0, 111.5, 112.0, 224, 224}; }
 
 Eigen::Isometry3d known_pose() {
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
@@ -34,17 +27,10 @@ Eigen::Isometry3d known_pose() {
 // so each pixel's world point projects exactly onto that pixel's centre.
 void make_scene(const PinholeIntrinsics& k, const Eigen::Isometry3d& T_W_C, cv::Mat& pts_W,
                 cv::Mat& conf) {
-  pts_W.create(k.height, k.width, CV_32FC3);
-  conf.create(k.height, k.width, CV_32FC1);
-  conf.setTo(5.0f);
-  for (int v = 0; v < k.height; ++v) {
-    for (int u = 0; u < k.width; ++u) {
-      const double d = 2.5 + 0.8 * std::sin(0.05 * u) * std::cos(0.07 * v) + 0.004 * u;
-      const Eigen::Vector3d X = T_W_C * k.backproject(u, v, d);
-      pts_W.at<cv::Vec3f>(v, u) = cv::Vec3f(static_cast<float>(X.x()), static_cast<float>(X.y()),
-                                            static_cast<float>(X.z()));
-    }
-  }
+  pts_W = test::pointmap_from_depth(k, T_W_C, [](int u, int v) {
+    return 2.5 + 0.8 * std::sin(0.05 * u) * std::cos(0.07 * v) + 0.004 * u;
+  });
+  conf = cv::Mat(k.height, k.width, CV_32FC1, cv::Scalar(5.0f));
 }
 
 double rotation_error(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {

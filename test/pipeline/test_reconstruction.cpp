@@ -14,6 +14,7 @@
 #include "long3r/model/spann3r_model.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 #include "long3r/synth/synth.hpp"
+#include "support/cv_test_support.hpp"
 
 namespace long3r {
 namespace {
@@ -38,17 +39,9 @@ GtSequence make_sequence(int frames) {
   for (int k = 0; k < frames; ++k) {
     const synth::RenderedFrame f = synth::render_frame(g.seq.scene, g.seq.poses[k], c.intrinsics);
     const Eigen::Isometry3d T = g.seq.poses[0].inverse() * g.seq.poses[k];
-    cv::Mat pts(kSize, kSize, CV_32FC3, cv::Scalar::all(NAN));
-    for (int v = 0; v < kSize; ++v) {
-      for (int u = 0; u < kSize; ++u) {
-        const float d = f.depth.at<float>(v, u);
-        if (d <= 0) continue;
-        const Eigen::Vector3d p = T * c.intrinsics.backproject(u, v, d);
-        pts.at<cv::Vec3f>(v, u) = cv::Vec3f(p.x(), p.y(), p.z());
-      }
-    }
     g.bgr.push_back(f.bgr);
-    g.pts_W0.push_back(pts);
+    g.pts_W0.push_back(test::pointmap_from_depth(
+        c.intrinsics, T, [&](int u, int v) { return f.depth.at<float>(v, u); }));
     g.T_0_k.push_back(T);
   }
   return g;
@@ -124,7 +117,7 @@ TEST(Reconstruction, FakeModelPosesMatchGroundTruth) {
     EXPECT_DOUBLE_EQ(r.stamp, 0.1 * k);
     ASSERT_TRUE(r.pose.ok()) << k << ": " << r.pose.message;
     EXPECT_TRUE(r.added_to_map);
-    EXPECT_EQ(r.memory.short_tokens, 7);
+    EXPECT_EQ(r.model.mem_short_tokens, 7);
     EXPECT_EQ(r.intrinsics_source, IntrinsicsSource::kCalibration);
     EXPECT_NEAR(r.intrinsics.fx, g.seq.config.intrinsics.fx, 1e-9);
     const Eigen::Isometry3d d = g.T_0_k[k].inverse() * r.pose.T_W_C;
@@ -190,7 +183,7 @@ TEST(Reconstruction, RandomSpann3rRunsEndToEnd) {
     if (auto r = rec.push(g.bgr[k], "bgr8", k)) {
       EXPECT_EQ(r->frame_index, expected++);
       EXPECT_EQ(r->points_W.size(), cv::Size(kSize, kSize));
-      EXPECT_GT(r->memory.short_tokens, 0);
+      EXPECT_GT(r->model.mem_short_tokens, 0);
       EXPECT_TRUE(r->pose.T_W_C.matrix().allFinite());
     }
   }

@@ -26,6 +26,7 @@
 #include <vector>
 
 #include "long3r/pipeline/voxel_map.hpp"
+#include "support/test_support.hpp"
 
 namespace long3r {
 namespace {
@@ -49,11 +50,7 @@ std::set<Key> keys_of(const VoxelMap& map) {
 // A fresh directory per test.
 fs::path test_dir() {
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  const fs::path dir = fs::temp_directory_path() /
-                       ("long3r_" + std::string(info->name()) + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
+  return test::scratch_dir(std::string("voxel_map/") + info->name());
 }
 
 std::vector<std::string> entries(const fs::path& dir) {
@@ -63,10 +60,7 @@ std::vector<std::string> entries(const fs::path& dir) {
   return names;
 }
 
-std::string read_all(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
-}
+std::string read_all(const fs::path& p) { return test::read_file(p.string()); }
 
 void random_cloud(size_t n, uint64_t seed, std::vector<Eigen::Vector3f>& pts,
                   std::vector<Rgb8>& cols) {

@@ -9,6 +9,7 @@
 
 #include "long3r/dataset/tum_dataset.hpp"
 #include "long3r/synth/synth.hpp"
+#include "support/test_support.hpp"
 
 using namespace long3r;
 using namespace long3r::synth;
@@ -25,17 +26,8 @@ SequenceConfig small_config(uint64_t seed, TrajectoryType type, int frames, int 
   return c;
 }
 
-std::string temp_dir(const std::string& name) {
-  const auto d = std::filesystem::path(LONG3R_BINARY_DIR) / "test_tmp" / name;
-  std::filesystem::remove_all(d);
-  std::filesystem::create_directories(d);
-  return d.string();
-}
-
-std::string file_bytes(const std::filesystem::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
-}
+using test::read_file;
+using test::scratch_dir;
 
 bool is_planar(const Scene& scene, int surface_id) {
   if (surface_id < 0) return false;
@@ -137,7 +129,7 @@ TEST(SynthGenerator, WrongIntrinsicsBreakTheCrossViewCheck) {
 
 TEST(SynthGenerator, SameSeedSameBytesAnyThreadCount) {
   const SequenceConfig cfg = small_config(5, TrajectoryType::kOrbit, 4, 64, 48);
-  const std::string d1 = temp_dir("synth_det_1"), d2 = temp_dir("synth_det_2");
+  const std::string d1 = scratch_dir("synth_det_1"), d2 = scratch_dir("synth_det_2");
   RenderOptions one, three;
   one.threads = 1;
   three.threads = 3;
@@ -147,7 +139,8 @@ TEST(SynthGenerator, SameSeedSameBytesAnyThreadCount) {
   for (const auto& e : std::filesystem::recursive_directory_iterator(d1)) {
     if (!e.is_regular_file()) continue;
     const auto rel = std::filesystem::relative(e.path(), d1);
-    EXPECT_EQ(file_bytes(e.path()), file_bytes(std::filesystem::path(d2) / rel)) << rel;
+    EXPECT_EQ(read_file(e.path().string()), read_file((std::filesystem::path(d2) / rel).string()))
+        << rel;
     ++files;
   }
   EXPECT_EQ(files, 4 * 2 + 5);  // images + rgb/depth lists, gt, calibration, scene.json

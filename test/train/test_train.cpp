@@ -10,14 +10,17 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include "long3r/model/long3r_model.hpp"
 #include "long3r/model/safetensors.hpp"
 #include "long3r/pipeline/pose.hpp"
 #include "long3r/train/train.hpp"
+#include "support/test_support.hpp"
 
 namespace fs = std::filesystem;
 using long3r::LossConfig;
@@ -46,12 +49,7 @@ at::Tensor random_gt(int64_t B, int64_t N, int64_t H, int64_t W) {
   return p;
 }
 
-std::string scratch(const std::string& name) {
-  const fs::path p = fs::path(LONG3R_BINARY_DIR) / "test_tmp" / "train" / name;
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p.string();
-}
+std::string scratch(const std::string& name) { return long3r::test::scratch_dir("train/" + name); }
 
 // A configuration small enough for a unit test: long3r_tiny at 64 x 64.
 long3r::TrainConfig tiny_config() {
@@ -279,7 +277,7 @@ TEST(TrainSchedule, WarmupThenCosine) {
 
 TEST(TrainOptim, FewStepsOverfitAFixedBatch) {
   at::manual_seed(6);
-  long3r::Long3rModel model(long3r::named_model_config("long3r_tiny"));
+  long3r::Long3rModel model(long3r::test::tiny_long3r_config());
   model.set_training(true);
   long3r::DataConfig dc;
   dc.synth.train_scenes = 1;
@@ -377,9 +375,64 @@ TEST(TrainTrainer, ResumeReproducesTheNextStep) {
   EXPECT_NE(d.step().loss, expected);
 }
 
+TEST(TrainLog, CsvColumnsAreReadBackByName) {
+  std::vector<long3r::LogRow> rows(2);
+  rows[0].step = 1;
+  rows[0].stage = 1;
+  rows[0].loss = 0.5;
+  rows[0].grad_norm = 2.25;
+  rows[1].step = 2;
+  rows[1].stage = 2;
+  rows[1].lr = 1e-4;
+  rows[1].wall_s = 3.5;
+  long3r::ValidationMetrics v;
+  v.loss = 0.25;
+  v.prediction.acc_mean = 0.125;
+  v.prediction.ate_rmse = std::numeric_limits<double>::quiet_NaN();
+  rows[1].val = v;
+  const std::string csv = long3r::log_rows_to_csv(rows);
+  // The header train_log.csv has always had.
+  EXPECT_EQ(csv.substr(0, csv.find('\n')),
+            "step,stage,loss,conf_loss,scale_loss,regression,lr,grad_norm,step_s,data_s,wall_s,"
+            "val_loss,val_regression,val_pointmap_err_m,val_acc_mean_m,val_acc_median_m,"
+            "val_comp_mean_m,val_comp_median_m,val_nc_mean,val_nc_median,val_ate_rmse_m");
+  auto expect_rows = [&](const std::vector<long3r::LogRow>& got) {
+    ASSERT_EQ(got.size(), 2u);
+    EXPECT_EQ(got[0].step, 1);
+    EXPECT_EQ(got[0].loss, 0.5);
+    EXPECT_EQ(got[0].grad_norm, 2.25);
+    EXPECT_FALSE(got[0].val.has_value());
+    EXPECT_EQ(got[1].stage, 2);
+    EXPECT_EQ(got[1].lr, 1e-4);
+    EXPECT_EQ(got[1].wall_s, 3.5);
+    ASSERT_TRUE(got[1].val.has_value());
+    EXPECT_EQ(got[1].val->loss, 0.25);
+    EXPECT_EQ(got[1].val->prediction.acc_mean, 0.125);
+    EXPECT_TRUE(std::isnan(got[1].val->prediction.ate_rmse));
+  };
+  expect_rows(long3r::log_rows_from_csv(csv));
+
+  // The same table with its columns in reverse order, and a last line cut short.
+  std::istringstream in(csv);
+  std::string line, reversed;
+  while (std::getline(in, line)) {
+    std::vector<std::string> cells;
+    std::stringstream ss(line);
+    std::string cell;
+    while (std::getline(ss, cell, ',')) cells.insert(cells.begin(), cell);
+    for (std::size_t i = 0; i < cells.size(); ++i) reversed += (i ? "," : "") + cells[i];
+    reversed += "\n";
+  }
+  expect_rows(long3r::log_rows_from_csv(reversed + "nan,nan,3\n"));
+
+  std::string renamed = csv;
+  renamed.replace(renamed.find("grad_norm"), 9, "gradnorm");
+  EXPECT_THROW(long3r::log_rows_from_csv(renamed), std::runtime_error);
+}
+
 TEST(TrainInit, CopiesMatchingTensorsByNameAndShape) {
   at::manual_seed(7);
-  long3r::Long3rModel src(long3r::named_model_config("long3r_tiny"));
+  long3r::Long3rModel src(long3r::test::tiny_long3r_config());
   // A DUSt3R-style file: encoder / decoder names without the "dust3r." prefix,
   // one tensor with a wrong shape and one the model does not have.
   long3r::TensorMap t;
@@ -391,7 +444,7 @@ TEST(TrainInit, CopiesMatchingTensorsByNameAndShape) {
   const std::string path = scratch("init") + "/dust3r.safetensors";
   long3r::save_safetensors(path, t);
   at::manual_seed(8);
-  long3r::Long3rModel dst(long3r::named_model_config("long3r_tiny"));
+  long3r::Long3rModel dst(long3r::test::tiny_long3r_config());
   const long3r::InitReport r = long3r::init_from_checkpoint(dst, path);
   EXPECT_EQ(r.shape_mismatch, 1);
   EXPECT_EQ(r.unused, 1);

@@ -9,6 +9,7 @@ import os
 import shutil
 import subprocess
 import sys
+import zipfile
 
 
 def run(cmd):
@@ -56,7 +57,7 @@ def main():
     # Interrupted after 3 steps (checkpoint at 2), then resumed to the end.
     rc, log = run(base + ["--max-steps", "3"])
     check(rc == 0, "first run: " + log)
-    check(open(os.path.join(out, "checkpoint", "latest")).read().strip() == "step_00000003",
+    check(open(os.path.join(out, "checkpoint", "latest")).read().strip() == "step_00000003.pt",
           "latest checkpoint after the first run")
     rc, log = run(base + ["--resume"])
     check(rc == 0, "resumed run: " + log)
@@ -75,9 +76,14 @@ def main():
         check(float(r["val_acc_mean_m"]) > 0 and float(r["val_comp_mean_m"]) > 0,
               "validation metrics: %s" % r)
     ckpts = sorted(d for d in os.listdir(os.path.join(out, "checkpoint")) if d.startswith("step_"))
-    check(ckpts == ["step_00000004", "step_00000006"], "kept checkpoints: %s" % ckpts)
-    for f in ["weights.safetensors", "optimizer.pt", "state.json"]:
-        check(os.path.exists(os.path.join(out, "checkpoint", "step_00000006", f)), f)
+    check(ckpts == ["step_00000004.pt", "step_00000006.pt"], "kept checkpoints: %s" % ckpts)
+    # One bundle per checkpoint (a libtorch zip archive) with every part of the state.
+    bundle = os.path.join(out, "checkpoint", "step_00000006.pt")
+    with zipfile.ZipFile(bundle) as z:
+        pickled = b"".join(z.read(n) for n in z.namelist() if n.endswith(".pkl"))
+    for part in [b"weights", b"optimizer", b"step", b"sampler_rng", b"torch_cpu_rng", b"wall_s",
+                 b"model_config", b"train_config", b"train_log_csv"]:
+        check(part in pickled, "checkpoint part %s" % part)
 
     model = os.path.join(out, "model.safetensors")
     rc, log = run([a.ckpt_info, "--no-tensors", model])

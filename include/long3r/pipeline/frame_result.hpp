@@ -11,31 +11,22 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "long3r/model/streaming.hpp"
 #include "long3r/pipeline/intrinsics.hpp"
 #include "long3r/pipeline/pose.hpp"
 
 namespace long3r {
 
-// Wall-clock time per stage, milliseconds (0 when a stage did not run).
+// Wall-clock time of the pipeline's stages, milliseconds (0 when a stage did
+// not run). The model's own split (encode, decode, memory) is in
+// FrameResult::model.
 struct StageTimings {
   double preprocess_ms = 0.0;  // decode/convert, resize, crop, normalise
-  double model_ms = 0.0;       // the whole model step (sum of the next three and overhead)
-  double encode_ms = 0.0;      // model: encoder
-  double decode_ms = 0.0;      // model: memory read + decoder + heads
-  double memory_ms = 0.0;      // model: memory write and pruning
+  double model_ms = 0.0;       // the whole model step (encode + decode + memory and overhead)
   double intrinsics_ms = 0.0;  // focal estimation (frame 0 without calibration)
   double pose_ms = 0.0;        // PnP-RANSAC + refinement
   double map_ms = 0.0;         // voxel map fusion (and eviction)
   double total_ms = 0.0;       // frame in to result out
-};
-
-// Memory state after the model step, as the model reports it.
-struct MemoryStats {
-  std::int64_t short_tokens = 0;      // short-term / working memory tokens
-  std::int64_t long_tokens = 0;       // long-term memory tokens
-  std::int64_t relevant_tokens = -1;  // after memory gating; -1 = no gating in this variant
-  double voxel_size = 0.0;            // memory voxel size (pointmap units); 0 = not applicable
-  bool write_skipped = false;         // the memory write of this step was skipped
 };
 
 struct FrameResult {
@@ -55,7 +46,7 @@ struct FrameResult {
   std::size_t map_points = 0;  // map size after this frame
 
   StageTimings timings;
-  MemoryStats memory;
+  StepStats model;  // the model step as the model reports it: memory tokens, stage times
 };
 
 }  // namespace long3r

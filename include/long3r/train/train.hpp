@@ -192,14 +192,45 @@ bool is_encoder_parameter(const std::string& name);
 
 // ================================================================ validation
 
-struct ValidationMetrics {
-  double loss = 0, regression = 0;
-  double pointmap_error = 0;  // mean || aligned pred - gt || over valid pixels, metres
+// Scores of one predicted sequence against its ground truth
+// (evaluate_prediction below).
+struct PredictionMetrics {
+  double pointmap_error = 0;  // mean || aligned pred - gt ||, metres
   double acc_mean = 0, acc_median = 0, comp_mean = 0, comp_median = 0;
   double nc_mean = 0, nc_median = 0;
-  double ate_rmse = 0;  // NaN when PnP gives fewer than 3 poses
+  double ate_rmse = 0;        // m; NaN when fewer than 3 frames were posed
+  double rpe_trans_rmse = 0;  // m per frame step (after the Sim(3) of the ATE)
+  double rpe_rot_rmse_deg = 0;
+  int64_t frames = 0, posed = 0;
+};
+
+struct ValidationMetrics {
+  double loss = 0, regression = 0;  // sequence_loss over the sequences, averaged
+  // evaluate_prediction's figures averaged over the sequences; ate_rmse and
+  // the RPE over those where they are finite (NaN when there is none);
+  // frames and posed are totals.
+  PredictionMetrics prediction;
   int64_t sequences = 0;
 };
+
+// Switches a model to training or inference for a scope and restores the
+// previous mode when the scope ends, also by an exception. Both switches
+// reset the model's stream (set_training).
+class TrainingModeGuard {
+ public:
+  TrainingModeGuard(Long3rModel& model, bool training)
+      : model_(model), was_training_(model.training()) {
+    model_.set_training(training);
+  }
+  ~TrainingModeGuard() { model_.set_training(was_training_); }
+  TrainingModeGuard(const TrainingModeGuard&) = delete;
+  TrainingModeGuard& operator=(const TrainingModeGuard&) = delete;
+
+ private:
+  Long3rModel& model_;
+  bool was_training_;
+};
+
 // Inference-mode run of `model` (switched to inference and back) over the
 // sequences: loss, and after a Sim(3) Umeyama alignment of each sequence's
 // predicted points to the GT (scale alignment, as long3r_eval's corr mode),
@@ -234,15 +265,6 @@ struct PredictionMetricsOptions {
   // does without a calibration, estimated from frame 0's pointmap (true; if
   // that fails, no frame is posed).
   bool estimate_intrinsics = false;
-};
-struct PredictionMetrics {
-  double pointmap_error = 0;  // mean || aligned pred - gt ||, metres
-  double acc_mean = 0, acc_median = 0, comp_mean = 0, comp_median = 0;
-  double nc_mean = 0, nc_median = 0;
-  double ate_rmse = 0;        // m; NaN when fewer than 3 frames were posed
-  double rpe_trans_rmse = 0;  // m per frame step (after the Sim(3) of the ATE)
-  double rpe_rot_rmse_deg = 0;
-  int64_t frames = 0, posed = 0;
 };
 // Scores a prediction against the sequence's ground truth: one Sim(3)
 // (Umeyama on corresponding valid pixels) aligns the predicted points to the
@@ -290,9 +312,13 @@ class Trainer {
   // One optimiser step (sampling, forward, loss, backward, clip, update).
   LogRow step();
 
+  // One file, checkpoint/step_NNNNNNNN.pt (a libtorch archive written
+  // atomically): weights, AdamW state, step, sampler and torch RNG states,
+  // wall time, configurations and the log so far, so that a run resumes
+  // bit-exactly from it; checkpoint/latest names the newest.
   void save_checkpoint();
-  // Restores weights, optimiser, step, RNG from a checkpoint folder.
-  void load_checkpoint(const std::string& dir);
+  // Restores all of the above from such a file.
+  void load_checkpoint(const std::string& path);
   ValidationMetrics run_validation();
   void write_outputs();  // model.safetensors, CSV, PNG
 
@@ -328,5 +354,9 @@ cv::Mat plot_training_curves(const std::vector<LogRow>& rows, int width = 900, i
 
 // CSV text of the rows (header included).
 std::string log_rows_to_csv(const std::vector<LogRow>& rows);
+// The rows of such a text, each column found by its header name; a line with
+// fewer cells than the header (cut short by a crash) is skipped. Throws
+// std::runtime_error when a column is missing.
+std::vector<LogRow> log_rows_from_csv(const std::string& csv);
 
 }  // namespace long3r

@@ -230,14 +230,7 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
   r.rgb = p.image.rgb;
   r.timings.preprocess_ms = p.preprocess_ms;
   r.timings.model_ms = model_ms;
-  r.timings.encode_ms = out.stats.encode_ms;
-  r.timings.decode_ms = out.stats.decode_ms;
-  r.timings.memory_ms = out.stats.memory_ms;
-  r.memory.short_tokens = out.stats.mem_short_tokens;
-  r.memory.long_tokens = out.stats.mem_long_tokens;
-  r.memory.relevant_tokens = out.stats.relevant_tokens;
-  r.memory.voxel_size = out.stats.voxel_size;
-  r.memory.write_skipped = out.stats.memory_write_skipped;
+  r.model = out.stats;
 
   // PinholeIntrinsics: calibration at any frame; an estimate only from frame 0,
   // whose pointmap is in its own camera frame.

@@ -34,11 +34,10 @@ double nan() { return std::numeric_limits<double>::quiet_NaN(); }
 }  // namespace
 
 SequencePrediction predict_sequence(Long3rModel& model, const SequenceSample& sample) {
-  const bool was_training = model.training();
-  model.set_training(false);
   SequencePrediction p;
   const auto t0 = std::chrono::steady_clock::now();
-  try {
+  {
+    const TrainingModeGuard inference(model, false);
     c10::InferenceMode guard;
     std::vector<at::Tensor> frames;
     for (const at::Tensor& f : sample.images) frames.push_back(f.unsqueeze(0).to(model.device()));
@@ -47,11 +46,7 @@ SequencePrediction predict_sequence(Long3rModel& model, const SequenceSample& sa
       p.pts.push_back(o.pts3d[0].to(at::kCPU, at::kFloat).contiguous());
       p.conf.push_back(o.conf[0].to(at::kCPU, at::kFloat).contiguous());
     }
-  } catch (...) {
-    model.set_training(was_training);
-    throw;
   }
-  model.set_training(was_training);
   p.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return p;
 }

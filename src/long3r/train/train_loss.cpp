@@ -132,62 +132,73 @@ InitReport init_from_checkpoint(Long3rModel& model, const std::string& path) {
   return r;
 }
 
+namespace {
+
+// The mean of each figure over the sequences, summed in sequence order;
+// trajectory figures over the sequences that have them.
+PredictionMetrics average(const std::vector<PredictionMetrics>& all) {
+  using M = PredictionMetrics;
+  PredictionMetrics mean;
+  const double n = static_cast<double>(all.size());
+  for (double M::*f : {&M::pointmap_error, &M::acc_mean, &M::acc_median, &M::comp_mean,
+                       &M::comp_median, &M::nc_mean, &M::nc_median}) {
+    double sum = 0.0;
+    for (const PredictionMetrics& m : all) sum += m.*f;
+    mean.*f = all.empty() ? 0.0 : sum / n;
+  }
+  for (double M::*f : {&M::ate_rmse, &M::rpe_trans_rmse, &M::rpe_rot_rmse_deg}) {
+    double sum = 0.0;
+    int64_t count = 0;
+    for (const PredictionMetrics& m : all) {
+      if (!std::isfinite(m.*f)) continue;
+      sum += m.*f;
+      ++count;
+    }
+    mean.*f =
+        count > 0 ? sum / static_cast<double>(count) : std::numeric_limits<double>::quiet_NaN();
+  }
+  for (const PredictionMetrics& m : all) {
+    mean.frames += m.frames;
+    mean.posed += m.posed;
+  }
+  return mean;
+}
+
+}  // namespace
+
 ValidationMetrics validate(Long3rModel& model, const std::vector<SequenceSample>& sequences,
                            const LossConfig& loss_config, const ValidationConfig& config) {
-  const bool was_training = model.training();
-  model.set_training(false);
+  const TrainingModeGuard inference(model, false);
   ValidationMetrics m;
-  double ate_sum = 0.0;
-  int64_t ate_n = 0;
-  try {
-    for (const SequenceSample& s : sequences) {
-      std::vector<at::Tensor> frames;
-      for (const at::Tensor& f : s.images) frames.push_back(f.unsqueeze(0).to(model.device()));
-      std::vector<StreamOutput> coarse;
-      const std::vector<StreamOutput> out =
-          model.forward_sequence(frames, loss_config.coarse ? &coarse : nullptr);
-      const at::Tensor gt = s.pts.unsqueeze(0).to(model.device());
-      const at::Tensor valid = s.valid.unsqueeze(0).to(model.device());
-      const LossTerms lt = sequence_loss(out, coarse, gt, valid, loss_config);
-      m.loss += lt.total.item<double>();
-      m.regression += lt.regression;
+  std::vector<PredictionMetrics> scores;
+  for (const SequenceSample& s : sequences) {
+    std::vector<at::Tensor> frames;
+    for (const at::Tensor& f : s.images) frames.push_back(f.unsqueeze(0).to(model.device()));
+    std::vector<StreamOutput> coarse;
+    const std::vector<StreamOutput> out =
+        model.forward_sequence(frames, loss_config.coarse ? &coarse : nullptr);
+    const at::Tensor gt = s.pts.unsqueeze(0).to(model.device());
+    const at::Tensor valid = s.valid.unsqueeze(0).to(model.device());
+    const LossTerms lt = sequence_loss(out, coarse, gt, valid, loss_config);
+    m.loss += lt.total.item<double>();
+    m.regression += lt.regression;
 
-      SequencePrediction pred;
-      for (const StreamOutput& o : out) {
-        pred.pts.push_back(o.pts3d[0].to(at::kCPU, at::kFloat).contiguous());
-        pred.conf.push_back(o.conf[0].to(at::kCPU, at::kFloat).contiguous());
-      }
-      PredictionMetricsOptions po;
-      po.pixel_step = config.pixel_step;
-      po.normals = config.normals;
-      const PredictionMetrics pm = evaluate_prediction(pred, s, po);
-      m.pointmap_error += pm.pointmap_error;
-      m.acc_mean += pm.acc_mean;
-      m.acc_median += pm.acc_median;
-      m.comp_mean += pm.comp_mean;
-      m.comp_median += pm.comp_median;
-      m.nc_mean += pm.nc_mean;
-      m.nc_median += pm.nc_median;
-      if (std::isfinite(pm.ate_rmse)) {
-        ate_sum += pm.ate_rmse;
-        ++ate_n;
-      }
-      ++m.sequences;
+    SequencePrediction pred;
+    for (const StreamOutput& o : out) {
+      pred.pts.push_back(o.pts3d[0].to(at::kCPU, at::kFloat).contiguous());
+      pred.conf.push_back(o.conf[0].to(at::kCPU, at::kFloat).contiguous());
     }
-  } catch (...) {
-    model.set_training(was_training);
-    throw;
+    PredictionMetricsOptions po;
+    po.pixel_step = config.pixel_step;
+    po.normals = config.normals;
+    scores.push_back(evaluate_prediction(pred, s, po));
+    ++m.sequences;
   }
-  model.set_training(was_training);
   if (m.sequences > 0) {
-    const double n = static_cast<double>(m.sequences);
-    for (double* v : {&m.loss, &m.regression, &m.pointmap_error, &m.acc_mean, &m.acc_median,
-                      &m.comp_mean, &m.comp_median, &m.nc_mean, &m.nc_median}) {
-      *v /= n;
-    }
+    m.loss /= static_cast<double>(m.sequences);
+    m.regression /= static_cast<double>(m.sequences);
   }
-  m.ate_rmse =
-      ate_n > 0 ? ate_sum / static_cast<double>(ate_n) : std::numeric_limits<double>::quiet_NaN();
+  m.prediction = average(scores);
   return m;
 }
 

@@ -7,6 +7,7 @@
 #include <ATen/core/Generator.h>
 #include <torch/cuda.h>
 #include <torch/nn/module.h>
+#include <torch/nn/utils/clip_grad.h>
 #include <torch/optim/adamw.h>
 #include <torch/serialize.h>
 
@@ -27,7 +28,6 @@
 #include "long3r/eval/eval.hpp"
 #include "long3r/io/atomic_file.hpp"
 #include "long3r/model/model_config.hpp"
-#include "long3r/model/safetensors.hpp"
 #include "long3r/train/train.hpp"
 
 namespace long3r {
@@ -48,26 +48,6 @@ std::string read_text(const fs::path& p) {
   return ss.str();
 }
 
-std::string to_hex(const at::Tensor& bytes) {
-  const at::Tensor c = bytes.to(at::kCPU).contiguous();
-  const uint8_t* d = c.data_ptr<uint8_t>();
-  static const char* digits = "0123456789abcdef";
-  std::string s;
-  s.reserve(static_cast<std::size_t>(c.numel()) * 2);
-  for (int64_t i = 0; i < c.numel(); ++i) {
-    s.push_back(digits[d[i] >> 4]);
-    s.push_back(digits[d[i] & 15]);
-  }
-  return s;
-}
-
-at::Tensor from_hex(const std::string& s) {
-  at::Tensor t = at::empty({static_cast<int64_t>(s.size() / 2)}, at::kByte);
-  uint8_t* d = t.data_ptr<uint8_t>();
-  for (std::size_t i = 0; i + 1 < s.size(); i += 2) {
-    d[i / 2] = static_cast<uint8_t>(std::stoi(s.substr(i, 2), nullptr, 16));
-  }
-  return t;
 }
 
 std::string fmt(double v) {
@@ -82,51 +62,48 @@ double parse_num(const std::string& s) {
   return std::stod(s);
 }
 
-const char* kCsvHeader =
-    "step,stage,loss,conf_loss,scale_loss,regression,lr,grad_norm,step_s,data_s,wall_s,"
-    "val_loss,val_regression,val_pointmap_err_m,val_acc_mean_m,val_acc_median_m,"
-    "val_comp_mean_m,val_comp_median_m,val_nc_mean,val_nc_median,val_ate_rmse_m";
+// train_log.csv: step, stage, then these columns in this order, written and
+// read back by name.
+struct TrainColumn {
+  const char* name;
+  double LogRow::*field;
+};
+const TrainColumn kTrainColumns[] = {
+    {"loss", &LogRow::loss},
+    {"conf_loss", &LogRow::conf_loss},
+    {"scale_loss", &LogRow::scale_loss},
+    {"regression", &LogRow::regression},
+    {"lr", &LogRow::lr},
+    {"grad_norm", &LogRow::grad_norm},
+    {"step_s", &LogRow::step_s},
+    {"data_s", &LogRow::data_s},
+    {"wall_s", &LogRow::wall_s},
+};
+// Validation columns: "nan" on the rows without validation.
+struct ValColumn {
+  const char* name;
+  double& (*field)(ValidationMetrics&);
+};
+const ValColumn kValColumns[] = {
+    {"val_loss", [](ValidationMetrics& v) -> double& { return v.loss; }},
+    {"val_regression", [](ValidationMetrics& v) -> double& { return v.regression; }},
+    {"val_pointmap_err_m",
+     [](ValidationMetrics& v) -> double& { return v.prediction.pointmap_error; }},
+    {"val_acc_mean_m", [](ValidationMetrics& v) -> double& { return v.prediction.acc_mean; }},
+    {"val_acc_median_m", [](ValidationMetrics& v) -> double& { return v.prediction.acc_median; }},
+    {"val_comp_mean_m", [](ValidationMetrics& v) -> double& { return v.prediction.comp_mean; }},
+    {"val_comp_median_m", [](ValidationMetrics& v) -> double& { return v.prediction.comp_median; }},
+    {"val_nc_mean", [](ValidationMetrics& v) -> double& { return v.prediction.nc_mean; }},
+    {"val_nc_median", [](ValidationMetrics& v) -> double& { return v.prediction.nc_median; }},
+    {"val_ate_rmse_m", [](ValidationMetrics& v) -> double& { return v.prediction.ate_rmse; }},
+};
 
-std::vector<LogRow> read_log_csv(const fs::path& p) {
-  std::vector<LogRow> rows;
-  std::ifstream in(p);
-  std::string line;
-  if (!std::getline(in, line)) return rows;  // header
-  while (std::getline(in, line)) {
-    std::vector<std::string> f;
-    std::stringstream ss(line);
-    std::string cell;
-    while (std::getline(ss, cell, ',')) f.push_back(cell);
-    if (f.size() < 21) continue;
-    LogRow r;
-    r.step = std::stoll(f[0]);
-    r.stage = std::stoll(f[1]);
-    r.loss = parse_num(f[2]);
-    r.conf_loss = parse_num(f[3]);
-    r.scale_loss = parse_num(f[4]);
-    r.regression = parse_num(f[5]);
-    r.lr = parse_num(f[6]);
-    r.grad_norm = parse_num(f[7]);
-    r.step_s = parse_num(f[8]);
-    r.data_s = parse_num(f[9]);
-    r.wall_s = parse_num(f[10]);
-    if (std::isfinite(parse_num(f[11]))) {
-      ValidationMetrics v;
-      v.loss = parse_num(f[11]);
-      v.regression = parse_num(f[12]);
-      v.pointmap_error = parse_num(f[13]);
-      v.acc_mean = parse_num(f[14]);
-      v.acc_median = parse_num(f[15]);
-      v.comp_mean = parse_num(f[16]);
-      v.comp_median = parse_num(f[17]);
-      v.nc_mean = parse_num(f[18]);
-      v.nc_median = parse_num(f[19]);
-      v.ate_rmse = parse_num(f[20]);
-      r.val = v;
-    }
-    rows.push_back(r);
-  }
-  return rows;
+std::vector<std::string> split_csv_line(const std::string& line) {
+  std::vector<std::string> cells;
+  std::stringstream ss(line);
+  std::string cell;
+  while (std::getline(ss, cell, ',')) cells.push_back(cell);
+  return cells;
 }
 
 // Autocast for the forward pass on CUDA (bf16 needs no loss scaling, which
@@ -169,23 +146,54 @@ at::Device parse_device(const std::string& name) {
 
 std::string log_rows_to_csv(const std::vector<LogRow>& rows) {
   std::ostringstream o;
-  o << kCsvHeader << "\n";
+  o << "step,stage";
+  for (const TrainColumn& c : kTrainColumns) o << "," << c.name;
+  for (const ValColumn& c : kValColumns) o << "," << c.name;
+  o << "\n";
   for (const LogRow& r : rows) {
-    o << r.step << "," << r.stage << "," << fmt(r.loss) << "," << fmt(r.conf_loss) << ","
-      << fmt(r.scale_loss) << "," << fmt(r.regression) << "," << fmt(r.lr) << ","
-      << fmt(r.grad_norm) << "," << fmt(r.step_s) << "," << fmt(r.data_s) << "," << fmt(r.wall_s);
-    if (r.val) {
-      const ValidationMetrics& v = *r.val;
-      for (double x : {v.loss, v.regression, v.pointmap_error, v.acc_mean, v.acc_median,
-                       v.comp_mean, v.comp_median, v.nc_mean, v.nc_median, v.ate_rmse}) {
-        o << "," << fmt(x);
-      }
-    } else {
-      for (int i = 0; i < 10; ++i) o << ",nan";
-    }
+    o << r.step << "," << r.stage;
+    for (const TrainColumn& c : kTrainColumns) o << "," << fmt(r.*c.field);
+    ValidationMetrics v = r.val.value_or(ValidationMetrics{});
+    for (const ValColumn& c : kValColumns) o << "," << (r.val ? fmt(c.field(v)) : "nan");
     o << "\n";
   }
   return o.str();
+}
+
+std::vector<LogRow> log_rows_from_csv(const std::string& csv) {
+  std::istringstream in(csv);
+  std::string line;
+  std::vector<LogRow> rows;
+  if (!std::getline(in, line)) return rows;
+  const std::vector<std::string> header = split_csv_line(line);
+  auto column = [&](const std::string& name) {
+    const auto it = std::find(header.begin(), header.end(), name);
+    if (it == header.end()) throw std::runtime_error("train log: no column \"" + name + "\"");
+    return static_cast<std::size_t>(it - header.begin());
+  };
+  const std::size_t step = column("step"), stage = column("stage"), val_loss = column("val_loss");
+  std::vector<std::size_t> train_at, val_at;
+  for (const TrainColumn& c : kTrainColumns) train_at.push_back(column(c.name));
+  for (const ValColumn& c : kValColumns) val_at.push_back(column(c.name));
+  while (std::getline(in, line)) {
+    const std::vector<std::string> f = split_csv_line(line);
+    if (f.size() < header.size()) continue;
+    LogRow r;
+    r.step = std::stoll(f[step]);
+    r.stage = std::stoll(f[stage]);
+    for (std::size_t i = 0; i < train_at.size(); ++i) {
+      r.*kTrainColumns[i].field = parse_num(f[train_at[i]]);
+    }
+    if (std::isfinite(parse_num(f[val_loss]))) {
+      ValidationMetrics v;
+      for (std::size_t i = 0; i < val_at.size(); ++i) {
+        kValColumns[i].field(v) = parse_num(f[val_at[i]]);
+      }
+      r.val = v;
+    }
+    rows.push_back(r);
+  }
+  return rows;
 }
 
 cv::Mat plot_training_curves(const std::vector<LogRow>& rows, int width, int height) {
@@ -323,20 +331,13 @@ LogRow Trainer::step() {
   outputs.clear();
   coarse.clear();
 
-  std::vector<at::Tensor> with_grad;
-  for (const at::Tensor& p : optim_->params) {
-    if (p.grad().defined()) with_grad.push_back(p);
-  }
-  double sq = 0.0;
-  for (const at::Tensor& p : with_grad) sq += p.grad().to(at::kDouble).pow(2).sum().item<double>();
-  const double grad_norm = std::sqrt(sq);
+  // Clipping to a global L2 norm of grad_clip; none is an infinite bound,
+  // which scales by exactly 1. The norm is logged either way.
+  const double max_norm =
+      config_.grad_clip > 0.0 ? config_.grad_clip : std::numeric_limits<double>::infinity();
+  const double grad_norm = torch::nn::utils::clip_grad_norm_(optim_->params, max_norm);
   const double loss_value = loss.total.item<double>();
   if (std::isfinite(loss_value) && std::isfinite(grad_norm)) {
-    if (config_.grad_clip > 0.0 && grad_norm > config_.grad_clip) {
-      const double s = config_.grad_clip / (grad_norm + 1e-6);
-      torch::NoGradGuard ng;
-      for (at::Tensor& p : with_grad) p.mutable_grad().mul_(s);
-    }
     optim_->adamw->step();
   } else if (!options_.quiet) {
     // A non-finite step would poison the weights and Adam's moments: skip it.
@@ -372,75 +373,82 @@ ValidationMetrics Trainer::run_validation() {
 void Trainer::save_checkpoint() {
   const fs::path root = fs::path(options_.out_dir) / "checkpoint";
   char name[32];
-  std::snprintf(name, sizeof(name), "step_%08lld", static_cast<long long>(step_));
-  const fs::path dir = root / name;
-  const fs::path tmp = root / (std::string(name) + ".tmp");
-  fs::remove_all(tmp);
-  fs::create_directories(tmp);
-  model_->save((tmp / "weights.safetensors").string());
-  {
-    std::ostringstream optimizer;
-    torch::save(*optim_->adamw, optimizer);
-    write_file_atomically((tmp / "optimizer.pt").string(), optimizer.str());
-  }
-  nlohmann::ordered_json st;
-  st["step"] = step_;
-  st["sampler_rng"] = sampler_->rng_state();
+  std::snprintf(name, sizeof(name), "step_%08lld.pt", static_cast<long long>(step_));
+  torch::serialize::OutputArchive bundle, weights, optimizer;
+  model_->module().save(weights);
+  bundle.write("weights", weights);
+  optim_->adamw->save(optimizer);
+  bundle.write("optimizer", optimizer);
+  bundle.write("step", step_);
+  bundle.write("seed", static_cast<int64_t>(options_.seed));  // for the record only
+  bundle.write("sampler_rng", sampler_->rng_state());
   {
     at::Generator gen = at::detail::getDefaultCPUGenerator();
     std::lock_guard<std::mutex> lock(gen.mutex());
-    st["torch_cpu_rng"] = to_hex(gen.get_state());
+    bundle.write("torch_cpu_rng", gen.get_state(), /*is_buffer=*/true);
   }
-  st["wall_s"] = wall_offset_s_ + now_s() - start_time_;
-  st["seed"] = options_.seed;
-  st["model_config"] = model_config_to_json(model_->config());
-  st["train_config"] = train_config_to_json(config_);
-  write_file_atomically((tmp / "state.json").string(), st.dump(2));
-  write_file_atomically((tmp / "train_log.csv").string(), log_rows_to_csv(log_));
-  // The folder appears complete or not at all; "latest" moves only then.
-  fs::remove_all(dir);
-  fs::rename(tmp, dir);
-  sync_directory(root.string());
+  bundle.write("wall_s", wall_offset_s_ + now_s() - start_time_);
+  bundle.write("model_config", model_config_to_json(model_->config()));
+  bundle.write("train_config", train_config_to_json(config_));
+  bundle.write("train_log_csv", log_rows_to_csv(log_));
+  std::ostringstream bytes;
+  bundle.save_to(bytes);
+  // The file appears complete or not at all; "latest" moves only then.
+  write_file_atomically((root / name).string(), bytes.str());
   write_file_atomically((root / "latest").string(), std::string(name) + "\n");
   std::vector<fs::path> old;
   for (const auto& e : fs::directory_iterator(root)) {
     const std::string n = e.path().filename().string();
-    if (e.is_directory() && n.rfind("step_", 0) == 0 && n.find(".tmp") == std::string::npos) {
+    if (e.is_regular_file() && n.rfind("step_", 0) == 0 && e.path().extension() == ".pt") {
       old.push_back(e.path());
     }
   }
   std::sort(old.begin(), old.end());
   while (static_cast<int64_t>(old.size()) > config_.keep_checkpoints) {
-    fs::remove_all(old.front());
+    fs::remove(old.front());
     old.erase(old.begin());
   }
 }
 
-void Trainer::load_checkpoint(const std::string& dir_s) {
-  const fs::path dir(dir_s);
-  const auto st = nlohmann::ordered_json::parse(read_text(dir / "state.json"));
+void Trainer::load_checkpoint(const std::string& path) {
+  if (fs::is_directory(path)) {
+    throw std::runtime_error("checkpoint " + path +
+                             " is a folder of separate files, which this version does not read");
+  }
+  torch::serialize::InputArchive bundle;
+  bundle.load_from(path, device_);
+  c10::IValue value;
+  bundle.read("model_config", value);
   // Compared as configurations, not as text.
-  const std::string mc = st.at("model_config").get<std::string>();
-  if (model_config_to_json(parse_model_config(mc)) != model_config_to_json(model_->config())) {
-    throw std::runtime_error("checkpoint " + dir_s +
+  if (model_config_to_json(parse_model_config(value.toStringRef())) !=
+      model_config_to_json(model_->config())) {
+    throw std::runtime_error("checkpoint " + path +
                              " holds a different model configuration than --model-config/config");
   }
-  const TensorFile weights = load_safetensors((dir / "weights.safetensors").string());
-  model_->load_weights(weights.tensors, (dir / "weights.safetensors").string());
+  torch::serialize::InputArchive weights, optimizer;
+  bundle.read("weights", weights);
+  model_->module().load(weights);
   model_->set_training(true);
   applied_stage_ = -1;
-  torch::load(*optim_->adamw, (dir / "optimizer.pt").string(), device_);
-  step_ = st.at("step").get<int64_t>();
-  sampler_->set_rng_state(st.at("sampler_rng").get<std::string>());
+  bundle.read("optimizer", optimizer);
+  optim_->adamw->load(optimizer);
+  bundle.read("step", value);
+  step_ = value.toInt();
+  bundle.read("sampler_rng", value);
+  sampler_->set_rng_state(value.toStringRef());
   {
+    at::Tensor state;
+    bundle.read("torch_cpu_rng", state, /*is_buffer=*/true);
     at::Generator gen = at::detail::getDefaultCPUGenerator();
     std::lock_guard<std::mutex> lock(gen.mutex());
-    gen.set_state(from_hex(st.at("torch_cpu_rng").get<std::string>()));
+    gen.set_state(state.to(at::kCPU));
   }
-  wall_offset_s_ = st.at("wall_s").get<double>();
+  bundle.read("wall_s", value);
+  wall_offset_s_ = value.toDouble();
   start_time_ = now_s();
   // The log up to the checkpoint (a crash may have logged further steps).
-  log_ = read_log_csv(dir / "train_log.csv");
+  bundle.read("train_log_csv", value);
+  log_ = log_rows_from_csv(value.toStringRef());
 }
 
 void Trainer::write_outputs() {
@@ -484,8 +492,9 @@ void Trainer::run() {
           r.grad_norm, r.step_s, r.data_s);
       if (r.val) {
         std::printf("  | val loss %.4f pm_err %.3f m Acc %.3f Comp %.3f NC %.3f ATE %.3f m",
-                    r.val->loss, r.val->pointmap_error, r.val->acc_mean, r.val->comp_mean,
-                    r.val->nc_mean, r.val->ate_rmse);
+                    r.val->loss, r.val->prediction.pointmap_error, r.val->prediction.acc_mean,
+                    r.val->prediction.comp_mean, r.val->prediction.nc_mean,
+                    r.val->prediction.ate_rmse);
       }
       std::printf("\n");
       std::fflush(stdout);

@@ -1,0 +1,67 @@
+#include "support/test_support.hpp"
+
+#include <ATen/ATen.h>
+#include <gtest/gtest.h>
+#include <torch/nn/module.h>
+
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <limits>
+#include <map>
+
+#include "long3r/model/checkpoint.hpp"
+
+namespace long3r::test {
+
+std::string scratch_dir(const std::string& name) {
+  const auto d = std::filesystem::path(LONG3R_BINARY_DIR) / "test_tmp" / name;
+  std::filesystem::remove_all(d);
+  std::filesystem::create_directories(d);
+  return d.string();
+}
+
+std::string read_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+void write_file(const std::string& path, const std::string& bytes) {
+  std::ofstream out(path, std::ios::binary);
+  out << bytes;
+}
+
+Dust3rConfig tiny_dust3r_config() {
+  Dust3rConfig c;
+  c.enc_embed_dim = 32;
+  c.enc_depth = 2;
+  c.enc_num_heads = 2;
+  c.dec_embed_dim = 16;
+  c.dec_depth = 4;
+  c.dec_num_heads = 2;
+  c.dpt.feature_dim = 8;
+  c.dpt.last_dim = 6;
+  c.dpt.layer_dims = {4, 6, 8, 8};
+  c.dpt.hooks = {0, 2, 3, 4};
+  c.dpt.dim_tokens = {32, 16, 16, 16};
+  return c;
+}
+
+ModelConfig tiny_long3r_config() { return named_model_config("long3r_tiny"); }
+
+void copy_parameters(torch::nn::Module& from, torch::nn::Module& to) {
+  std::map<std::string, at::Tensor> t;
+  for (const auto& kv : from.named_parameters()) t[kv.key()] = kv.value().detach();
+  load_module_strict(to, t, "copy");
+}
+
+double rel_diff(const at::Tensor& x, const at::Tensor& ref) {
+  EXPECT_EQ(x.sizes(), ref.sizes());
+  if (x.sizes() != ref.sizes()) return std::numeric_limits<double>::infinity();
+  const double diff = (x.to(at::kDouble) - ref.to(at::kDouble)).abs().max().item<double>();
+  const double scale = ref.to(at::kDouble).abs().max().item<double>();
+  if (scale == 0.0) return diff == 0.0 ? 0.0 : std::numeric_limits<double>::infinity();
+  return diff / scale;
+}
+
+}  // namespace long3r::test

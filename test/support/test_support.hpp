@@ -1,0 +1,38 @@
+// Fixtures shared by the unit tests of both gtest binaries: scratch folders,
+// whole-file reads and writes, the tiny model configurations and tensor
+// comparisons. libtorch and the standard library only (long3r_model_tests
+// links it without OpenCV); the OpenCV side is in cv_test_support.hpp.
+#pragma once
+
+#include <ATen/core/Tensor.h>
+
+#include <string>
+
+#include "long3r/model/model_config.hpp"
+
+namespace torch::nn {
+class Module;
+}  // namespace torch::nn
+
+namespace long3r::test {
+
+// A fresh, empty folder <build>/test_tmp/<name> (name may contain '/').
+std::string scratch_dir(const std::string& name);
+
+std::string read_file(const std::string& path);  // all bytes; "" when unreadable
+void write_file(const std::string& path, const std::string& bytes);
+
+// A small DUSt3R with the golden models' tiny widths (encoder 32 x 2 blocks,
+// decoder 16 x 4, DPT features 8), for shape and mechanics tests.
+Dust3rConfig tiny_dust3r_config();
+// The named configuration "long3r_tiny" (64 x 64 inputs).
+ModelConfig tiny_long3r_config();
+
+// Copies every parameter of `from` into `to` (same architecture), strictly.
+void copy_parameters(torch::nn::Module& from, torch::nn::Module& to);
+
+// max |x - ref| / max |ref| in double; also a gtest failure (and infinity)
+// when the shapes differ; 0 / infinity when ref is all zeros.
+double rel_diff(const at::Tensor& x, const at::Tensor& ref);
+
+}  // namespace long3r::test
