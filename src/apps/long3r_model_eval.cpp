@@ -14,11 +14,7 @@
 #include <thread>
 #include <vector>
 
-<<<<<<< HEAD
-=======
 #include "long3r/io/atomic_file.hpp"
-#include "long3r/io/json.hpp"
->>>>>>> fileio
 #include "long3r/model/checkpoint.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/safetensors.hpp"
@@ -265,7 +261,6 @@ int main(int argc, char** argv) {
                 mean_finite(cols[6]), mean_finite(cols[7]), mean_finite(cols[9]),
                 mean_finite(cols[10]));
     if (!json_path.empty()) {
-<<<<<<< HEAD
       nlohmann::ordered_json root;
       root["what"] = what;
       root["frames"] = frames;
@@ -274,20 +269,7 @@ int main(int argc, char** argv) {
       root["seed_begin"] = static_cast<int64_t>(seed_begin);
       root["sequences"] = per_seq;
       root["mean"] = mean;
-      std::ofstream out(json_path);
-      out << root.dump(2) << "\n";
-      if (!out) throw std::runtime_error("cannot write " + json_path);
-=======
-      long3r::json::Value root{long3r::json::Object{}};
-      root.set("what", what);
-      root.set("frames", frames);
-      root.set("stride", stride);
-      root.set("img_size", img_size);
-      root.set("seed_begin", static_cast<int64_t>(seed_begin));
-      root.set("sequences", per_seq);
-      root.set("mean", mean);
       long3r::write_file_atomically(json_path, root.dump(2) + "\n");
->>>>>>> fileio
     }
   } catch (const std::exception& e) {
     std::fprintf(stderr, "long3r_model_eval: %s\n", e.what());
