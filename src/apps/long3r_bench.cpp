@@ -20,26 +20,12 @@
 #include <string>
 #include <vector>
 
+#include "long3r/io/cli_options.hpp"
 #include "long3r/model/long3r_model.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/threads.hpp"
 
 namespace {
-
-void usage() {
-  std::cerr << "usage: long3r_bench --config long3r_small|long3r_tiny|long3r_paper [--frames N]\n"
-               "                    [--size S] [--threads T] [--openblas-threads T] [--seed N]\n"
-               "                    [--no-projection-cache]\n"
-               "Streams N synthetic S x S frames (plus one, for the one-frame latency) through\n"
-               "a random model; prints latency and memory tokens at frames 10, 50, 100, 500,\n"
-               "1000 (those <= N); latency = wall time of the push that returns the frame.\n"
-               "median10 / min10: median / fastest of the 10 frames up to that one (min10 is\n"
-               "the least disturbed by other load on the machine, which only adds time).\n"
-               "cpu_ms: process CPU time of the step (with --threads 1: the work itself).\n"
-               "--openblas-threads: default 1 (see long3r/threads.hpp); 0 = environment.\n"
-               "--no-projection-cache: recompute the memory blocks' key/value projections of\n"
-               "the relevant tokens at every step (the reference path).\n";
-}
 
 at::Tensor synthetic_frame(int64_t t, int64_t H, int64_t W) {
   const auto f = at::TensorOptions().dtype(at::kFloat);
@@ -84,38 +70,28 @@ int main(int argc, char** argv) {
   int threads = 2, openblas_threads = long3r::ThreadConfig().openblas_threads;
   uint64_t seed = 0;
   bool projection_cache = true;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        usage();
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (a == "--config") {
-      config_name = next();
-    } else if (a == "--frames") {
-      frames = std::stoll(next());
-    } else if (a == "--size") {
-      size = std::stoll(next());
-    } else if (a == "--threads") {
-      threads = std::stoi(next());
-    } else if (a == "--openblas-threads") {
-      openblas_threads = std::stoi(next());
-    } else if (a == "--seed") {
-      seed = std::stoull(next());
-    } else if (a == "--no-projection-cache") {
-      projection_cache = false;
-    } else {
-      usage();
-      return 2;
-    }
-  }
-  if (config_name.empty() || frames < 2 || size <= 0) {
-    usage();
-    return 2;
-  }
+  long3r::CliOptions cli(
+      "long3r_bench",
+      "Streams N synthetic S x S frames (plus one, for the one-frame latency) through a random "
+      "model; prints latency and memory tokens at frames 10, 50, 100, 500, 1000 (those <= N); "
+      "latency = wall time of the push that returns the frame.\n"
+      "median10 / min10: median / fastest of the 10 frames up to that one (min10 is the least "
+      "disturbed by other load on the machine, which only adds time).\n"
+      "cpu_ms: process CPU time of the step (with --threads 1: the work itself).");
+  cli.option("--config", "NAME", &config_name,
+             "long3r_small | long3r_tiny | long3r_paper | long3r_ship")
+      .required();
+  cli.option("--frames", "N", &frames, "frames streamed").min(2);
+  cli.option("--size", "S", &size, "frame size S x S").min(1);
+  cli.option("--threads", "T", &threads, "torch threads");
+  cli.option("--openblas-threads", "T", &openblas_threads,
+             "OpenBLAS threads (see long3r/threads.hpp); 0 = environment");
+  cli.option("--seed", "N", &seed, "initialisation seed");
+  cli.flag("--no-projection-cache", &projection_cache,
+           "recompute the memory blocks' key/value projections of the relevant tokens at every "
+           "step (the reference path)",
+           false);
+  if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
   try {
     long3r::ThreadConfig tc;
     tc.torch_threads = threads;

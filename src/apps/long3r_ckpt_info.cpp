@@ -10,14 +10,10 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "long3r/io/cli_options.hpp"
 #include "long3r/model/safetensors.hpp"
 
 namespace {
-
-void usage() {
-  std::cerr << "usage: long3r_ckpt_info [--no-tensors] [--no-metadata] FILE.safetensors\n"
-               "Validates the file and prints its metadata and tensor table.\n";
-}
 
 std::string shape_string(const at::Tensor& t) {
   std::string s = "[";
@@ -45,25 +41,12 @@ const char* safetensors_dtype(const at::Tensor& t) {
 int main(int argc, char** argv) {
   bool tensors = true, metadata = true;
   std::string path;
-  for (int i = 1; i < argc; ++i) {
-    if (std::strcmp(argv[i], "--no-tensors") == 0) {
-      tensors = false;
-    } else if (std::strcmp(argv[i], "--no-metadata") == 0) {
-      metadata = false;
-    } else if (std::strcmp(argv[i], "-h") == 0 || std::strcmp(argv[i], "--help") == 0) {
-      usage();
-      return 0;
-    } else if (path.empty() && argv[i][0] != '-') {
-      path = argv[i];
-    } else {
-      usage();
-      return 2;
-    }
-  }
-  if (path.empty()) {
-    usage();
-    return 2;
-  }
+  long3r::CliOptions cli("long3r_ckpt_info",
+                         "Validates the file and prints its metadata and tensor table.");
+  cli.positional("FILE.safetensors", &path, "the checkpoint").required();
+  cli.flag("--no-tensors", &tensors, "leave out the tensor table (the totals stay)", false);
+  cli.flag("--no-metadata", &metadata, "leave out the metadata", false);
+  if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
 
   long3r::TensorFile f;
   try {

@@ -15,43 +15,9 @@
 #include "long3r/dataset/tum_dataset.hpp"
 #include "long3r/eval/eval.hpp"
 #include "long3r/io/atomic_file.hpp"
+#include "long3r/io/cli_options.hpp"
 
 namespace {
-
-void usage() {
-  std::puts(
-      "usage: long3r_eval [--gt DIR | --gt-traj FILE] [--est-traj FILE] [--est-map FILE] "
-      "[options]\n"
-      "inputs:\n"
-      "  --gt DIR             TUM-layout folder (groundtruth.txt, depth, calibration.txt)\n"
-      "  --gt-traj FILE       reference trajectory (default DIR/groundtruth.txt)\n"
-      "  --gt-cloud FILE      reference cloud (.ply/.pcd/.xyz) instead of DIR's depth maps\n"
-      "  --est-traj FILE      estimated trajectory, TUM format\n"
-      "  --est-map FILE       estimated map (.ply/.pcd/.xyz)\n"
-      "  --calib 'fx fy cx cy'  intrinsics when DIR has no calibration.txt\n"
-      "trajectory:\n"
-      "  --max-diff S         association tolerance, seconds (default 0.01, as evo)\n"
-      "  --offset S           added to the estimate's stamps (default 0)\n"
-      "  --delta N            RPE delta in frames (default 1)\n"
-      "  --all-pairs          RPE over all pairs (i, i+N), not consecutive ones\n"
-      "  --no-align           no alignment;  --no-scale  SE(3) instead of Sim(3)\n"
-      "reconstruction:\n"
-      "  --map-align MODE     traj (default with --est-traj) | none | corr\n"
-      "  --corr-pred F --corr-gt F   corresponding points for --map-align corr\n"
-      "  --no-icp             skip the ICP refinement (default: rigid point-to-point)\n"
-      "  --icp-threshold M    ICP max correspondence distance (default 0.1)\n"
-      "  --icp-scale          let ICP refine the scale too\n"
-      "  --gt-frame-step N    GT cloud from every N-th frame (default 10)\n"
-      "  --gt-pixel-step N    and every N-th pixel (default 1)\n"
-      "  --max-depth M        ignore GT depth beyond M metres (default none)\n"
-      "  --voxel M            voxel-downsample both clouds first (default 0 = off)\n"
-      "  --no-normals         skip normal consistency\n"
-      "output:\n"
-      "  --out DIR            metrics.json, trajectory.png, map_error.png (default eval_out)\n"
-      "  --plot-max-error M   colour scale of map_error.png (default 0.1)\n"
-      "  --save-aligned       also write the aligned prediction as map_aligned.ply\n"
-      "  --save-gt-cloud      write the GT cloud used as gt_cloud.ply (also without --est-map)");
-}
 
 nlohmann::json stats_json(const long3r::ErrorStatistics& s) {
   return {{"rmse", s.rmse}, {"mean", s.mean}, {"median", s.median}, {"std", s.std},
@@ -78,87 +44,57 @@ int main(int argc, char** argv) {
   GroundTruthCloudOptions gopt;
   double voxel = 0.0, plot_max = 0.1;
   bool save_aligned = false, save_gt_cloud = false;
+  CliOptions cli("long3r_eval",
+                 "Give --est-traj and/or --est-map (or --save-gt-cloud alone); the reference is "
+                 "--gt DIR or --gt-traj / --gt-cloud.");
+  cli.section("inputs");
+  cli.option("--gt", "DIR", &gt_dir, "TUM-layout folder (groundtruth.txt, depth, calibration.txt)");
+  cli.option("--gt-traj", "FILE", &gt_traj_path, "reference trajectory")
+      .shown_default("DIR/groundtruth.txt");
+  cli.option("--gt-cloud", "FILE", &gt_cloud_path,
+             "reference cloud (.ply/.pcd/.xyz) instead of DIR's depth maps");
+  cli.option("--est-traj", "FILE", &est_traj_path, "estimated trajectory, TUM format");
+  cli.option("--est-map", "FILE", &est_map_path, "estimated map (.ply/.pcd/.xyz)");
+  cli.option("--calib", "'fx fy cx cy'", &calib, "intrinsics when DIR has no calibration.txt");
+  cli.section("trajectory");
+  cli.option("--max-diff", "S", &topt.max_diff, "association tolerance, seconds (as evo)");
+  cli.option("--offset", "S", &topt.offset, "added to the estimate's stamps");
+  cli.option("--delta", "N", &topt.rpe_delta, "RPE delta in frames");
+  cli.flag("--all-pairs", &topt.rpe_all_pairs, "RPE over all pairs (i, i+N), not consecutive ones");
+  cli.flag("--no-align", &topt.align, "no alignment", false);
+  cli.flag("--no-scale", &topt.correct_scale, "SE(3) instead of Sim(3)", false);
+  cli.section("reconstruction");
+  cli.option("--map-align", "MODE", &map_align, "initial alignment of the map")
+      .choices({"traj", "none", "corr"})
+      .shown_default("traj with --est-traj, else none");
+  cli.option("--corr-pred", "F", &corr_pred, "corresponding points for --map-align corr");
+  cli.option("--corr-gt", "F", &corr_gt, "their counterparts in the GT");
+  cli.flag("--no-icp", &ropt.icp, "skip the ICP refinement (default: rigid point-to-point)", false);
+  cli.option("--icp-threshold", "M", &ropt.icp_options.max_correspondence_distance,
+             "ICP max correspondence distance");
+  cli.flag("--icp-scale", &ropt.icp_options.estimate_scale, "let ICP refine the scale too");
+  cli.option("--gt-frame-step", "N", &gopt.frame_step, "GT cloud from every N-th frame");
+  cli.option("--gt-pixel-step", "N", &gopt.pixel_step, "and every N-th pixel");
+  cli.option("--max-depth", "M", &gopt.max_depth, "ignore GT depth beyond M metres")
+      .shown_default("none");
+  cli.option("--voxel", "M", &voxel, "voxel-downsample both clouds first (0 = off)");
+  cli.flag("--no-normals", &ropt.metrics.normals, "skip normal consistency", false);
+  cli.section("output");
+  cli.option("--out", "DIR", &out_dir, "metrics.json, trajectory.png, map_error.png");
+  cli.option("--plot-max-error", "M", &plot_max, "colour scale of map_error.png");
+  cli.flag("--save-aligned", &save_aligned, "also write the aligned prediction as map_aligned.ply");
+  cli.flag("--save-gt-cloud", &save_gt_cloud,
+           "write the GT cloud used as gt_cloud.ply (also without --est-map)");
+  if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
   try {
-    for (int i = 1; i < argc; ++i) {
-      const std::string a = argv[i];
-      auto next = [&]() -> std::string {
-        if (i + 1 >= argc) throw std::invalid_argument("missing value after " + a);
-        return argv[++i];
-      };
-      if (a == "--gt")
-        gt_dir = next();
-      else if (a == "--gt-traj")
-        gt_traj_path = next();
-      else if (a == "--gt-cloud")
-        gt_cloud_path = next();
-      else if (a == "--est-traj")
-        est_traj_path = next();
-      else if (a == "--est-map")
-        est_map_path = next();
-      else if (a == "--calib")
-        calib = next();
-      else if (a == "--max-diff")
-        topt.max_diff = std::stod(next());
-      else if (a == "--offset")
-        topt.offset = std::stod(next());
-      else if (a == "--delta")
-        topt.rpe_delta = std::stoi(next());
-      else if (a == "--all-pairs")
-        topt.rpe_all_pairs = true;
-      else if (a == "--no-align")
-        topt.align = false;
-      else if (a == "--no-scale")
-        topt.correct_scale = false;
-      else if (a == "--map-align")
-        map_align = next();
-      else if (a == "--corr-pred")
-        corr_pred = next();
-      else if (a == "--corr-gt")
-        corr_gt = next();
-      else if (a == "--no-icp")
-        ropt.icp = false;
-      else if (a == "--icp-threshold")
-        ropt.icp_options.max_correspondence_distance = std::stod(next());
-      else if (a == "--icp-scale")
-        ropt.icp_options.estimate_scale = true;
-      else if (a == "--gt-frame-step")
-        gopt.frame_step = std::stoi(next());
-      else if (a == "--gt-pixel-step")
-        gopt.pixel_step = std::stoi(next());
-      else if (a == "--max-depth")
-        gopt.max_depth = std::stod(next());
-      else if (a == "--voxel")
-        voxel = std::stod(next());
-      else if (a == "--no-normals")
-        ropt.metrics.normals = false;
-      else if (a == "--out")
-        out_dir = next();
-      else if (a == "--plot-max-error")
-        plot_max = std::stod(next());
-      else if (a == "--save-aligned")
-        save_aligned = true;
-      else if (a == "--save-gt-cloud")
-        save_gt_cloud = true;
-      else if (a == "-h" || a == "--help") {
-        usage();
-        return 0;
-      } else {
-        throw std::invalid_argument("unknown option " + a);
-      }
-    }
     if (gt_traj_path.empty() && !gt_dir.empty())
       gt_traj_path = (fs::path(gt_dir) / "groundtruth.txt").string();
     if (est_traj_path.empty() && est_map_path.empty() && !save_gt_cloud) {
       throw std::invalid_argument("nothing to evaluate: give --est-traj and/or --est-map");
     }
     if (map_align.empty()) map_align = est_traj_path.empty() ? "none" : "traj";
-    if (map_align != "traj" && map_align != "none" && map_align != "corr") {
-      throw std::invalid_argument("--map-align must be traj, none or corr");
-    }
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "long3r_eval: %s\n", e.what());
-    usage();
-    return 2;
+    return cli.usage_error(e.what());
   }
 
   try {

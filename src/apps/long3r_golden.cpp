@@ -26,6 +26,7 @@
 #include <string>
 #include <vector>
 
+#include "long3r/io/cli_options.hpp"
 #include "long3r/model/dust3r_model.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/safetensors.hpp"
@@ -430,20 +431,14 @@ void run_spann3r_sequence(const long3r::ModelConfig& config, const long3r::Tenso
 int main(int argc, char** argv) {
   double tol = 1e-4;
   std::vector<std::string> dirs;
-  for (int i = 1; i < argc; ++i) {
-    if (std::strcmp(argv[i], "--tol") == 0 && i + 1 < argc) {
-      tol = std::atof(argv[++i]);
-    } else if (argv[i][0] == '-') {
-      std::fprintf(stderr, "usage: long3r_golden [--tol T] CASE_DIR...\n");
-      return 2;
-    } else {
-      dirs.push_back(argv[i]);
-    }
-  }
-  if (dirs.empty() || !(tol > 0)) {
-    std::fprintf(stderr, "usage: long3r_golden [--tol T] CASE_DIR...\n");
-    return 2;
-  }
+  long3r::CliOptions cli(
+      "long3r_golden",
+      "Compares every tensor of each golden case (see ../shared/golden/README.md)."
+      " Exit status 0 when all are within the tolerance, 1 otherwise.");
+  cli.positional("CASE_DIR", &dirs, "weights.safetensors and io.safetensors of one case")
+      .required();
+  cli.option("--tol", "T", &tol, "relative tolerance").above(0);
+  if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
 
   int failed_cases = 0;
   for (const std::string& dir : dirs) {

@@ -20,18 +20,13 @@
 #include <string>
 #include <vector>
 
+#include "long3r/io/cli_options.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/safetensors.hpp"
 #include "long3r/model/spann3r_model.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 
 namespace {
-
-void usage() {
-  std::fprintf(stderr,
-               "usage: long3r_make_random_model --out FILE [--variant spann3r] "
-               "[--size tiny|small] [--img-size N] [--seed N]\n");
-}
 
 std::string config_json(const std::string& size, int img) {
   int enc = 32, enc_depth = 2, enc_heads = 2, dec = 16, dec_depth = 2, dec_heads = 2;
@@ -74,52 +69,18 @@ int main(int argc, char** argv) {
   std::string out, variant = "spann3r", size = "tiny";
   int img = 224;
   long long seed = 0;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::fprintf(stderr, "long3r_make_random_model: %s needs a value\n", a.c_str());
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (a == "--out") {
-      out = next();
-    } else if (a == "--variant") {
-      variant = next();
-    } else if (a == "--size") {
-      size = next();
-    } else if (a == "--img-size") {
-      img = std::atoi(next().c_str());
-    } else if (a == "--seed") {
-      seed = std::atoll(next().c_str());
-    } else if (a == "-h" || a == "--help") {
-      usage();
-      return 0;
-    } else {
-      std::fprintf(stderr, "long3r_make_random_model: unknown option %s\n", a.c_str());
-      usage();
-      return 2;
-    }
-  }
-  if (out.empty()) {
-    usage();
-    return 2;
-  }
-  if (variant != "spann3r") {
-    std::fprintf(stderr, "long3r_make_random_model: unsupported --variant %s (spann3r)\n",
-                 variant.c_str());
-    return 2;
-  }
-  if (size != "tiny" && size != "small") {
-    std::fprintf(stderr, "long3r_make_random_model: --size must be tiny or small\n");
-    return 2;
-  }
-  if (img <= 0 || img % 16 != 0) {
-    std::fprintf(stderr,
-                 "long3r_make_random_model: --img-size must be a positive multiple of 16\n");
-    return 2;
-  }
+  long3r::CliOptions cli("long3r_make_random_model",
+                         "Writes a Spann3R checkpoint with RANDOM weights (a placeholder for "
+                         "testing the pipeline; its outputs are meaningless).");
+  cli.option("--out", "FILE", &out, "the safetensors file to write").required();
+  cli.option("--variant", "", &variant, "model type").choices({"spann3r"});
+  cli.option("--size", "", &size, "tiny: ~10 FPS, small: ~1 FPS at 224 x 224 on 2 cores")
+      .choices({"tiny", "small"});
+  cli.option("--img-size", "N", &img, "input size N x N, a multiple of 16");
+  cli.option("--seed", "N", &seed, "initialisation seed");
+  if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
+  if (img <= 0 || img % 16 != 0)
+    return cli.usage_error("--img-size must be a positive multiple of 16");
   try {
     const std::string json = config_json(size, img);
     const long3r::ModelConfig config = long3r::parse_model_config(json);

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "long3r/io/atomic_file.hpp"
+#include "long3r/io/cli_options.hpp"
 #include "long3r/model/checkpoint.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/safetensors.hpp"
@@ -22,31 +23,6 @@
 #include "long3r/train/train.hpp"
 
 namespace {
-
-void usage() {
-  std::puts(
-      "usage: long3r_model_eval (--model FILE | --untrained CONFIG | --baseline constant-depth)\n"
-      "  --model FILE             LONG3R safetensors checkpoint\n"
-      "  --untrained CONFIG       randomly initialised model of a named config / JSON file\n"
-      "  --baseline constant-depth  every pixel at the same depth, no camera motion\n"
-      "  --long-term-capacity L   override the model's L (0: no long-term memory)\n"
-      "  --short-term-frames K    override the model's K\n"
-      "  --long-term-policy P     override: voxel (the paper) | spann3r (ablation)\n"
-      "  --frames N               frames per sequence (default 50)\n"
-      "  --sequences S            held-out scenes (default 3)\n"
-      "  --stride D               trajectory frames between used frames (default 2)\n"
-      "  --seed-begin N           first scene seed (default 2000000; training uses\n"
-      "                           1000.., validation 1000000..)\n"
-      "  --img-size N             model input N x N (default 224)\n"
-      "  --pixel-step N           cloud subsampling for the metrics (default 2)\n"
-      "  --no-normals             skip NC\n"
-      "  --estimate-intrinsics    PnP with the focal estimated from frame 0's pointmap\n"
-      "                           (the pipeline without a calibration), not the GT one\n"
-      "  --picture FILE.png       top views of the first sequence (prediction vs GT)\n"
-      "  --json FILE              write the per-sequence and mean metrics\n"
-      "  --threads N              torch threads (default: all cores)\n"
-      "  --seed N                 initialisation seed of --untrained (default 0)");
-}
 
 // JSON has no NaN: a metric that could not be computed is null.
 nlohmann::ordered_json num(double v) {
@@ -74,72 +50,38 @@ int main(int argc, char** argv) {
   int pixel_step = 2;
   bool normals = true, estimate_intrinsics = false;
   int threads = static_cast<int>(std::thread::hardware_concurrency());
-  try {
-    for (int i = 1; i < argc; ++i) {
-      const std::string a = argv[i];
-      auto next = [&]() -> std::string {
-        if (i + 1 >= argc) throw std::invalid_argument("missing value after " + a);
-        return argv[++i];
-      };
-      if (a == "--model")
-        model_path = next();
-      else if (a == "--untrained")
-        untrained = next();
-      else if (a == "--baseline")
-        baseline = next();
-      else if (a == "--long-term-capacity")
-        lt_capacity = std::stoll(next());
-      else if (a == "--short-term-frames")
-        st_frames = std::stoll(next());
-      else if (a == "--long-term-policy")
-        policy = next();
-      else if (a == "--frames")
-        frames = std::stoll(next());
-      else if (a == "--sequences")
-        sequences = std::stoll(next());
-      else if (a == "--stride")
-        stride = std::stoll(next());
-      else if (a == "--seed-begin")
-        seed_begin = std::stoull(next());
-      else if (a == "--img-size")
-        img_size = std::stoll(next());
-      else if (a == "--pixel-step")
-        pixel_step = std::stoi(next());
-      else if (a == "--no-normals")
-        normals = false;
-      else if (a == "--estimate-intrinsics")
-        estimate_intrinsics = true;
-      else if (a == "--picture")
-        picture = next();
-      else if (a == "--json")
-        json_path = next();
-      else if (a == "--threads")
-        threads = std::stoi(next());
-      else if (a == "--seed")
-        seed = std::stoull(next());
-      else if (a == "-h" || a == "--help") {
-        usage();
-        return 0;
-      } else {
-        throw std::invalid_argument("unknown option " + a);
-      }
-    }
-    const int sources = !model_path.empty() + !untrained.empty() + !baseline.empty();
-    if (sources != 1) {
-      throw std::invalid_argument("give exactly one of --model, --untrained, --baseline");
-    }
-    if (!baseline.empty() && baseline != "constant-depth") {
-      throw std::invalid_argument("unknown baseline \"" + baseline + "\" (constant-depth)");
-    }
-    if (frames < 2 || sequences < 1 || stride < 1 || pixel_step < 1 || threads < 1) {
-      throw std::invalid_argument(
-          "--frames >= 2, --sequences, --stride, --pixel-step, --threads >= 1");
-    }
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "long3r_model_eval: %s\n", e.what());
-    usage();
-    return 2;
-  }
+  long3r::CliOptions cli("long3r_model_eval",
+                         "Give exactly one of --model, --untrained, --baseline.");
+  cli.option("--model", "FILE", &model_path, "LONG3R safetensors checkpoint");
+  cli.option("--untrained", "CONFIG", &untrained,
+             "randomly initialised model of a named config / JSON file");
+  cli.option("--baseline", "", &baseline, "every pixel at the same depth, no camera motion")
+      .choices({"constant-depth"});
+  cli.option("--long-term-capacity", "L", &lt_capacity,
+             "override the model's L (0: no long-term memory)")
+      .shown_default("");
+  cli.option("--short-term-frames", "K", &st_frames, "override the model's K").shown_default("");
+  cli.option("--long-term-policy", "P", &policy,
+             "override: voxel (the paper) | spann3r (ablation)");
+  cli.option("--frames", "N", &frames, "frames per sequence").min(2);
+  cli.option("--sequences", "S", &sequences, "held-out scenes").min(1);
+  cli.option("--stride", "D", &stride, "trajectory frames between used frames").min(1);
+  cli.option("--seed-begin", "N", &seed_begin,
+             "first scene seed (training uses 1000.., validation 1000000..)");
+  cli.option("--img-size", "N", &img_size, "model input N x N");
+  cli.option("--pixel-step", "N", &pixel_step, "cloud subsampling for the metrics").min(1);
+  cli.flag("--no-normals", &normals, "skip NC", false);
+  cli.flag("--estimate-intrinsics", &estimate_intrinsics,
+           "PnP with the focal estimated from frame 0's pointmap (the pipeline without a "
+           "calibration), not the GT one");
+  cli.option("--picture", "FILE.png", &picture,
+             "top views of the first sequence (prediction vs GT)");
+  cli.option("--json", "FILE", &json_path, "write the per-sequence and mean metrics");
+  cli.option("--threads", "N", &threads, "torch threads").min(1).shown_default("all cores");
+  cli.option("--seed", "N", &seed, "initialisation seed of --untrained");
+  if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
+  const int sources = !model_path.empty() + !untrained.empty() + !baseline.empty();
+  if (sources != 1) return cli.usage_error("give exactly one of --model, --untrained, --baseline");
   try {
     long3r::ThreadConfig tc;
     tc.torch_threads = threads;  // OpenBLAS at its default of 1: see threads.hpp

@@ -21,6 +21,7 @@
 
 #include "long3r/dataset/tum_dataset.hpp"
 #include "long3r/io/atomic_file.hpp"
+#include "long3r/io/cli_options.hpp"
 #include "long3r/model/threads.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 
@@ -28,23 +29,6 @@ namespace fs = std::filesystem;
 using namespace long3r;
 
 namespace {
-
-void usage() {
-  std::fprintf(
-      stderr,
-      "usage: long3r_reconstruct --model FILE --out DIR INPUT\n"
-      "  INPUT: a folder of images (name order), a video file, or a TUM folder (rgb.txt)\n"
-      "  --stride N            use every N-th frame (default 1)\n"
-      "  --max-frames N        stop after N used frames (default all)\n"
-      "  --conf-threshold C    confidence threshold for PnP and map (default 1: every pixel;\n"
-      "                        3 for official DUSt3R / Spann3R checkpoints)\n"
-      "  --voxel-size M        map voxel size (default 0.02)\n"
-      "  --img-size N          model input size N x N (default 224)\n"
-      "  --threads N           torch threads (default 0 = all)\n"
-      "  --openblas-threads N  OpenBLAS threads (default 1; 0 = OPENBLAS_NUM_THREADS)\n"
-      "  --calib fx fy cx cy   source-pixel intrinsics (default: TUM calibration.txt,\n"
-      "                        else estimated from frame 0)\n");
-}
 
 long rss_kb() {
   std::ifstream f("/proc/self/status");
@@ -73,58 +57,36 @@ int main(int argc, char** argv) {
   long max_frames = -1;
   ReconstructionConfig cfg;
   std::optional<PinholeIntrinsics> calib;
-  try {
-    for (int i = 1; i < argc; ++i) {
-      const std::string a = argv[i];
-      auto next = [&]() -> std::string {
-        if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-        return argv[++i];
-      };
-      if (a == "--model") {
-        model_path = next();
-      } else if (a == "--out") {
-        out_dir = next();
-      } else if (a == "--stride") {
-        stride = std::stoi(next());
-      } else if (a == "--max-frames") {
-        max_frames = std::stol(next());
-      } else if (a == "--conf-threshold") {
-        cfg.conf_threshold = std::stof(next());
-      } else if (a == "--voxel-size") {
-        cfg.map.voxel_size_m = std::stod(next());
-      } else if (a == "--img-size") {
-        img = std::stoi(next());
-      } else if (a == "--threads") {
-        threads = std::stoi(next());
-      } else if (a == "--openblas-threads") {
-        openblas_threads = std::stoi(next());
-      } else if (a == "--calib") {
-        PinholeIntrinsics k;
-        k.fx = std::stod(next());
-        k.fy = std::stod(next());
-        k.cx = std::stod(next());
-        k.cy = std::stod(next());
-        calib = k;
-      } else if (a == "-h" || a == "--help") {
-        usage();
-        return 0;
-      } else if (!a.empty() && a[0] == '-') {
-        throw std::invalid_argument("unknown option " + a);
-      } else if (input.empty()) {
-        input = a;
-      } else {
-        throw std::invalid_argument("more than one input given");
-      }
-    }
-    if (model_path.empty()) throw std::invalid_argument("--model FILE is required");
-    if (out_dir.empty()) throw std::invalid_argument("--out DIR is required");
-    if (input.empty()) throw std::invalid_argument("no input given");
-    if (stride < 1) throw std::invalid_argument("--stride must be >= 1");
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "long3r_reconstruct: %s\n", e.what());
-    usage();
-    return 2;
-  }
+  CliOptions cli("long3r_reconstruct");
+  cli.positional("INPUT", &input,
+                 "a folder of images (name order), a video file, or a TUM folder (rgb.txt)")
+      .required();
+  cli.option("--model", "FILE", &model_path, "LONG3R or Spann3R safetensors checkpoint").required();
+  cli.option("--out", "DIR", &out_dir, "map.ply, trajectory.txt, frames.csv").required();
+  cli.option("--stride", "N", &stride, "use every N-th frame").min(1);
+  cli.option("--max-frames", "N", &max_frames, "stop after N used frames").shown_default("all");
+  cli.option("--conf-threshold", "C", &cfg.conf_threshold,
+             "confidence threshold for PnP and map (3 for official DUSt3R / Spann3R "
+             "checkpoints)")
+      .shown_default("1: every pixel");
+  cli.option("--voxel-size", "M", &cfg.map.voxel_size_m, "map voxel size");
+  cli.option("--img-size", "N", &img, "model input size N x N");
+  cli.option("--threads", "N", &threads, "torch threads (0 = all)");
+  cli.option("--openblas-threads", "N", &openblas_threads,
+             "OpenBLAS threads (0 = OPENBLAS_NUM_THREADS)");
+  cli.custom(
+         "--calib", {"fx", "fy", "cx", "cy"},
+         [&](const std::vector<std::string>& v) {
+           PinholeIntrinsics k;
+           k.fx = parse_cli_value<double>("--calib", v[0]);
+           k.fy = parse_cli_value<double>("--calib", v[1]);
+           k.cx = parse_cli_value<double>("--calib", v[2]);
+           k.cy = parse_cli_value<double>("--calib", v[3]);
+           calib = k;
+         },
+         "source-pixel intrinsics")
+      .shown_default("TUM calibration.txt, else estimated from frame 0");
+  if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
 
   try {
     if (!fs::exists(model_path)) throw std::runtime_error("model file not found: " + model_path);

@@ -7,30 +7,8 @@
 #include <iostream>
 #include <string>
 
+#include "long3r/io/cli_options.hpp"
 #include "long3r/synth/synth.hpp"
-
-namespace {
-
-void usage() {
-  std::puts(
-      "usage: long3r_synth --out DIR [options]\n"
-      "  --seed N            scene and path seed (default 1)\n"
-      "  --frames N          number of frames (default 300)\n"
-      "  --trajectory T      walk | orbit | pan (default walk)\n"
-      "  --speed M           metres per frame (default 0.02; peak speed for pan)\n"
-      "  --yaw-rate DEG      max turn per frame for walk/pan (default 1.5)\n"
-      "  --width W --height H   image size (default 224 x 224)\n"
-      "  --hfov DEG          horizontal field of view (default 70); or:\n"
-      "  --fx F --fy F --cx C --cy C   explicit intrinsics (pixels)\n"
-      "  --fps F             frame rate for timestamps (default 30)\n"
-      "  --clearance M       min camera distance to any surface (default 0.5)\n"
-      "  --objects MIN MAX   furniture count range (default 10 18)\n"
-      "  --threads N         render threads (default 2)\n"
-      "  --supersample N     N x N colour rays per pixel (default 1)\n"
-      "  --quiet             no progress output");
-}
-
-}  // namespace
 
 int main(int argc, char** argv) {
   using namespace long3r::synth;
@@ -40,61 +18,44 @@ int main(int argc, char** argv) {
   int width = 224, height = 224;
   double hfov = 70.0, fx = 0, fy = 0, cx = -1, cy = -1;
   bool quiet = false;
+  long3r::CliOptions cli("long3r_synth");
+  cli.option("--out", "DIR", &out, "the TUM RGB-D style folder to write").required();
+  cli.option("--seed", "N", &cfg.seed, "scene and path seed");
+  cli.option("--frames", "N", &cfg.trajectory.frames, "number of frames");
+  cli.custom(
+         "--trajectory", {"T"},
+         [&](const std::vector<std::string>& v) {
+           cfg.trajectory.type = trajectory_type_from_string(v[0]);
+         },
+         "walk | orbit | pan")
+      .shown_default(to_string(cfg.trajectory.type));
+  cli.option("--speed", "M", &cfg.trajectory.speed, "metres per frame (peak speed for pan)");
+  cli.option("--yaw-rate", "DEG", &cfg.trajectory.max_yaw_rate_deg,
+             "max turn per frame for walk/pan");
+  cli.option("--width", "W", &width, "image width").min(1);
+  cli.option("--height", "H", &height, "image height").min(1);
+  cli.option("--hfov", "DEG", &hfov, "horizontal field of view, which gives the intrinsics");
+  cli.option("--fx", "F", &fx, "explicit focal length x (pixels)").shown_default("from --hfov");
+  cli.option("--fy", "F", &fy, "explicit focal length y (pixels)")
+      .shown_default("--fx, else from --hfov");
+  cli.option("--cx", "C", &cx, "explicit principal point x (pixels)").shown_default("from --hfov");
+  cli.option("--cy", "C", &cy, "explicit principal point y (pixels)").shown_default("from --hfov");
+  cli.option("--fps", "F", &cfg.fps, "frame rate for timestamps");
+  cli.option("--clearance", "M", &cfg.trajectory.clearance, "min camera distance to any surface");
+  cli.custom(
+         "--objects", {"MIN", "MAX"},
+         [&](const std::vector<std::string>& v) {
+           cfg.scene.min_objects = long3r::parse_cli_value<int>("--objects", v[0]);
+           cfg.scene.max_objects = long3r::parse_cli_value<int>("--objects", v[1]);
+         },
+         "furniture count range")
+      .shown_default(std::to_string(cfg.scene.min_objects) + " " +
+                     std::to_string(cfg.scene.max_objects));
+  cli.option("--threads", "N", &ropt.threads, "render threads").min(1);
+  cli.option("--supersample", "N", &ropt.supersample, "N x N colour rays per pixel").min(1);
+  cli.flag("--quiet", &quiet, "no progress output");
+  if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
   try {
-    for (int i = 1; i < argc; ++i) {
-      const std::string a = argv[i];
-      auto next = [&]() -> std::string {
-        if (i + 1 >= argc) throw std::invalid_argument("missing value after " + a);
-        return argv[++i];
-      };
-      if (a == "--out")
-        out = next();
-      else if (a == "--seed")
-        cfg.seed = std::stoull(next());
-      else if (a == "--frames")
-        cfg.trajectory.frames = std::stoi(next());
-      else if (a == "--trajectory")
-        cfg.trajectory.type = trajectory_type_from_string(next());
-      else if (a == "--speed")
-        cfg.trajectory.speed = std::stod(next());
-      else if (a == "--yaw-rate")
-        cfg.trajectory.max_yaw_rate_deg = std::stod(next());
-      else if (a == "--width")
-        width = std::stoi(next());
-      else if (a == "--height")
-        height = std::stoi(next());
-      else if (a == "--hfov")
-        hfov = std::stod(next());
-      else if (a == "--fx")
-        fx = std::stod(next());
-      else if (a == "--fy")
-        fy = std::stod(next());
-      else if (a == "--cx")
-        cx = std::stod(next());
-      else if (a == "--cy")
-        cy = std::stod(next());
-      else if (a == "--fps")
-        cfg.fps = std::stod(next());
-      else if (a == "--clearance")
-        cfg.trajectory.clearance = std::stod(next());
-      else if (a == "--objects") {
-        cfg.scene.min_objects = std::stoi(next());
-        cfg.scene.max_objects = std::stoi(next());
-      } else if (a == "--threads")
-        ropt.threads = std::stoi(next());
-      else if (a == "--supersample")
-        ropt.supersample = std::stoi(next());
-      else if (a == "--quiet")
-        quiet = true;
-      else if (a == "-h" || a == "--help") {
-        usage();
-        return 0;
-      } else {
-        throw std::invalid_argument("unknown option " + a);
-      }
-    }
-    if (out.empty()) throw std::invalid_argument("--out is required");
-    if (width < 1 || height < 1) throw std::invalid_argument("bad image size");
     cfg.intrinsics = long3r::PinholeIntrinsics::from_hfov(width, height, hfov);
     if (fx > 0) cfg.intrinsics.fx = fx;
     if (fy > 0)
@@ -103,11 +64,8 @@ int main(int argc, char** argv) {
       cfg.intrinsics.fy = fx;
     if (cx >= 0) cfg.intrinsics.cx = cx;
     if (cy >= 0) cfg.intrinsics.cy = cy;
-    if (ropt.supersample < 1 || ropt.threads < 1) throw std::invalid_argument("bad render options");
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "long3r_synth: %s\n", e.what());
-    usage();
-    return 2;
+    return cli.usage_error(e.what());
   }
 
   try {

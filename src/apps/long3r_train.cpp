@@ -8,27 +8,11 @@
 #include <string>
 #include <thread>
 
+#include "long3r/io/cli_options.hpp"
 #include "long3r/model/threads.hpp"
 #include "long3r/train/train.hpp"
 
 namespace {
-
-void usage() {
-  std::puts(
-      "usage: long3r_train --out DIR [options]\n"
-      "  --config FILE        training configuration (JSON; default config/train_default.json)\n"
-      "  --model-config NAME  long3r_ship | long3r_small | long3r_tiny | long3r_paper | FILE.json\n"
-      "                       (default: the config's \"model\")\n"
-      "  --out DIR            model.safetensors, train_log.csv, loss_curve.png, checkpoint/\n"
-      "  --resume             continue from DIR/checkpoint/latest\n"
-      "  --init-dust3r FILE   start from a DUSt3R / Spann3R / LONG3R safetensors checkpoint\n"
-      "                       (tensors matching by name and shape; the rest fresh)\n"
-      "  --device cpu|cuda    (default cpu)\n"
-      "  --threads N          torch intra-op threads (default: hardware concurrency)\n"
-      "  --seed N             initialisation and data sampling seed (default 0)\n"
-      "  --max-steps N        stop after N global steps (smoke tests; schedule unchanged)\n"
-      "  --quiet              no per-step output");
-}
 
 std::string read_file(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
@@ -44,47 +28,28 @@ int main(int argc, char** argv) {
   std::string config_path = "config/train_default.json";
   long3r::TrainOptions opt;
   int threads = static_cast<int>(std::thread::hardware_concurrency());
-  try {
-    for (int i = 1; i < argc; ++i) {
-      const std::string a = argv[i];
-      auto next = [&]() -> std::string {
-        if (i + 1 >= argc) throw std::invalid_argument("missing value after " + a);
-        return argv[++i];
-      };
-      if (a == "--config")
-        config_path = next();
-      else if (a == "--model-config")
-        opt.model_override = next();
-      else if (a == "--out")
-        opt.out_dir = next();
-      else if (a == "--resume")
-        opt.resume = true;
-      else if (a == "--init-dust3r")
-        opt.init_checkpoint = next();
-      else if (a == "--device")
-        opt.device = next();
-      else if (a == "--threads")
-        threads = std::stoi(next());
-      else if (a == "--seed")
-        opt.seed = std::stoull(next());
-      else if (a == "--max-steps")
-        opt.max_steps = std::stoll(next());
-      else if (a == "--quiet")
-        opt.quiet = true;
-      else if (a == "-h" || a == "--help") {
-        usage();
-        return 0;
-      } else {
-        throw std::invalid_argument("unknown option " + a);
-      }
-    }
-    if (opt.out_dir.empty()) throw std::invalid_argument("--out is required");
-    if (threads < 1) throw std::invalid_argument("--threads must be >= 1");
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "long3r_train: %s\n", e.what());
-    usage();
-    return 2;
-  }
+  long3r::CliOptions cli("long3r_train");
+  cli.option("--config", "FILE", &config_path, "training configuration (JSON)");
+  cli.option("--model-config", "NAME", &opt.model_override,
+             "long3r_ship | long3r_small | long3r_tiny | long3r_paper | FILE.json")
+      .shown_default("the config's \"model\"");
+  cli.option("--out", "DIR", &opt.out_dir,
+             "model.safetensors, train_log.csv, loss_curve.png, checkpoint/")
+      .required();
+  cli.flag("--resume", &opt.resume, "continue from DIR/checkpoint/latest");
+  cli.option("--init-dust3r", "FILE", &opt.init_checkpoint,
+             "start from a DUSt3R / Spann3R / LONG3R safetensors checkpoint (tensors matching by "
+             "name and shape; the rest fresh)");
+  cli.option("--device", "cpu|cuda", &opt.device, "torch device");
+  cli.option("--threads", "N", &threads, "torch intra-op threads")
+      .min(1)
+      .shown_default("hardware concurrency");
+  cli.option("--seed", "N", &opt.seed, "initialisation and data sampling seed");
+  cli.option("--max-steps", "N", &opt.max_steps,
+             "stop after N global steps (smoke tests; schedule unchanged)")
+      .shown_default("");
+  cli.flag("--quiet", &opt.quiet, "no per-step output");
+  if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
   try {
     long3r::ThreadConfig tc;
     tc.torch_threads = threads;

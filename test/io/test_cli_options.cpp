@@ -1,0 +1,275 @@
+// Tests of the command-line options table: parsing into bound variables,
+// handlers, positionals, required options, the errors (each naming the
+// option) and the help text generated from the same table.
+#include <gtest/gtest.h>
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "long3r/io/cli_options.hpp"
+
+namespace {
+
+using long3r::CliOptions;
+using long3r::UsageError;
+
+// argv from a list of words, the program name first.
+struct Argv {
+  explicit Argv(std::vector<std::string> words) : words_(std::move(words)) {
+    words_.insert(words_.begin(), "prog");
+    for (const std::string& w : words_) ptrs_.push_back(w.c_str());
+  }
+  int argc() const { return static_cast<int>(ptrs_.size()); }
+  const char* const* argv() const { return ptrs_.data(); }
+
+ private:
+  std::vector<std::string> words_;
+  std::vector<const char*> ptrs_;
+};
+
+// A table with one option of every kind.
+struct Tool {
+  std::string out, mode = "fast", input;
+  int frames = 50;
+  int64_t big = -1;
+  uint64_t seed = 7;
+  double scale = 0.25;
+  float conf = 1.5f;
+  bool quiet = false, normals = true;
+  std::vector<std::string> tags;
+  std::vector<std::string> rest;
+  int lo = 10, hi = 18;
+  CliOptions cli{"prog", "Does things."};
+
+  explicit Tool(bool list_positional = false) {
+    cli.option("--out", "DIR", &out, "where to write").required();
+    cli.option("--frames", "N", &frames, "frames per sequence").min(2).max(1000);
+    cli.option("--big", "N", &big, "a large count").shown_default("");
+    cli.option("--seed", "N", &seed, "seed");
+    cli.option("--scale", "S", &scale, "scale factor").above(0);
+    cli.option("--conf", "C", &conf, "confidence threshold");
+    cli.option("--mode", "", &mode, "speed").choices({"fast", "exact"});
+    cli.flag("--quiet", &quiet, "no progress output");
+    cli.flag("--no-normals", &normals, "skip normals", false);
+    cli.option("--tag", "T", &tags, "a tag (repeatable)");
+    cli.custom(
+        "--range", {"MIN", "MAX"},
+        [this](const std::vector<std::string>& v) {
+          lo = long3r::parse_cli_value<int>("--range", v[0]);
+          hi = long3r::parse_cli_value<int>("--range", v[1]);
+        },
+        "count range");
+    if (list_positional) {
+      cli.positional("FILE", &rest, "inputs").required();
+    } else {
+      cli.positional("INPUT", &input, "the input").required();
+    }
+  }
+
+  bool parse(std::vector<std::string> words) {
+    const Argv a(std::move(words));
+    return cli.parse(a.argc(), a.argv());
+  }
+};
+
+// The message of the UsageError that parsing `words` throws.
+std::string error_of(std::vector<std::string> words, bool list_positional = false) {
+  Tool t(list_positional);
+  try {
+    t.parse(std::move(words));
+  } catch (const UsageError& e) {
+    return e.what();
+  }
+  ADD_FAILURE() << "no UsageError";
+  return "";
+}
+
+std::size_t count(const std::string& text, const std::string& what) {
+  std::size_t n = 0;
+  for (std::size_t p = text.find(what); p != std::string::npos; p = text.find(what, p + 1)) ++n;
+  return n;
+}
+
+TEST(CliOptions, ParsesIntoTheBoundVariables) {
+  Tool t;
+  ASSERT_TRUE(t.parse({"--out",   "o",          "--frames", "12",
+                       "--big",   "9000000000", "--seed",   "18446744073709551615",
+                       "--scale", "2.5e-1",     "--conf",   "3",
+                       "--mode",  "exact",      "--quiet",  "--no-normals",
+                       "--range", "-3",         "4",        "in"}));
+  EXPECT_EQ(t.out, "o");
+  EXPECT_EQ(t.frames, 12);
+  EXPECT_EQ(t.big, 9000000000LL);
+  EXPECT_EQ(t.seed, UINT64_MAX);
+  EXPECT_DOUBLE_EQ(t.scale, 0.25);
+  EXPECT_FLOAT_EQ(t.conf, 3.0f);
+  EXPECT_EQ(t.mode, "exact");
+  EXPECT_TRUE(t.quiet);
+  EXPECT_FALSE(t.normals);
+  EXPECT_EQ(t.lo, -3);
+  EXPECT_EQ(t.hi, 4);
+  EXPECT_EQ(t.input, "in");
+  EXPECT_TRUE(t.cli.given("--frames"));
+  EXPECT_FALSE(t.cli.given("--tag"));
+}
+
+TEST(CliOptions, DefaultsStayWhenNotGiven) {
+  Tool t;
+  ASSERT_TRUE(t.parse({"in", "--out", "o"}));
+  EXPECT_EQ(t.frames, 50);
+  EXPECT_EQ(t.big, -1);
+  EXPECT_EQ(t.seed, 7u);
+  EXPECT_EQ(t.mode, "fast");
+  EXPECT_FALSE(t.quiet);
+  EXPECT_TRUE(t.normals);
+  EXPECT_FALSE(t.cli.given("--frames"));
+}
+
+TEST(CliOptions, ValuesAreTakenAsIsEvenWithALeadingDash) {
+  Tool t;
+  ASSERT_TRUE(t.parse({"--out", "--quiet", "--scale", "1", "in"}));
+  EXPECT_EQ(t.out, "--quiet");
+  EXPECT_FALSE(t.quiet);
+}
+
+TEST(CliOptions, LaterValuesOverrideAndVectorsCollect) {
+  Tool t;
+  ASSERT_TRUE(t.parse({"--out", "a", "--frames", "3", "--tag", "x", "--out", "b", "--frames", "4",
+                       "--tag", "y", "in"}));
+  EXPECT_EQ(t.out, "b");
+  EXPECT_EQ(t.frames, 4);
+  EXPECT_EQ(t.tags, (std::vector<std::string>{"x", "y"}));
+}
+
+TEST(CliOptions, PositionalList) {
+  Tool t(true);
+  ASSERT_TRUE(t.parse({"a", "--out", "o", "b", "c"}));
+  EXPECT_EQ(t.rest, (std::vector<std::string>{"a", "b", "c"}));
+  EXPECT_EQ(error_of({"--out", "o"}, true), "no FILE given");
+}
+
+TEST(CliOptions, HelpStopsParsing) {
+  Tool t;
+  EXPECT_FALSE(t.parse({"--frames", "5", "--help", "--bogus"}));
+  EXPECT_EQ(t.frames, 5);
+  Tool u;
+  EXPECT_FALSE(u.parse({"-h"}));  // required options are not asked for
+}
+
+TEST(CliOptions, ErrorsNameTheOption) {
+  EXPECT_EQ(error_of({"--out", "o", "in", "--bogus"}), "unknown option --bogus");
+  // --flag=VALUE is not a spelling of --flag VALUE.
+  EXPECT_EQ(error_of({"--out", "o", "in", "--frames=5"}), "unknown option --frames=5");
+  EXPECT_EQ(error_of({"in", "--out"}), "--out needs a value (DIR)");
+  EXPECT_EQ(error_of({"in", "--out", "o", "--range", "1"}), "--range needs 2 values (MIN MAX)");
+  EXPECT_EQ(error_of({"in"}), "--out DIR is required");
+  EXPECT_EQ(error_of({"--out", "o"}), "no INPUT given");
+  EXPECT_EQ(error_of({"--out", "o", "a", "b"}), "unexpected argument b");
+  EXPECT_EQ(error_of({"in", "--out", "o", "--frames", "12x"}),
+            "--frames: \"12x\" is not an integer");
+  EXPECT_EQ(error_of({"in", "--out", "o", "--frames", ""}), "--frames: \"\" is not an integer");
+  EXPECT_EQ(error_of({"in", "--out", "o", "--frames", "99999999999"}),
+            "--frames: \"99999999999\" is out of range");
+  EXPECT_EQ(error_of({"in", "--out", "o", "--frames", "1"}), "--frames must be >= 2 (got 1)");
+  EXPECT_EQ(error_of({"in", "--out", "o", "--frames", "1001"}),
+            "--frames must be <= 1000 (got 1001)");
+  EXPECT_EQ(error_of({"in", "--out", "o", "--seed", "-1"}),
+            "--seed: \"-1\" is not a non-negative integer");
+  EXPECT_EQ(error_of({"in", "--out", "o", "--scale", "abc"}), "--scale: \"abc\" is not a number");
+  EXPECT_EQ(error_of({"in", "--out", "o", "--scale", "0"}), "--scale must be > 0 (got 0)");
+  EXPECT_EQ(error_of({"in", "--out", "o", "--scale", "nan"}), "--scale must be > 0 (got nan)");
+  EXPECT_EQ(error_of({"in", "--out", "o", "--mode", "slow"}),
+            "--mode must be fast or exact (got \"slow\")");
+  EXPECT_EQ(error_of({"in", "--out", "o", "--range", "1", "x"}),
+            "--range: \"x\" is not an integer");
+}
+
+TEST(CliOptions, HandlerExceptionsBecomeUsageErrors) {
+  CliOptions cli("prog");
+  cli.custom(
+      "--kind", {"K"},
+      [](const std::vector<std::string>& v) {
+        throw std::invalid_argument("unknown kind " + v[0]);
+      },
+      "a kind");
+  const Argv a({"--kind", "x"});
+  try {
+    cli.parse(a.argc(), a.argv());
+    FAIL() << "no UsageError";
+  } catch (const UsageError& e) {
+    EXPECT_STREQ(e.what(), "--kind: unknown kind x");
+  }
+}
+
+TEST(CliOptions, HelpListsEachOptionOnceWithItsDefault) {
+  Tool t;
+  const std::string h = t.cli.help();
+  EXPECT_EQ(h.rfind("usage: prog --out DIR [options] INPUT\nDoes things.\n", 0), 0u) << h;
+  for (const char* name : {"--out DIR", "--frames N", "--big N", "--seed N", "--scale S",
+                           "--conf C", "--mode fast|exact", "--quiet", "--no-normals", "--tag T",
+                           "--range MIN MAX", "-h, --help"}) {
+    EXPECT_EQ(count(h, std::string("  ") + name + " "), 1u) << name << "\n" << h;
+  }
+  EXPECT_EQ(count(h, "\n  INPUT "), 1u) << h;
+  EXPECT_NE(h.find("frames per sequence (default 50)"), std::string::npos) << h;
+  EXPECT_NE(h.find("scale factor (default 0.25)"), std::string::npos) << h;
+  EXPECT_NE(h.find("confidence threshold (default 1.5)"), std::string::npos) << h;
+  EXPECT_NE(h.find("seed (default 7)"), std::string::npos) << h;
+  EXPECT_NE(h.find("speed (default fast)"), std::string::npos) << h;
+  EXPECT_EQ(h.find("a large count (default"), std::string::npos) << h;   // hidden
+  EXPECT_EQ(h.find("where to write (default"), std::string::npos) << h;  // empty string
+  EXPECT_EQ(h.find("no progress output (default"), std::string::npos) << h;
+  for (std::size_t b = 0, e; b < h.size(); b = e + 1) {
+    e = h.find('\n', b);
+    EXPECT_LE(e - b, 80u) << h.substr(b, e - b);
+  }
+}
+
+TEST(CliOptions, HelpSectionsAndWrapping) {
+  std::string a, b;
+  CliOptions cli("prog");
+  cli.section("inputs");
+  cli.option("--a", "X", &a,
+             "a rather long help text that needs more than one line of the table to say all "
+             "that it has to say about the option");
+  cli.section("output");
+  cli.option("--a-very-long-option-name", "VALUE", &b, "short");
+  const std::string h = cli.help();
+  EXPECT_NE(h.find("\ninputs:\n  --a X "), std::string::npos) << h;
+  EXPECT_NE(h.find("\noutput:\n  --a-very-long-option-name VALUE\n"), std::string::npos) << h;
+  EXPECT_GE(count(h, "\n                              "), 2u) << h;  // continuation lines
+}
+
+TEST(CliOptions, ParseOrExitStatus) {
+  {
+    Tool t;
+    const Argv a({"--help"});
+    testing::internal::CaptureStdout();
+    EXPECT_EQ(t.cli.parse_or_exit(a.argc(), a.argv()), 0);
+    EXPECT_EQ(testing::internal::GetCapturedStdout(), t.cli.help());
+  }
+  {
+    Tool t;
+    const Argv a({"in", "--bogus"});
+    testing::internal::CaptureStderr();
+    EXPECT_EQ(t.cli.parse_or_exit(a.argc(), a.argv()), 2);
+    EXPECT_EQ(testing::internal::GetCapturedStderr(),
+              "prog: unknown option --bogus\n" + t.cli.help());
+  }
+  {
+    Tool t;
+    const Argv a({"in", "--out", "o"});
+    EXPECT_EQ(t.cli.parse_or_exit(a.argc(), a.argv()), std::nullopt);
+  }
+}
+
+TEST(CliOptions, DefiningAnOptionTwiceIsAProgrammingError) {
+  bool x = false;
+  CliOptions cli("prog");
+  cli.flag("--x", &x, "x");
+  EXPECT_THROW(cli.flag("--x", &x, "x"), std::logic_error);
+  EXPECT_THROW(cli.flag("--help", &x, "x"), std::logic_error);
+}
+
+}  // namespace
