@@ -48,8 +48,6 @@ std::string read_text(const fs::path& p) {
   return ss.str();
 }
 
-}
-
 std::string fmt(double v) {
   if (!std::isfinite(v)) return "nan";
   char buf[32];
