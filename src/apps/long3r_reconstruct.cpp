@@ -130,7 +130,7 @@ int main(int argc, char** argv) {
     tc.openblas_threads = openblas_threads;
     const int nthreads = apply_thread_config(tc);
     cfg.preprocess.width = cfg.preprocess.height = img;
-    Reconstruction rec(load_streaming_model(model_path), cfg);
+    Reconstruction rec(make_streaming_model(model_path), cfg);
     rec.set_calibration(calib);
     fs::create_directories(out_dir);
     AtomicFile csv((fs::path(out_dir) / "frames.csv").string());  // appears at the end, whole

@@ -56,7 +56,7 @@ void Long3rNodelet::onInit() {
       throw std::runtime_error("model file '" + model_path +
                                "' does not exist or is not readable (set ~model_path)");
     }
-    recon_ = std::make_unique<long3r::Reconstruction>(long3r::load_streaming_model(model_path),
+    recon_ = std::make_unique<long3r::Reconstruction>(long3r::make_streaming_model(model_path),
                                                       recon_config_);
   } catch (const std::exception& e) {
     NODELET_FATAL("cannot load the model: %s", e.what());

@@ -47,7 +47,7 @@ void copy_weights(long3r::Long3rModel& from, long3r::Long3rModel& to) {
   to.load_weights(t, "copy");
 }
 
-std::vector<long3r::StreamOutput> run_stream(long3r::Long3rModel& model, int64_t n,
+std::vector<long3r::StreamOutput> run_stream(long3r::StreamingModel& model, int64_t n,
                                              double phase = 0.0) {
   std::vector<long3r::StreamOutput> out;
   for (int64_t t = 0; t < n; ++t) {
@@ -411,6 +411,11 @@ TEST(Long3rModel, StrictLoadRoundTrip) {
   EXPECT_EQ(long3r::model_config_to_json(loaded->config()),
             long3r::model_config_to_json(model.config()));
   expect_same(run_stream(model, 5), run_stream(*loaded, 5));
+  // The streaming factory builds the same model from the file.
+  const std::unique_ptr<long3r::StreamingModel> streaming = long3r::make_streaming_model(path);
+  EXPECT_EQ(streaming->variant(), "long3r");
+  EXPECT_TRUE(streaming->accepts_portrait());
+  expect_same(run_stream(model, 5), run_stream(*streaming, 5));
 
   // A missing tensor is an error (strict).
   std::map<std::string, at::Tensor> partial = file.tensors;
@@ -469,4 +474,35 @@ TEST(Long3rConfig, NamedConfigsAndJsonRoundTrip) {
                    R"({"model": "Spann3R", "dust3r": {"enc_embed_dim": 64, "enc_num_heads": 4,
                    "dec_embed_dim": 32, "dec_num_heads": 2}})")),
                long3r::ModelConfigError);
+}
+
+// A seeded initialisation gives the parameters it gave when the network was
+// built by replacing a full DUSt3R refined branch (figures from that code):
+// from-scratch training runs and the untrained baseline stay reproducible.
+TEST(Long3rModel, SeededInitialisationIsUnchanged) {
+  at::manual_seed(1);
+  long3r::Long3rModel model(tiny());
+  double sum = 0.0, weighted = 0.0;
+  int64_t index = 0;
+  for (const auto& kv : model.module().named_parameters()) {
+    const double s = kv.value().to(at::kDouble).sum().item<double>();
+    sum += s;
+    weighted += static_cast<double>(++index) * s;
+  }
+  const double after = at::rand({1}, at::kDouble).item<double>();
+  EXPECT_EQ(index, 385);
+  EXPECT_EQ(sum, 1443.1137214990852);
+  EXPECT_EQ(weighted, 208876.79350837914);
+  EXPECT_EQ(after, 0.016064954518941632);
+}
+
+// The draws a left-out DecoderBlock would have made are exactly those skipped.
+TEST(Long3rModel, SkippedInitDrawsMatchADecoderBlock) {
+  const int64_t C = 32, hidden = 128;
+  at::manual_seed(5);
+  const m::DecoderBlock block(C, 2, hidden, 1e-6, /*norm_mem=*/true);
+  const at::Tensor after_block = at::rand({8});
+  at::manual_seed(5);
+  m::skip_init_draws(m::decoder_block_init_draws(C, hidden));
+  EXPECT_TRUE(at::rand({8}).equal(after_block));
 }

@@ -117,6 +117,18 @@ TEST(ModelLoad, Spann3rGoldenWeightsLoadStrictly) {
   EXPECT_THROW(long3r::Spann3rModel::from_file(kGolden + "dust3r_pair_sq224/weights.safetensors"),
                long3r::ModelConfigError);
   EXPECT_THROW(long3r::Dust3rModel::from_file(path), long3r::ModelConfigError);
+
+  // The streaming factory builds the variant the file names and refuses a pair
+  // model by name.
+  const std::unique_ptr<long3r::StreamingModel> streaming = long3r::make_streaming_model(path);
+  EXPECT_EQ(streaming->variant(), "spann3r");
+  EXPECT_EQ(streaming->accepts_portrait(), !model.config().dust3r.landscape_only);
+  try {
+    long3r::make_streaming_model(kGolden + "dust3r_pair_sq224/weights.safetensors");
+    ADD_FAILURE() << "a DUSt3R pair model loaded as a streaming model";
+  } catch (const long3r::CheckpointError& e) {
+    EXPECT_NE(std::string(e.what()).find("not a streaming model"), std::string::npos) << e.what();
+  }
 }
 
 TEST(ModelLoad, Spann3rStreamSemantics) {

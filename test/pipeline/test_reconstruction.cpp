@@ -194,7 +194,7 @@ TEST(Reconstruction, RandomSpann3rRunsEndToEnd) {
 }
 
 TEST(Reconstruction, LoadStreamingModelErrors) {
-  EXPECT_THROW(load_streaming_model("/nonexistent/model.safetensors"), CheckpointError);
+  EXPECT_THROW(make_streaming_model("/nonexistent/model.safetensors"), CheckpointError);
 }
 
 }  // namespace

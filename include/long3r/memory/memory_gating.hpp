@@ -14,6 +14,8 @@
 
 #include <ATen/core/Tensor.h>
 
+#include <optional>
+
 namespace long3r {
 
 // Parameters of one LayerNorm over the last dimension (PyTorch nn.LayerNorm).
@@ -30,6 +32,29 @@ struct GatingNorms {
   LayerNormParams k;
   LayerNormParams v;
 };
+
+// The thresholded attention read both memories make (Spann3rMemory::read and
+// memory_gating). B streams, P queries, S memory tokens, C channels.
+struct GatedRead {
+  // W = softmax(norm_q(q) norm_k(K)^T / sqrt(C)) over the valid tokens; exactly
+  // 0 at invalid ones. [B, P, S]
+  at::Tensor weights;
+  // W' = W with entries < threshold set to 0 and each row renormalised to sum 1;
+  // a row whose entries all fall below the threshold stays all-zero (that query
+  // reads nothing). Without a threshold W' = W. [B, P, S]
+  at::Tensor gated_weights;
+  // Rows left all-zero by the threshold: [B, P, 1] bool; undefined without one.
+  at::Tensor empty_rows;
+  // W' norm_v(V) (no residual). [B, P, C]
+  at::Tensor readout;
+};
+
+// queries [B, P, C], keys and values [B, S, C] (the norms are applied here);
+// valid: optional [B, S] bool, false at padded memory tokens. S may be 0. The
+// scale 1 / sqrt(C) is taken in float, as the official Spann3R code does.
+GatedRead gated_read(const at::Tensor& queries, const at::Tensor& keys, const at::Tensor& values,
+                     const GatingNorms& norms, std::optional<double> threshold,
+                     const at::Tensor& valid = at::Tensor());
 
 // Result of memory_gating(). B streams, P query tokens, S memory tokens (padded
 // length), C channels, R = max relevant-set size over the batch.

@@ -86,9 +86,8 @@ class Spann3rMemory {
   Spann3rMemory(const GatingNorms& norms, const Spann3rMemoryConfig& config = {});
 
   // Memory read-out for query tokens q [B, P', C] (Spann3R: attn_head_2 of the
-  // previous step's second view):
-  //   W  = softmax(norm_q(q) norm_k(K)^T / sqrt(C))
-  //   W' = W with entries < attn_thresh set to 0, rows renormalised
+  // previous step's second view), gated_read() with threshold attn_thresh
+  // (none when attn_thresh <= 0):
   //   out = W' norm_v(V) (+ q if residual)
   // and mem_attn += sum over queries of W'. Returns out [B, P', C]. Throws if the
   // memory is empty. keep_attention: keep W in last_read().attention.
@@ -155,8 +154,14 @@ class Spann3rMemory {
 // [B, T*P, C]; as a float (the dtype's precision).
 double spann3r_similarity(const at::Tensor& key, const at::Tensor& window);
 
-// Spann3R's prune order: torch::topk (largest, sorted) over mem_attn / mem_count
-// with the score of tokens with mem_count < work_mem_size + 5 replaced by 1e8.
+// Spann3R's prune score, attention per frame of age: attention / age, with the
+// score of tokens whose age < protect_below replaced by 1e8 (none when
+// protect_below <= 0). Element-wise on tensors of one shape, in their dtype.
+at::Tensor spann3r_prune_score(const at::Tensor& attention, const at::Tensor& age,
+                               int64_t protect_below);
+
+// Spann3R's prune order: torch::topk (largest, sorted) over
+// spann3r_prune_score(mem_attn, mem_count, work_mem_size + 5).
 // mem_attn, mem_count [B, M]; returns [B, top_k] int64. Tokens tied at 1e8 come
 // first in torch's (implementation-specific) order.
 at::Tensor spann3r_prune_order(const at::Tensor& mem_attn, const at::Tensor& mem_count,

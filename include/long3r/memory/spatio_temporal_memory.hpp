@@ -101,6 +101,11 @@ class SpatioTemporalMemory {
   void reset();
 
  private:
+  // A set of N memory tokens: every per-token tensor, kept in step by
+  // applying each operation to all fields through map() / zip(). In the
+  // short-term set (batched) the per-stream fields are [B, N, ...] and frame /
+  // order, shared by the streams, [N]; in a stream's long-term set all are
+  // [N, ...].
   struct Tokens {
     at::Tensor keys;       // [.., N, C]
     at::Tensor values;     // [.., N, C]
@@ -109,6 +114,20 @@ class SpatioTemporalMemory {
     at::Tensor frame;      // [N] int64
     at::Tensor order;      // [N] int64 insertion counter (tie-break among equal frames)
     at::Tensor payload;    // [.., N, D]; undefined without a payload
+    bool batched = false;
+
+    int64_t size() const { return frame.size(0); }
+    // f(field, its token dimension) for every defined field, as a new set.
+    template <class F>
+    Tokens map(F f) const;
+    // f(field, the same field of `other`, token dimension), as a new set.
+    template <class F>
+    Tokens zip(const Tokens& other, F f) const;
+    Tokens stream(int64_t b) const;  // stream b of a batched set
+    Tokens empty() const;            // no tokens, the same widths and options
+    Tokens narrow(int64_t start, int64_t length) const;
+    Tokens index_select(const at::Tensor& index) const;
+    Tokens cat(const Tokens& more) const;  // these tokens, then more's
   };
   struct Stream {
     Tokens long_term;  // unbatched [N, ...]

@@ -15,14 +15,8 @@
 #include <memory>
 #include <string>
 
-#include "long3r/model/model_config.hpp"
+#include "long3r/model/model_shell.hpp"
 #include "long3r/model/model_trace.hpp"
-
-namespace torch {
-namespace nn {
-class Module;
-}  // namespace nn
-}  // namespace torch
 
 namespace long3r {
 
@@ -33,12 +27,13 @@ struct PairPrediction {
   at::Tensor conf2;   // [B, H2, W2]
 };
 
-class Dust3rModel {
+// Configuration, loading, saving, device and module: see ModelShell.
+class Dust3rModel : public ModelShell {
  public:
   // config.kind must be ModelKind::kDust3r. Parameters start default-initialised;
   // load_weights() fills them.
   explicit Dust3rModel(const ModelConfig& config);
-  ~Dust3rModel();
+  ~Dust3rModel() override;
   Dust3rModel(Dust3rModel&&) noexcept;
   Dust3rModel& operator=(Dust3rModel&&) noexcept;
 
@@ -47,15 +42,6 @@ class Dust3rModel {
   // CheckpointError / ModelConfigError.
   static Dust3rModel from_file(const std::string& path);
 
-  // Strict load of official-named tensors (a name prefix such as "dust3r." can
-  // be stripped).
-  void load_weights(const TensorMap& tensors, const std::string& source_name,
-                    const std::string& strip_prefix = "");
-
-  const ModelConfig& config() const;
-  void to(const at::Device& device);
-  at::Device device() const;
-
   // img1, img2: [B, 3, H, W] float, values (rgb - 0.5) / 0.5, H and W
   // multiples of the patch size (the two sizes may differ). Images of one
   // shape are encoded as one batch of 2B, as the official model does.
@@ -63,9 +49,6 @@ class Dust3rModel {
   // names (img{1,2}.*, dec{1,2}.*, head{1,2}.*, res1.*, res2.*).
   PairPrediction infer(const at::Tensor& img1, const at::Tensor& img2,
                        const Trace& trace = Trace()) const;
-
-  // The module tree (names as in the official state_dict).
-  torch::nn::Module& module();
 
  private:
   struct Impl;

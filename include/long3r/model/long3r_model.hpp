@@ -27,19 +27,17 @@
 #include <vector>
 
 #include "long3r/memory/spatio_temporal_memory.hpp"
-#include "long3r/model/model_config.hpp"
+#include "long3r/model/model_shell.hpp"
 #include "long3r/model/model_trace.hpp"
 #include "long3r/model/streaming.hpp"
 
-namespace torch {
-namespace nn {
-class Module;
-}  // namespace nn
-}  // namespace torch
-
 namespace long3r {
 
-class Long3rModel : public StreamingModel {
+// Configuration, loading, saving, device and module: see ModelShell (the module
+// tree has Spann3R's names; dust3r.dec_blocks.{odd}.* are memory blocks, see
+// docs/checkpoints.md "LONG3R modules"). to() and load_weights() reset the
+// stream.
+class Long3rModel : public StreamingModel, public ModelShell {
  public:
   // config.kind must be ModelKind::kLong3r. Parameters start with libtorch's
   // default (random) initialisation.
@@ -48,16 +46,6 @@ class Long3rModel : public StreamingModel {
 
   // Configuration from the file's metadata "config", then every tensor strictly.
   static std::unique_ptr<Long3rModel> from_file(const std::string& path);
-  void load_weights(const TensorMap& tensors, const std::string& source_name,
-                    const std::string& strip_prefix = "");
-  // Every parameter and buffer by name, with metadata "config" =
-  // model_config_to_json(config()); from_file() reads it back.
-  void save(const std::string& path) const;
-
-  const ModelConfig& config() const;
-  // Moves the weights; resets the stream.
-  void to(const at::Device& device);
-  at::Device device() const;
 
   // Inference (default): push() runs under c10::InferenceMode, parameters do not
   // require gradients, memory tokens are stored detached, gating uses tau.
@@ -101,11 +89,9 @@ class Long3rModel : public StreamingModel {
   // after flush() or reset().
   const SpatioTemporalMemory& memory() const;
 
-  // The module tree (Spann3R's names; dust3r.dec_blocks.{odd}.* are memory
-  // blocks, see docs/checkpoints.md "LONG3R modules").
-  torch::nn::Module& module();
-
  private:
+  void weights_changed() override;
+
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };

@@ -24,19 +24,16 @@
 #include <string>
 
 #include "long3r/memory/spann3r_memory.hpp"
-#include "long3r/model/model_config.hpp"
+#include "long3r/model/model_shell.hpp"
 #include "long3r/model/model_trace.hpp"
 #include "long3r/model/streaming.hpp"
 
-namespace torch {
-namespace nn {
-class Module;
-}  // namespace nn
-}  // namespace torch
-
 namespace long3r {
 
-class Spann3rModel : public StreamingModel {
+// Configuration, loading, saving, device and module: see ModelShell (the module
+// names are the official state_dict's: dust3r.*, value_encoder.*, attn_head_1.*,
+// norm_q.*, ...). to() and load_weights() reset the stream.
+class Spann3rModel : public StreamingModel, public ModelShell {
  public:
   // config.kind must be ModelKind::kSpann3r; memory settings come from
   // config.spatial_memory. Parameters start default-initialised.
@@ -45,13 +42,6 @@ class Spann3rModel : public StreamingModel {
 
   // Configuration from the file's metadata "config", then every tensor strictly.
   static std::unique_ptr<Spann3rModel> from_file(const std::string& path);
-  void load_weights(const TensorMap& tensors, const std::string& source_name,
-                    const std::string& strip_prefix = "");
-
-  const ModelConfig& config() const;
-  // Moves the weights; resets the stream.
-  void to(const at::Device& device);
-  at::Device device() const;
 
   // StreamingModel. image: [B, 3, H, W] float, (rgb - 0.5) / 0.5, H and W
   // multiples of the patch size, the same size for the whole stream. flush()
@@ -61,6 +51,8 @@ class Spann3rModel : public StreamingModel {
   void reset() override;
   int64_t frames_pushed() const override;
   std::string variant() const override { return "spann3r"; }
+  // False with landscape_only (the official setting).
+  bool accepts_portrait() const override;
 
   // Records, per step k, under "step{k}.": the encoder intermediates of the
   // newly encoded frames (img1.* at step 0, img2.*), dec1.* / dec2.*, head1.*,
@@ -73,11 +65,9 @@ class Spann3rModel : public StreamingModel {
   // after flush() or reset(), which end the stream.
   const Spann3rMemory& memory() const;
 
-  // The module tree (names as in the official state_dict: dust3r.*,
-  // value_encoder.*, attn_head_1.*, norm_q.*, ...).
-  torch::nn::Module& module();
-
  private:
+  void weights_changed() override;
+
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };

@@ -57,6 +57,17 @@ class StreamingModel {
 
   // "spann3r" or "long3r".
   virtual std::string variant() const = 0;
+
+  // Whether portrait frames (H > W) keep their token grid. A landscape-only
+  // Spann3R (the official setting) runs them, as the official model does, on a
+  // scrambled grid and returns transposed maps; callers refuse such input.
+  virtual bool accepts_portrait() const { return true; }
 };
+
+// Loads a checkpoint and builds the StreamingModel variant its metadata config
+// names (Spann3R or LONG3R), reading the file once. Throws CheckpointError with
+// a clear message for an unreadable or bad file and for kinds that do not
+// stream (e.g. a DUSt3R pair model).
+std::unique_ptr<StreamingModel> make_streaming_model(const std::string& path);
 
 }  // namespace long3r

@@ -45,12 +45,6 @@ struct ReconstructionConfig {
   float conf_threshold = 1.0f;
 };
 
-// Loads a checkpoint and builds the right StreamingModel variant from its
-// metadata config (today: spann3r). Throws CheckpointError with a clear
-// message for an unreadable or bad file and for unknown/unsupported kinds
-// (e.g. a DUSt3R pair model).
-std::unique_ptr<StreamingModel> load_streaming_model(const std::string& path);
-
 // The string metadata of a safetensors file (header only; tensors untouched).
 // Throws CheckpointError.
 std::map<std::string, std::string> read_checkpoint_metadata(const std::string& path);

@@ -19,6 +19,40 @@ at::Tensor apply_layer_norm(const at::Tensor& x, const LayerNormParams& p) {
 
 }  // namespace
 
+GatedRead gated_read(const at::Tensor& queries, const at::Tensor& keys, const at::Tensor& values,
+                     const GatingNorms& norms, std::optional<double> threshold,
+                     const at::Tensor& valid) {
+  const int64_t channels = queries.size(2);
+  // Out-of-place throughout: memory snapshots stay unchanged and autograd keeps
+  // what it needs.
+  at::Tensor logits = at::matmul(apply_layer_norm(queries, norms.q),
+                                 apply_layer_norm(keys, norms.k).transpose(1, 2)) /
+                      static_cast<double>(std::sqrt(static_cast<float>(channels)));
+  at::Tensor invalid;
+  if (valid.defined()) {
+    invalid = valid.logical_not().unsqueeze(1).to(logits.device());
+    logits = logits.masked_fill(invalid, -std::numeric_limits<double>::infinity());
+  }
+  GatedRead r;
+  r.weights = at::softmax(logits, -1);
+  if (valid.defined()) {
+    // Exact zeros at padding; also clears the NaN rows of a stream whose memory
+    // is all padding.
+    r.weights = r.weights.masked_fill(invalid, 0.0);
+  }
+  r.gated_weights = r.weights;
+  if (threshold) {
+    const at::Tensor gated = r.weights.masked_fill(r.weights < *threshold, 0.0);
+    const at::Tensor row_sum = gated.sum(-1, /*keepdim=*/true);
+    r.empty_rows = row_sum == 0;
+    // A row with nothing left reads nothing instead of dividing 0 by 0.
+    r.gated_weights = gated / row_sum.masked_fill(r.empty_rows, 1.0);
+  }
+  const at::Tensor v = apply_layer_norm(values, norms.v);
+  r.readout = at::matmul(r.gated_weights.to(v.scalar_type()), v);
+  return r;
+}
+
 GatingResult memory_gating(const at::Tensor& queries, const at::Tensor& keys,
                            const at::Tensor& values, const at::Tensor& features,
                            const GatingNorms& norms, double tau, bool training,
@@ -41,38 +75,21 @@ GatingResult memory_gating(const at::Tensor& queries, const at::Tensor& keys,
                 "memory_gating: valid must be a [B,S] bool mask");
   }
 
-  const at::Tensor q = apply_layer_norm(queries, norms.q);
-  const at::Tensor k = apply_layer_norm(keys, norms.k);
-  const at::Tensor v = apply_layer_norm(values, norms.v);
-  at::Tensor logits = at::matmul(q, k.transpose(1, 2)) / std::sqrt(static_cast<double>(channels));
-  at::Tensor invalid;
-  if (valid.defined()) {
-    invalid = valid.logical_not().unsqueeze(1).to(logits.device());
-    logits = logits.masked_fill(invalid, -std::numeric_limits<double>::infinity());
-  }
-  at::Tensor w = at::softmax(logits, -1);
-  if (valid.defined()) {
-    // Exact zeros at padding; also clears the NaN rows of a stream whose memory
-    // is all padding.
-    w = w.masked_fill(invalid, 0.0);
-  }
-
+  // Training: threshold 0 as Spann3R trains (no zeroing, no renormalisation).
+  const GatedRead read = gated_read(queries, keys, values, norms,
+                                    training ? std::nullopt : std::optional<double>(tau), valid);
   GatingResult r;
-  r.weights = w;
+  r.weights = read.weights;
   if (training) {
-    // Threshold 0 as Spann3R trains: no zeroing, no renormalisation, and every
-    // valid token takes part in the refined decoder.
-    r.relevant_mask = valid.defined() ? valid.to(w.device())
-                                      : at::ones({batch, num_memory}, w.options().dtype(at::kBool));
-    r.gated_weights = w;
+    // Every valid token takes part in the refined decoder.
+    r.relevant_mask = valid.defined()
+                          ? valid.to(read.weights.device())
+                          : at::ones({batch, num_memory}, read.weights.options().dtype(at::kBool));
   } else {
-    r.relevant_mask = std::get<0>(w.max(1)) > tau;
-    at::Tensor gated = w.masked_fill(w < tau, 0.0);
-    const at::Tensor row_sum = gated.sum(-1, /*keepdim=*/true);
-    // A row with nothing left reads nothing instead of dividing by zero.
-    r.gated_weights = gated / at::where(row_sum > 0, row_sum, at::ones_like(row_sum));
+    r.relevant_mask = std::get<0>(read.weights.max(1)) > tau;
   }
-  r.fused = features + at::matmul(r.gated_weights.to(v.scalar_type()), v);
+  r.gated_weights = read.gated_weights;
+  r.fused = features + read.readout;
   r.attention_increment = r.gated_weights.sum(1);
 
   // Padded index form of R: relevant indices first in ascending order (stable

@@ -10,14 +10,6 @@
 namespace long3r {
 namespace {
 
-at::Tensor layer_norm(const at::Tensor& x, const LayerNormParams& p) {
-  const c10::optional<at::Tensor> weight =
-      p.weight.defined() ? c10::optional<at::Tensor>(p.weight) : c10::nullopt;
-  const c10::optional<at::Tensor> bias =
-      p.bias.defined() ? c10::optional<at::Tensor>(p.bias) : c10::nullopt;
-  return at::layer_norm(x, {x.size(-1)}, weight, bias, p.eps);
-}
-
 // F.normalize(x, p=2, dim=-1): x / max(|x|, 1e-12).
 at::Tensor l2_normalize(const at::Tensor& x) {
   return x / x.norm(2, {-1}, /*keepdim=*/true).clamp_min(1e-12);
@@ -38,15 +30,21 @@ double spann3r_similarity(const at::Tensor& key, const at::Tensor& window) {
   return corr.mean(-1).max().item<double>();
 }
 
+at::Tensor spann3r_prune_score(const at::Tensor& attention, const at::Tensor& age,
+                               int64_t protect_below) {
+  // Protected tokens (age 0 gives 0/0 or x/0 here) are overwritten with 1e8.
+  at::Tensor score = attention / age;
+  if (protect_below > 0) score.masked_fill_(age < protect_below, 1e8);
+  return score;
+}
+
 at::Tensor spann3r_prune_order(const at::Tensor& mem_attn, const at::Tensor& mem_count,
                                int64_t work_mem_size, int64_t top_k) {
   TORCH_CHECK(mem_attn.dim() == 2 && mem_count.sizes() == mem_attn.sizes(),
               "spann3r_prune_order: mem_attn and mem_count must both be [B,M]");
   TORCH_CHECK(top_k > 0 && top_k <= mem_attn.size(1), "spann3r_prune_order: top_k = ", top_k,
               " must be in [1, M = ", mem_attn.size(1), "]");
-  // Protected tokens (count 0 gives 0/0 or x/0 here) are overwritten with 1e8.
-  at::Tensor score = mem_attn / mem_count;
-  score.masked_fill_(mem_count < work_mem_size + 5, 1e8);
+  const at::Tensor score = spann3r_prune_score(mem_attn, mem_count, work_mem_size + 5);
   // Same layout as the official [B, M, 1] call, so that torch orders ties alike.
   const at::Tensor index = std::get<1>(at::topk(score.unsqueeze(-1), top_k, /*dim=*/1,
                                                 /*largest=*/true, /*sorted=*/true));
@@ -79,32 +77,20 @@ at::Tensor Spann3rMemory::read(const at::Tensor& query, bool residual, bool keep
   TORCH_CHECK(query.dim() == 3 && query.size(0) == keys_.size(0) && query.size(2) == keys_.size(2),
               "Spann3rMemory::read: query must be [B,P,C] with B = ", keys_.size(0),
               " and C = ", keys_.size(2), ", got ", query.sizes());
-  const int64_t c = query.size(2);
-  // Out-of-place throughout: snapshots from state() stay unchanged, and autograd
-  // (Spann3R trains through the read with attn_thresh 0) keeps what it needs.
-  // The official code divides by a float32 sqrt(C).
-  const at::Tensor logits =
-      at::matmul(layer_norm(query, norms_.q), layer_norm(keys_, norms_.k).transpose(1, 2)) /
-      static_cast<double>(std::sqrt(static_cast<float>(c)));
-  at::Tensor w = at::softmax(logits, -1);
-
+  const GatedRead r = gated_read(
+      query, keys_, values_, norms_,
+      config_.attn_thresh > 0.0 ? std::optional<double>(config_.attn_thresh) : std::nullopt);
   Spann3rReadStats stats;
   stats.memory_tokens = keys_.size(1);
-  if (keep_attention) stats.attention = w;
-  if (config_.attn_thresh > 0.0) {
-    const at::Tensor below = w < config_.attn_thresh;
-    stats.n_zeroed = below.sum().item<int64_t>();
-    w = w.masked_fill(below, 0.0);
-    at::Tensor row_sum = w.sum(-1, /*keepdim=*/true);
-    const at::Tensor empty_row = row_sum == 0;
-    stats.n_empty_rows = empty_row.sum().item<int64_t>();
-    if (stats.n_empty_rows > 0) row_sum = row_sum.masked_fill(empty_row, 1.0);  // 0/1, not 0/0
-    w = w / row_sum;
+  if (keep_attention) stats.attention = r.weights;
+  if (r.empty_rows.defined()) {
+    stats.n_zeroed = (r.weights < config_.attn_thresh).sum().item<int64_t>();
+    stats.n_empty_rows = r.empty_rows.sum().item<int64_t>();
   }
-  at::Tensor out = at::matmul(w, layer_norm(values_, norms_.v));
+  at::Tensor out = r.readout;
   if (residual) out = out + query;
 
-  stats.attention_increment = w.sum(-2);  // [B, M]
+  stats.attention_increment = r.gated_weights.sum(-2);  // [B, M]
   mem_attn_ = mem_attn_ + stats.attention_increment;
   last_read_ = std::move(stats);
   return out;

@@ -7,6 +7,9 @@
 #include <cmath>
 #include <limits>
 #include <tuple>
+#include <utility>
+
+#include "long3r/memory/spann3r_memory.hpp"  // spann3r_similarity, spann3r_prune_score
 
 namespace long3r {
 namespace {
@@ -189,6 +192,63 @@ at::Tensor select_long_term_tokens(const at::Tensor& positions, const at::Tensor
 // SpatioTemporalMemory.
 // ---------------------------------------------------------------------------
 
+template <class F>
+SpatioTemporalMemory::Tokens SpatioTemporalMemory::Tokens::zip(const Tokens& other, F f) const {
+  Tokens out;
+  out.batched = batched;
+  const int64_t d = batched ? 1 : 0;  // token dimension of the per-stream fields
+  struct Field {
+    at::Tensor Tokens::*member;
+    int64_t dim;
+  };
+  const Field fields[] = {{&Tokens::keys, d},      {&Tokens::values, d}, {&Tokens::positions, d},
+                          {&Tokens::attention, d}, {&Tokens::frame, 0},  {&Tokens::order, 0},
+                          {&Tokens::payload, d}};
+  for (const Field& fd : fields) {
+    at::Tensor Tokens::*field = fd.member;
+    const int64_t dim = fd.dim;
+    if ((this->*field).defined()) out.*field = f(this->*field, other.*field, dim);
+  }
+  return out;
+}
+
+template <class F>
+SpatioTemporalMemory::Tokens SpatioTemporalMemory::Tokens::map(F f) const {
+  return zip(*this, [&](const at::Tensor& t, const at::Tensor&, int64_t dim) { return f(t, dim); });
+}
+
+SpatioTemporalMemory::Tokens SpatioTemporalMemory::Tokens::stream(int64_t b) const {
+  // Per-stream fields have their tokens on dim 1; frame / order are shared.
+  Tokens out = map([&](const at::Tensor& t, int64_t dim) { return dim == 1 ? t[b] : t; });
+  out.batched = false;
+  return out;
+}
+
+SpatioTemporalMemory::Tokens SpatioTemporalMemory::Tokens::empty() const {
+  return map([](const at::Tensor& t, int64_t dim) {
+    std::vector<int64_t> shape = t.sizes().vec();
+    shape[static_cast<size_t>(dim)] = 0;
+    return at::empty(shape, t.options());
+  });
+}
+
+SpatioTemporalMemory::Tokens SpatioTemporalMemory::Tokens::narrow(int64_t start,
+                                                                  int64_t length) const {
+  return map([&](const at::Tensor& t, int64_t dim) { return t.narrow(dim, start, length); });
+}
+
+SpatioTemporalMemory::Tokens SpatioTemporalMemory::Tokens::index_select(
+    const at::Tensor& index) const {
+  return map(
+      [&](const at::Tensor& t, int64_t dim) { return t.index_select(dim, index.to(t.device())); });
+}
+
+SpatioTemporalMemory::Tokens SpatioTemporalMemory::Tokens::cat(const Tokens& more) const {
+  return zip(more, [](const at::Tensor& a, const at::Tensor& b, int64_t dim) {
+    return at::cat({a, b}, dim);
+  });
+}
+
 SpatioTemporalMemory::SpatioTemporalMemory(SpatioTemporalMemoryConfig config) : config_(config) {
   TORCH_CHECK(config_.short_term_frames >= 0, "SpatioTemporalMemory: K must be >= 0");
   TORCH_CHECK(config_.long_term_capacity >= 0, "SpatioTemporalMemory: L must be >= 0");
@@ -232,30 +292,23 @@ void SpatioTemporalMemory::add_frame(const at::Tensor& keys, const at::Tensor& v
                     payload.size(2) > 0,
                 "add_frame: payload must be [B,P,D] with D > 0");
   }
+  const at::TensorOptions long_opts = keys.options().dtype(at::kLong);
+  Tokens incoming;
+  incoming.batched = true;
+  incoming.keys = maybe_detach(keys, training_);
+  incoming.values = maybe_detach(values, training_);
+  incoming.positions = maybe_detach(positions, training_);
+  incoming.attention = at::zeros({batch, tokens}, keys.options().dtype(at::kFloat));
+  incoming.frame = at::full({tokens}, frame_index, long_opts);
+  incoming.order = at::arange(next_order_, next_order_ + tokens, long_opts);
+  if (payload.defined()) incoming.payload = maybe_detach(payload, training_);
   if (batch_ == 0) {
     batch_ = batch;
     channels_ = channels;
     payload_dim_ = payload.defined() ? payload.size(2) : 0;
-    if (payload.defined())
-      short_term_.payload = at::empty({batch, 0, payload_dim_}, payload.options());
-    const at::TensorOptions long_opts = keys.options().dtype(at::kLong);
-    const at::TensorOptions att_opts = keys.options().dtype(at::kFloat);
-    short_term_.keys = at::empty({batch, 0, channels}, keys.options());
-    short_term_.values = at::empty({batch, 0, channels}, values.options());
-    short_term_.positions = at::empty({batch, 0, 3}, positions.options());
-    short_term_.attention = at::empty({batch, 0}, att_opts);
-    short_term_.frame = at::empty({0}, long_opts);
-    short_term_.order = at::empty({0}, long_opts);
+    short_term_ = incoming.empty();
     streams_.assign(static_cast<size_t>(batch), Stream());
-    for (Stream& s : streams_) {
-      s.long_term.keys = at::empty({0, channels}, keys.options());
-      s.long_term.values = at::empty({0, channels}, values.options());
-      s.long_term.positions = at::empty({0, 3}, positions.options());
-      s.long_term.attention = at::empty({0}, att_opts);
-      s.long_term.frame = at::empty({0}, long_opts);
-      s.long_term.order = at::empty({0}, long_opts);
-      if (payload.defined()) s.long_term.payload = at::empty({0, payload_dim_}, payload.options());
-    }
+    for (Stream& s : streams_) s.long_term = incoming.stream(0).empty();
   }
   TORCH_CHECK(batch == batch_ && channels == channels_,
               "add_frame: batch size and channels are fixed until reset()");
@@ -266,17 +319,14 @@ void SpatioTemporalMemory::add_frame(const at::Tensor& keys, const at::Tensor& v
   if (config_.long_term_policy == LongTermPolicy::kSpann3r && config_.sim_thresh < 1.0 &&
       !short_frame_sizes_.empty()) {
     // Spann3R's similarity skip against every short-term frame of the same size.
-    auto unit = [](const at::Tensor& t) {
-      const at::Tensor f = t.detach().to(at::kFloat);
-      return f / f.norm(2, -1, true).clamp_min(1e-12);
-    };
-    const at::Tensor k = unit(keys);
+    const at::Tensor k = keys.detach().to(at::kFloat);
     int64_t offset = 0;
     double best = -1.0;
     for (const int64_t n : short_frame_sizes_) {
       if (n == tokens) {
-        const at::Tensor f = unit(short_term_.keys.narrow(1, offset, n));
-        best = std::max(best, (k * f).sum(-1).mean(1).max().item<double>());
+        best = std::max(
+            best,
+            spann3r_similarity(k, short_term_.keys.narrow(1, offset, n).detach().to(at::kFloat)));
       }
       offset += n;
     }
@@ -297,20 +347,10 @@ void SpatioTemporalMemory::add_frame(const at::Tensor& keys, const at::Tensor& v
     }
   }
 
-  short_term_.keys = at::cat({short_term_.keys, maybe_detach(keys, training_)}, 1);
-  short_term_.values = at::cat({short_term_.values, maybe_detach(values, training_)}, 1);
-  short_term_.positions = at::cat(
-      {short_term_.positions, maybe_detach(positions, training_).to(short_term_.positions)}, 1);
-  short_term_.attention = at::cat(
-      {short_term_.attention, at::zeros({batch_, tokens}, short_term_.attention.options())}, 1);
-  short_term_.frame =
-      at::cat({short_term_.frame, at::full({tokens}, frame_index, short_term_.frame.options())});
-  short_term_.order = at::cat({short_term_.order, at::arange(next_order_, next_order_ + tokens,
-                                                             short_term_.order.options())});
-  if (payload_dim_ > 0) {
-    short_term_.payload =
-        at::cat({short_term_.payload, maybe_detach(payload, training_).to(short_term_.payload)}, 1);
-  }
+  // As the stored tensors (a no-op unless a later frame differs).
+  incoming.positions = incoming.positions.to(short_term_.positions);
+  if (payload_dim_ > 0) incoming.payload = incoming.payload.to(short_term_.payload);
+  short_term_ = short_term_.cat(incoming);
   next_order_ += tokens;
   short_frame_sizes_.push_back(tokens);
   ++frames_added_;
@@ -323,54 +363,32 @@ void SpatioTemporalMemory::add_frame(const at::Tensor& keys, const at::Tensor& v
 void SpatioTemporalMemory::move_oldest_frame_to_long_term() {
   const int64_t n = short_frame_sizes_.front();
   short_frame_sizes_.pop_front();
-  const int64_t rest = short_term_.frame.size(0) - n;
+  const Tokens oldest = short_term_.narrow(0, n);
+  short_term_ = short_term_.narrow(n, short_term_.size() - n);
   const std::vector<double> scene = v_scene();
   for (int64_t b = 0; b < batch_; ++b) {
     Tokens& lt = streams_[static_cast<size_t>(b)].long_term;
-    lt.keys = at::cat({lt.keys, short_term_.keys[b].narrow(0, 0, n)});
-    lt.values = at::cat({lt.values, short_term_.values[b].narrow(0, 0, n)});
-    lt.positions = at::cat({lt.positions, short_term_.positions[b].narrow(0, 0, n)});
-    lt.attention = at::cat({lt.attention, short_term_.attention[b].narrow(0, 0, n)});
-    lt.frame = at::cat({lt.frame, short_term_.frame.narrow(0, 0, n)});
-    lt.order = at::cat({lt.order, short_term_.order.narrow(0, 0, n)});
-    if (payload_dim_ > 0)
-      lt.payload = at::cat({lt.payload, short_term_.payload[b].narrow(0, 0, n)});
-
+    lt = lt.cat(oldest.stream(b));
     const at::Tensor kept =
         config_.long_term_policy == LongTermPolicy::kSpann3r
             // No voxels (NaN size): the L greatest by attention per frame of age.
-            ? select_long_term_tokens(lt.positions,
-                                      lt.attention.detach().to(at::kDouble) /
-                                          (frame_of_last_add_ - lt.frame)
-                                              .clamp_min(1)
-                                              .to(lt.attention.device(), at::kDouble),
-                                      lt.frame, lt.order, std::numeric_limits<double>::quiet_NaN(),
-                                      config_.long_term_capacity)
+            ? select_long_term_tokens(
+                  lt.positions,
+                  spann3r_prune_score(lt.attention.detach().to(at::kDouble),
+                                      (frame_of_last_add_ - lt.frame)
+                                          .clamp_min(1)
+                                          .to(lt.attention.device(), at::kDouble),
+                                      /*protect_below=*/0),
+                  lt.frame, lt.order, std::numeric_limits<double>::quiet_NaN(),
+                  config_.long_term_capacity)
             : select_long_term_tokens(lt.positions, lt.attention, lt.frame, lt.order,
                                       scene[static_cast<size_t>(b)], config_.long_term_capacity);
-    if (kept.size(0) < lt.frame.size(0)) {
-      lt.keys = lt.keys.index_select(0, kept.to(lt.keys.device()));
-      lt.values = lt.values.index_select(0, kept.to(lt.values.device()));
-      lt.positions = lt.positions.index_select(0, kept.to(lt.positions.device()));
-      lt.attention = lt.attention.index_select(0, kept.to(lt.attention.device()));
-      lt.frame = lt.frame.index_select(0, kept.to(lt.frame.device()));
-      lt.order = lt.order.index_select(0, kept.to(lt.order.device()));
-      if (payload_dim_ > 0) lt.payload = lt.payload.index_select(0, kept.to(lt.payload.device()));
-    }
+    if (kept.size(0) < lt.size()) lt = lt.index_select(kept);
   }
-  short_term_.keys = short_term_.keys.narrow(1, n, rest);
-  short_term_.values = short_term_.values.narrow(1, n, rest);
-  short_term_.positions = short_term_.positions.narrow(1, n, rest);
-  short_term_.attention = short_term_.attention.narrow(1, n, rest);
-  short_term_.frame = short_term_.frame.narrow(0, n, rest);
-  short_term_.order = short_term_.order.narrow(0, n, rest);
-  if (payload_dim_ > 0) short_term_.payload = short_term_.payload.narrow(1, n, rest);
   layout_valid_ = false;
 }
 
-int64_t SpatioTemporalMemory::short_size() const {
-  return batch_ == 0 ? 0 : short_term_.frame.size(0);
-}
+int64_t SpatioTemporalMemory::short_size() const { return batch_ == 0 ? 0 : short_term_.size(); }
 
 std::vector<int64_t> SpatioTemporalMemory::long_sizes() const {
   std::vector<int64_t> out;

@@ -6,29 +6,22 @@
 
 #include <stdexcept>
 
-#include "long3r/model/checkpoint.hpp"
 #include "long3r/model/modules.hpp"
-#include "long3r/model/safetensors.hpp"
 
 namespace long3r {
 
 struct Dust3rModel::Impl {
-  explicit Impl(const ModelConfig& c) : config(c), net(c.dust3r) {
+  explicit Impl(const Dust3rConfig& c) : net(c) {
     for (auto& p : net->parameters()) p.set_requires_grad(false);
     net->eval();
   }
-  ModelConfig config;
   model::Dust3rNet net;
 };
 
-Dust3rModel::Dust3rModel(const ModelConfig& config) {
-  if (config.kind != ModelKind::kDust3r) {
-    throw ModelConfigError(
-        std::string("Dust3rModel needs an AsymmetricCroCo3DStereo config, got ") +
-        model_kind_name(config.kind));
-  }
-  validate_model_config(config);
-  impl_ = std::make_unique<Impl>(config);
+Dust3rModel::Dust3rModel(const ModelConfig& config)
+    : ModelShell(config, ModelKind::kDust3r, "Dust3rModel needs an AsymmetricCroCo3DStereo config"),
+      impl_(std::make_unique<Impl>(config.dust3r)) {
+  set_module(impl_->net.ptr());
 }
 
 Dust3rModel::~Dust3rModel() = default;
@@ -36,24 +29,8 @@ Dust3rModel::Dust3rModel(Dust3rModel&&) noexcept = default;
 Dust3rModel& Dust3rModel::operator=(Dust3rModel&&) noexcept = default;
 
 Dust3rModel Dust3rModel::from_file(const std::string& path) {
-  const TensorFile file = load_safetensors(path);
-  Dust3rModel model(model_config_from_metadata(file.metadata, path));
-  model.load_weights(file.tensors, path);
-  return model;
+  return std::move(*model_from_checkpoint<Dust3rModel>(read_model_checkpoint(path), path));
 }
-
-void Dust3rModel::load_weights(const TensorMap& tensors, const std::string& source_name,
-                               const std::string& strip_prefix) {
-  load_module_strict(*impl_->net, tensors, source_name, strip_prefix);
-}
-
-const ModelConfig& Dust3rModel::config() const { return impl_->config; }
-
-void Dust3rModel::to(const at::Device& device) { impl_->net->to(device); }
-
-at::Device Dust3rModel::device() const { return impl_->net->patch_embed->proj->weight.device(); }
-
-torch::nn::Module& Dust3rModel::module() { return *impl_->net; }
 
 PairPrediction Dust3rModel::infer(const at::Tensor& img1, const at::Tensor& img2,
                                   const Trace& trace) const {

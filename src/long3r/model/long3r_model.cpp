@@ -6,29 +6,15 @@
 #include <c10/core/InferenceMode.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <stdexcept>
 
-#include "long3r/model/checkpoint.hpp"
 #include "long3r/model/long3r_modules.hpp"
-#include "long3r/model/safetensors.hpp"
 
 namespace long3r {
 
-namespace {
-
-using Clock = std::chrono::steady_clock;
-
-double ms_since(Clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
-}
-
-LayerNormParams norm_params(const torch::nn::LayerNorm& n) {
-  return {n->weight, n->bias, n->options.eps()};
-}
-
-}  // namespace
+using model::Clock;
+using model::ms_since;
 
 struct Long3rModel::Impl {
   explicit Impl(const ModelConfig& c) : config(c), net(c), memory(c.long3r) { apply_mode(); }
@@ -47,13 +33,7 @@ struct Long3rModel::Impl {
     memory.reset();
   }
 
-  at::Device device() const { return net->value_out->weight.device(); }
-
-  GatingNorms norms() const {
-    return {norm_params(net->norm_q), norm_params(net->norm_k), norm_params(net->norm_v)};
-  }
-
-  ModelConfig config;
+  const ModelConfig& config;
   model::Long3rNet net;
   SpatioTemporalMemory memory;
   bool training = false;
@@ -62,56 +42,26 @@ struct Long3rModel::Impl {
 
   // Stream state.
   int64_t frames = 0;
-  int64_t H = 0, W = 0, batch = 0;
+  model::StreamShape shape;
   at::Tensor feat;                    // F^I of the newest frame
   at::Tensor coarse_final;            // F^c of the newest frame (y_B of the last step)
   model::DecoderOutputs last_coarse;  // coarse branch of the last step (for flush)
   model::HeadOutput coarse_head;      // head2 of the last step, when computed eagerly
 };
 
-Long3rModel::Long3rModel(const ModelConfig& config) {
-  if (config.kind != ModelKind::kLong3r) {
-    throw ModelConfigError(std::string("Long3rModel needs a LONG3R config, got ") +
-                           model_kind_name(config.kind));
-  }
-  validate_model_config(config);
-  impl_ = std::make_unique<Impl>(config);
+Long3rModel::Long3rModel(const ModelConfig& config)
+    : ModelShell(config, ModelKind::kLong3r, "Long3rModel needs a LONG3R config"),
+      impl_(std::make_unique<Impl>(ModelShell::config())) {
+  set_module(impl_->net.ptr());
 }
 
 Long3rModel::~Long3rModel() = default;
 
 std::unique_ptr<Long3rModel> Long3rModel::from_file(const std::string& path) {
-  const TensorFile file = load_safetensors(path);
-  auto model = std::make_unique<Long3rModel>(model_config_from_metadata(file.metadata, path));
-  model->load_weights(file.tensors, path);
-  return model;
+  return model_from_checkpoint<Long3rModel>(read_model_checkpoint(path), path);
 }
 
-void Long3rModel::load_weights(const TensorMap& tensors, const std::string& source_name,
-                               const std::string& strip_prefix) {
-  load_module_strict(*impl_->net, tensors, source_name, strip_prefix);
-  impl_->reset();
-}
-
-void Long3rModel::save(const std::string& path) const {
-  TensorMap tensors;
-  for (const auto& kv : impl_->net->named_parameters()) {
-    tensors[kv.key()] = kv.value().detach().to(at::kCPU).contiguous();
-  }
-  for (const auto& kv : impl_->net->named_buffers()) {
-    tensors[kv.key()] = kv.value().detach().to(at::kCPU).contiguous();
-  }
-  save_safetensors(path, tensors, {{"config", model_config_to_json(impl_->config)}});
-}
-
-const ModelConfig& Long3rModel::config() const { return impl_->config; }
-
-void Long3rModel::to(const at::Device& device) {
-  impl_->net->to(device);
-  impl_->reset();
-}
-
-at::Device Long3rModel::device() const { return impl_->device(); }
+void Long3rModel::weights_changed() { impl_->reset(); }
 
 void Long3rModel::set_training(bool training) {
   impl_->training = training;
@@ -128,8 +78,6 @@ void Long3rModel::set_memory_projection_cache(bool on) {
 
 bool Long3rModel::memory_projection_cache() const { return impl_->projection_cache; }
 
-torch::nn::Module& Long3rModel::module() { return *impl_->net; }
-
 const SpatioTemporalMemory& Long3rModel::memory() const { return impl_->memory; }
 
 int64_t Long3rModel::frames_pushed() const { return impl_->frames; }
@@ -138,22 +86,12 @@ void Long3rModel::reset() { impl_->reset(); }
 
 std::optional<StreamOutput> Long3rModel::push(const at::Tensor& image) {
   Impl& s = *impl_;
-  if (image.dim() != 4 || image.size(1) != 3) {
-    throw std::invalid_argument("Long3rModel::push: expected a [B, 3, H, W] image");
-  }
   model::Dust3rNet& dust3r = s.net->dust3r;
-  if (s.frames == 0) {
-    dust3r->grid(image.size(2), image.size(3));  // validates the size
-    s.H = image.size(2);
-    s.W = image.size(3);
-    s.batch = image.size(0);
-  } else if (image.size(2) != s.H || image.size(3) != s.W || image.size(0) != s.batch) {
-    throw std::invalid_argument("Long3rModel::push: all frames of a stream need one shape");
-  }
+  s.shape.check(image, s.frames == 0, *dust3r, "Long3rModel::push");
   std::optional<c10::InferenceMode> guard;
   if (!s.training) guard.emplace();
   const auto t0 = Clock::now();
-  const at::Tensor img = image.to(s.device(), at::kFloat);
+  const at::Tensor img = image.to(device(), at::kFloat);
   const at::Tensor next = dust3r->encode(img, Trace());
   const bool cached = s.projection_cache && !s.training;
   if (s.frames == 0) {
@@ -163,7 +101,8 @@ std::optional<StreamOutput> Long3rModel::push(const at::Tensor& image) {
   }
 
   const int64_t t = s.frames - 1;  // step t: frame t refined, frame t+1 coarse
-  const auto g = dust3r->grid(s.H, s.W);
+  const int64_t H = s.shape.H, W = s.shape.W;
+  const auto g = dust3r->grid(H, W);
   StreamOutput out;
   out.frame_index = t;
   out.stats.encode_ms = ms_since(t0);
@@ -174,7 +113,7 @@ std::optional<StreamOutput> Long3rModel::push(const at::Tensor& image) {
   model::RelevantMemory relevant;
   if (!s.memory.empty()) {
     const at::Tensor query = s.net->feat_key(2, s.feat, s.coarse_final);
-    const GatingResult gate = s.memory.read(query, s.feat, s.norms());
+    const GatingResult gate = s.memory.read(query, s.feat, s.net->gating_norms());
     fused = gate.fused;
     if (cached) {
       relevant.projected = s.memory.gather_payload(gate.relevant_index);
@@ -183,7 +122,7 @@ std::optional<StreamOutput> Long3rModel::push(const at::Tensor& image) {
       relevant.values = gather_tokens(s.memory.values(), gate.relevant_index);
     }
     // B = 1 has no padding; the unmasked attention path is then exact.
-    if (s.batch > 1) relevant.valid = gate.relevant_valid;
+    if (s.shape.batch > 1) relevant.valid = gate.relevant_valid;
     out.stats.relevant_tokens = gate.relevant_count.max().item<int64_t>();
   } else {
     out.stats.relevant_tokens = 0;
@@ -191,16 +130,16 @@ std::optional<StreamOutput> Long3rModel::push(const at::Tensor& image) {
 
   // Steps 4-5: joint decoding and heads.
   model::JointDecoderOutputs dec = s.net->decode_joint(fused, next, g, relevant);
-  model::HeadOutput res1 = dust3r->head(1, dec.refined, s.H, s.W, Trace());
+  model::HeadOutput res1 = dust3r->head(1, dec.refined, H, W, Trace());
   if (s.training || s.collect_coarse) {
-    s.coarse_head = dust3r->head(2, dec.coarse, s.H, s.W, Trace());
+    s.coarse_head = dust3r->head(2, dec.coarse, H, W, Trace());
   }
   out.stats.decode_ms = ms_since(t1);
 
   // Step 6: memory write of frame t, on the image's token grid.
   const auto t2 = Clock::now();
   at::Tensor pts = res1.pts3d, conf = res1.conf;
-  if (pts.size(1) != s.H) {  // landscape_only transposed a portrait map
+  if (pts.size(1) != H) {  // landscape_only transposed a portrait map
     pts = pts.transpose(1, 2).contiguous();
     if (conf.defined()) conf = conf.transpose(1, 2).contiguous();
   }
@@ -216,11 +155,7 @@ std::optional<StreamOutput> Long3rModel::push(const at::Tensor& image) {
   s.coarse_final = dec.coarse.back();
   // Only the layers head 2 reads are needed for flush().
   s.last_coarse = std::move(dec.coarse);
-  std::vector<bool> hooked(s.last_coarse.size(), false);
-  for (int64_t h : s.config.dust3r.dpt.hooks) hooked.at(static_cast<std::size_t>(h)) = true;
-  for (std::size_t i = 0; i < hooked.size(); ++i) {
-    if (!hooked[i]) s.last_coarse[i] = at::Tensor();
-  }
+  model::keep_head_layers(s.last_coarse, s.config.dust3r);
   s.frames += 1;
 
   out.stats.mem_short_tokens = s.memory.short_size();
@@ -242,9 +177,10 @@ std::optional<StreamOutput> Long3rModel::flush() {
   std::optional<c10::InferenceMode> guard;
   if (!s.training) guard.emplace();
   const auto t0 = Clock::now();
-  model::HeadOutput res2 = s.coarse_head.pts3d.defined()
-                               ? s.coarse_head
-                               : s.net->dust3r->head(2, s.last_coarse, s.H, s.W, Trace());
+  model::HeadOutput res2 =
+      s.coarse_head.pts3d.defined()
+          ? s.coarse_head
+          : s.net->dust3r->head(2, s.last_coarse, s.shape.H, s.shape.W, Trace());
   StreamOutput out;
   out.frame_index = s.frames - 1;
   out.from_coarse_head = true;

@@ -112,12 +112,11 @@ at::Tensor MemoryBlockImpl::finish(const at::Tensor& out, at::Tensor read,
   return y + mlp(norm3(y));
 }
 
-Long3rNetImpl::Long3rNetImpl(const ModelConfig& c) : Spann3rNetImpl(c) {
+Long3rNetImpl::Long3rNetImpl(const ModelConfig& c)
+    : Spann3rNetImpl(c, /*dust3r_refined_branch=*/false) {
   const Dust3rConfig& d = c.dust3r;
-  Dust3rNetImpl& net = *dust3r;
-  // Replace the refined branch: pairwise blocks at odd layers, memory blocks at
-  // even layers, under the same ModuleList name.
-  torch::nn::ModuleList blocks;
+  // The refined branch, in DUSt3R's (empty) `dec_blocks` list: pairwise blocks
+  // at odd layers, memory blocks at even layers.
   refined_pair.assign(static_cast<std::size_t>(d.dec_depth), DecoderBlock(nullptr));
   refined_memory.assign(static_cast<std::size_t>(d.dec_depth), MemoryBlock(nullptr));
   for (int64_t i = 0; i < d.dec_depth; ++i) {
@@ -125,15 +124,13 @@ Long3rNetImpl::Long3rNetImpl(const ModelConfig& c) : Spann3rNetImpl(c) {
     if (memory_layer) {
       refined_memory[i] = MemoryBlock(d.dec_embed_dim, c.memory_dim(), d.dec_num_heads,
                                       d.mlp_hidden(d.dec_embed_dim), d.norm_eps, d.norm_eps);
-      blocks->push_back(refined_memory[i]);
+      dust3r->dec_blocks->push_back(refined_memory[i]);
     } else {
       refined_pair[i] = DecoderBlock(d.dec_embed_dim, d.dec_num_heads,
                                      d.mlp_hidden(d.dec_embed_dim), d.norm_eps, d.norm_im2_in_dec);
-      blocks->push_back(refined_pair[i]);
+      dust3r->dec_blocks->push_back(refined_pair[i]);
     }
   }
-  net.dec_blocks = net.replace_module("dec_blocks", blocks);
-  net.dec1.clear();  // Dust3rNet::decode does not apply to this tree
 }
 
 JointDecoderOutputs Long3rNetImpl::decode_joint(const at::Tensor& fused, const at::Tensor& next,

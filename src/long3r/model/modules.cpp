@@ -6,6 +6,7 @@
 #include <torch/nn/modules/container/functional.h>
 #include <torch/version.h>
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -189,6 +190,22 @@ at::Tensor BlockImpl::forward(const at::Tensor& x, const RopeTable& rope) {
   return out + mlp(norm2(out));
 }
 
+int64_t decoder_block_init_draws(int64_t dim, int64_t mlp_hidden) {
+  // Linear layers (weight and bias) of attn (qkv, proj), cross_attn (projq,
+  // projk, projv, proj) and mlp (fc1, fc2); the LayerNorms draw nothing.
+  auto linear = [](int64_t in, int64_t out) { return in * out + out; };
+  return linear(dim, 3 * dim) + 5 * linear(dim, dim) + linear(dim, mlp_hidden) +
+         linear(mlp_hidden, dim);
+}
+
+void skip_init_draws(int64_t n) {
+  // One 32-bit draw per float32 element, as Linear's (kaiming_)uniform_ init.
+  constexpr int64_t kChunk = int64_t{1} << 22;
+  for (int64_t done = 0; done < n; done += kChunk) {
+    at::empty({std::min(kChunk, n - done)}, at::kFloat).uniform_();
+  }
+}
+
 DecoderBlockImpl::DecoderBlockImpl(int64_t dim, int64_t heads, int64_t mlp_hidden, double eps,
                                    bool norm_mem) {
   norm1 = register_module("norm1", layer_norm(dim, eps));
@@ -351,7 +368,8 @@ DptHeadImpl::DptHeadImpl(const Dust3rConfig& config) {
 // ---------------------------------------------------------------------------
 // AsymmetricCroCo3DStereo
 
-Dust3rNetImpl::Dust3rNetImpl(const Dust3rConfig& c) : rope(c.rope_freq), config_(c) {
+Dust3rNetImpl::Dust3rNetImpl(const Dust3rConfig& c, bool refined_branch)
+    : rope(c.rope_freq), config_(c) {
   mask_token = register_parameter("mask_token", at::zeros({1, 1, c.dec_embed_dim}), false);
   patch_embed = register_module("patch_embed", PatchEmbed(3, c.enc_embed_dim, c.patch_size));
   enc_blocks = register_module("enc_blocks", torch::nn::ModuleList());
@@ -366,9 +384,15 @@ Dust3rNetImpl::Dust3rNetImpl(const Dust3rConfig& c) : rope(c.rope_freq), config_
   dec_blocks = register_module("dec_blocks", torch::nn::ModuleList());
   dec_blocks2 = register_module("dec_blocks2", torch::nn::ModuleList());
   for (int64_t i = 0; i < c.dec_depth; ++i) {
-    dec1.emplace_back(c.dec_embed_dim, c.dec_num_heads, c.mlp_hidden(c.dec_embed_dim), c.norm_eps,
-                      c.norm_im2_in_dec);
-    dec_blocks->push_back(dec1.back());
+    if (refined_branch) {
+      dec1.emplace_back(c.dec_embed_dim, c.dec_num_heads, c.mlp_hidden(c.dec_embed_dim), c.norm_eps,
+                        c.norm_im2_in_dec);
+      dec_blocks->push_back(dec1.back());
+    } else {
+      // A seeded initialisation draws what it drew when this branch was built
+      // (and then replaced): the later modules get the same values.
+      skip_init_draws(decoder_block_init_draws(c.dec_embed_dim, c.mlp_hidden(c.dec_embed_dim)));
+    }
     dec2.emplace_back(c.dec_embed_dim, c.dec_num_heads, c.mlp_hidden(c.dec_embed_dim), c.norm_eps,
                       c.norm_im2_in_dec);
     dec_blocks2->push_back(dec2.back());
@@ -485,10 +509,10 @@ HeadOutput Dust3rNetImpl::head(int which, const DecoderOutputs& dec, int64_t H, 
 // ---------------------------------------------------------------------------
 // Spann3R
 
-Spann3rNetImpl::Spann3rNetImpl(const ModelConfig& c) : config_(c) {
+Spann3rNetImpl::Spann3rNetImpl(const ModelConfig& c, bool dust3r_refined_branch) : config_(c) {
   const Dust3rConfig& d = c.dust3r;
   const ValueEncoderConfig& v = c.spann3r.value_encoder;
-  dust3r = register_module("dust3r", Dust3rNet(d));
+  dust3r = register_module("dust3r", Dust3rNet(d, dust3r_refined_branch));
   value_encoder = register_module("value_encoder", torch::nn::ModuleList());
   for (int64_t i = 0; i < v.depth; ++i) {
     value_blocks.emplace_back(v.embed_dim, v.num_heads,
@@ -541,6 +565,43 @@ at::Tensor Spann3rNetImpl::cur_value(const at::Tensor& pts3d, const at::Tensor& 
   }
   for (Block& b : value_blocks) x = b(x, r);
   return value_out(value_norm(x));
+}
+
+GatingNorms Spann3rNetImpl::gating_norms() const {
+  auto params = [](const torch::nn::LayerNorm& n) {
+    return LayerNormParams{n->weight, n->bias, n->options.eps()};
+  };
+  return {params(norm_q), params(norm_k), params(norm_v)};
+}
+
+// ---------------------------------------------------------------------------
+// Streaming front-end helpers.
+
+void StreamShape::check(const at::Tensor& image, bool first_frame, const Dust3rNetImpl& net,
+                        const char* who) {
+  if (image.dim() != 4 || image.size(1) != 3) {
+    throw std::invalid_argument(std::string(who) + ": expected a [B, 3, H, W] image");
+  }
+  if (first_frame) {
+    net.grid(image.size(2), image.size(3));  // validates the size
+    H = image.size(2);
+    W = image.size(3);
+    batch = image.size(0);
+  } else if (image.size(2) != H || image.size(3) != W || image.size(0) != batch) {
+    throw std::invalid_argument(std::string(who) + ": all frames of a stream need one shape");
+  }
+}
+
+void keep_head_layers(DecoderOutputs& dec, const Dust3rConfig& config) {
+  std::vector<bool> hooked(dec.size(), false);
+  for (int64_t h : config.dpt.hooks) hooked.at(static_cast<std::size_t>(h)) = true;
+  for (std::size_t i = 0; i < hooked.size(); ++i) {
+    if (!hooked[i]) dec[i] = at::Tensor();
+  }
+}
+
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
 }  // namespace model

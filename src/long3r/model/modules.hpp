@@ -19,11 +19,13 @@
 #include <torch/nn/modules/linear.h>
 #include <torch/nn/modules/normalization.h>
 
+#include <chrono>
 #include <map>
 #include <mutex>
 #include <tuple>
 #include <vector>
 
+#include "long3r/memory/memory_gating.hpp"  // GatingNorms
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/model_trace.hpp"
 
@@ -134,6 +136,12 @@ class DecoderBlockImpl : public torch::nn::Module {
 };
 TORCH_MODULE(DecoderBlock);
 
+// Random draws the initialisation of a DecoderBlock(dim, ., mlp_hidden, ...)
+// makes, and advancing the default generator by n such draws: a network that
+// leaves out blocks it once built keeps its seeded initialisation.
+int64_t decoder_block_init_draws(int64_t dim, int64_t mlp_hidden);
+void skip_init_draws(int64_t n);
+
 // PatchEmbedDust3R: conv patch x patch / stride patch, flattened row-major.
 class PatchEmbedImpl : public torch::nn::Module {
  public:
@@ -221,7 +229,10 @@ using Grid = std::pair<int64_t, int64_t>;
 
 class Dust3rNetImpl : public torch::nn::Module {
  public:
-  explicit Dust3rNetImpl(const Dust3rConfig& config);
+  // refined_branch false: `dec_blocks` (the refined branch, decoder 1) is
+  // registered empty for a derived network to fill (LONG3R), and decode()
+  // does not apply.
+  explicit Dust3rNetImpl(const Dust3rConfig& config, bool refined_branch = true);
 
   const Dust3rConfig& config() const { return config_; }
   // Patch grid (rows, columns) of an H x W image; throws for sizes that are
@@ -271,7 +282,8 @@ TORCH_MODULE(Dust3rNet);
 
 class Spann3rNetImpl : public torch::nn::Module {
  public:
-  explicit Spann3rNetImpl(const ModelConfig& config);
+  // dust3r_refined_branch: see Dust3rNetImpl.
+  explicit Spann3rNetImpl(const ModelConfig& config, bool dust3r_refined_branch = true);
 
   // attn_head_{num}(cat(feat, dec_last)) [B, N, C_m].
   at::Tensor feat_key(int num, const at::Tensor& feat, const at::Tensor& dec_last);
@@ -279,6 +291,8 @@ class Spann3rNetImpl : public torch::nn::Module {
   // = pos_patch_embed(pts3d as NCHW) (or dec_last when use_feat). pts3d is the
   // head-1 point map as returned (transposed for portrait inputs).
   at::Tensor cur_value(const at::Tensor& pts3d, const at::Tensor& dec_last, int64_t gh, int64_t gw);
+  // norm_q, norm_k, norm_v for the memory read (referenced, not copied).
+  GatingNorms gating_norms() const;
 
   Dust3rNet dust3r{nullptr};
   torch::nn::ModuleList value_encoder{nullptr};
@@ -293,6 +307,24 @@ class Spann3rNetImpl : public torch::nn::Module {
   ModelConfig config_;
 };
 TORCH_MODULE(Spann3rNet);
+
+// ---------------------------------------------------------------------------
+// Shared by the streaming front-ends (Spann3rModel, Long3rModel).
+
+// The frame size and batch of a stream: the first frame fixes them (H and W
+// must be multiples of the patch size), every later one must match. Throws
+// std::invalid_argument with messages that start with `who`.
+struct StreamShape {
+  int64_t H = 0, W = 0, batch = 0;
+  void check(const at::Tensor& image, bool first_frame, const Dust3rNetImpl& net, const char* who);
+};
+
+// Releases the decoder layers the DPT heads do not read (config.dpt.hooks):
+// what a later head call (flush) needs of a decoder branch.
+void keep_head_layers(DecoderOutputs& dec, const Dust3rConfig& config);
+
+using Clock = std::chrono::steady_clock;
+double ms_since(Clock::time_point t0);
 
 }  // namespace model
 }  // namespace long3r

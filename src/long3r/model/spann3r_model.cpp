@@ -4,28 +4,14 @@
 #include <ATen/ATen.h>
 #include <c10/core/InferenceMode.h>
 
-#include <chrono>
 #include <stdexcept>
 
-#include "long3r/model/checkpoint.hpp"
 #include "long3r/model/modules.hpp"
-#include "long3r/model/safetensors.hpp"
 
 namespace long3r {
 
-namespace {
-
-using Clock = std::chrono::steady_clock;
-
-double ms_since(Clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
-}
-
-LayerNormParams norm_params(const torch::nn::LayerNorm& n) {
-  return {n->weight, n->bias, n->options.eps()};
-}
-
-}  // namespace
+using model::Clock;
+using model::ms_since;
 
 struct Spann3rModel::Impl {
   explicit Impl(const ModelConfig& c) : config(c), net(c) {
@@ -35,9 +21,7 @@ struct Spann3rModel::Impl {
   }
 
   void new_memory() {
-    memory = std::make_unique<Spann3rMemory>(
-        GatingNorms{norm_params(net->norm_q), norm_params(net->norm_k), norm_params(net->norm_v)},
-        config.spatial_memory);
+    memory = std::make_unique<Spann3rMemory>(net->gating_norms(), config.spatial_memory);
   }
 
   void reset() {
@@ -48,56 +32,39 @@ struct Spann3rModel::Impl {
     memory->reset();
   }
 
-  at::Device device() const { return net->value_out->weight.device(); }
-
-  ModelConfig config;
+  const ModelConfig& config;
   model::Spann3rNet net;
   std::unique_ptr<Spann3rMemory> memory;
   Trace trace;
 
   // Stream state.
   int64_t frames = 0;
-  int64_t H = 0, W = 0, batch = 0;
+  model::StreamShape shape;
   at::Tensor first_image;           // frame 0 until frame 1 arrives
   at::Tensor feat2;                 // encoder features of the newest frame
   at::Tensor feat_k2;               // query of the next memory read
   model::DecoderOutputs last_dec2;  // coarse branch of the last step (for flush)
 };
 
-Spann3rModel::Spann3rModel(const ModelConfig& config) {
-  if (config.kind != ModelKind::kSpann3r) {
-    throw ModelConfigError(std::string("Spann3rModel needs a Spann3R config, got ") +
-                           model_kind_name(config.kind));
-  }
-  validate_model_config(config);
-  impl_ = std::make_unique<Impl>(config);
+Spann3rModel::Spann3rModel(const ModelConfig& config)
+    : ModelShell(config, ModelKind::kSpann3r, "Spann3rModel needs a Spann3R config"),
+      impl_(std::make_unique<Impl>(ModelShell::config())) {
+  set_module(impl_->net.ptr());
 }
 
 Spann3rModel::~Spann3rModel() = default;
 
 std::unique_ptr<Spann3rModel> Spann3rModel::from_file(const std::string& path) {
-  const TensorFile file = load_safetensors(path);
-  auto model = std::make_unique<Spann3rModel>(model_config_from_metadata(file.metadata, path));
-  model->load_weights(file.tensors, path);
-  return model;
+  return model_from_checkpoint<Spann3rModel>(read_model_checkpoint(path), path);
 }
 
-void Spann3rModel::load_weights(const TensorMap& tensors, const std::string& source_name,
-                                const std::string& strip_prefix) {
-  load_module_strict(*impl_->net, tensors, source_name, strip_prefix);
-}
-
-const ModelConfig& Spann3rModel::config() const { return impl_->config; }
-
-void Spann3rModel::to(const at::Device& device) {
-  impl_->net->to(device);
+// The memory references the norm parameters: a new one after a move.
+void Spann3rModel::weights_changed() {
   impl_->new_memory();
   impl_->reset();
 }
 
-at::Device Spann3rModel::device() const { return impl_->device(); }
-
-torch::nn::Module& Spann3rModel::module() { return *impl_->net; }
+bool Spann3rModel::accepts_portrait() const { return !config().dust3r.landscape_only; }
 
 const Spann3rMemory& Spann3rModel::memory() const { return *impl_->memory; }
 
@@ -109,21 +76,11 @@ void Spann3rModel::reset() { impl_->reset(); }
 
 std::optional<StreamOutput> Spann3rModel::push(const at::Tensor& image) {
   Impl& s = *impl_;
-  if (image.dim() != 4 || image.size(1) != 3) {
-    throw std::invalid_argument("Spann3rModel::push: expected a [B, 3, H, W] image");
-  }
   model::Dust3rNet& dust3r = s.net->dust3r;
-  if (s.frames == 0) {
-    dust3r->grid(image.size(2), image.size(3));  // validates the size
-    s.H = image.size(2);
-    s.W = image.size(3);
-    s.batch = image.size(0);
-  } else if (image.size(2) != s.H || image.size(3) != s.W || image.size(0) != s.batch) {
-    throw std::invalid_argument("Spann3rModel::push: all frames of a stream need one shape");
-  }
+  s.shape.check(image, s.frames == 0, *dust3r, "Spann3rModel::push");
   c10::InferenceMode guard;
   const auto t0 = Clock::now();
-  const at::Tensor img = image.to(s.device(), at::kFloat);
+  const at::Tensor img = image.to(device(), at::kFloat);
   if (s.frames == 0) {
     s.first_image = img;
     s.frames = 1;
@@ -133,7 +90,8 @@ std::optional<StreamOutput> Spann3rModel::push(const at::Tensor& image) {
   const int64_t k = s.frames - 1;  // step k: pair (frame k, frame k+1)
   const Trace trace = s.trace.child("step" + std::to_string(k) + ".");
   const int64_t B = img.size(0);
-  const auto g = dust3r->grid(s.H, s.W);
+  const int64_t H = s.shape.H, W = s.shape.W;
+  const auto g = dust3r->grid(H, W);
 
   at::Tensor feat1, feat2;
   if (k == 0) {
@@ -165,7 +123,7 @@ std::optional<StreamOutput> Spann3rModel::push(const at::Tensor& image) {
   auto dec = dust3r->decode(feat_fuse, g, feat2, g, trace);
   const at::Tensor feat_k1 = s.net->feat_key(1, feat1, dec.first.back());
   s.feat_k2 = s.net->feat_key(2, feat2, dec.second.back());
-  model::HeadOutput res1 = dust3r->head(1, dec.first, s.H, s.W, trace.child("head1."));
+  model::HeadOutput res1 = dust3r->head(1, dec.first, H, W, trace.child("head1."));
   out.stats.decode_ms = ms_since(t1);
 
   const auto t2 = Clock::now();
@@ -183,11 +141,7 @@ std::optional<StreamOutput> Spann3rModel::push(const at::Tensor& image) {
   s.feat2 = feat2;
   // Only the layers head 2 reads are needed for flush().
   s.last_dec2 = std::move(dec.second);
-  std::vector<bool> hooked(s.last_dec2.size(), false);
-  for (int64_t h : s.config.dust3r.dpt.hooks) hooked.at(static_cast<std::size_t>(h)) = true;
-  for (std::size_t i = 0; i < hooked.size(); ++i) {
-    if (!hooked[i]) s.last_dec2[i] = at::Tensor();
-  }
+  model::keep_head_layers(s.last_dec2, config().dust3r);
   s.frames += 1;
 
   const Spann3rMemory& m = *s.memory;
@@ -209,7 +163,8 @@ std::optional<StreamOutput> Spann3rModel::flush() {
   c10::InferenceMode guard;
   const auto t0 = Clock::now();
   const Trace trace = s.trace.child("flush.");
-  model::HeadOutput res2 = s.net->dust3r->head(2, s.last_dec2, s.H, s.W, trace.child("head2."));
+  model::HeadOutput res2 =
+      s.net->dust3r->head(2, s.last_dec2, s.shape.H, s.shape.W, trace.child("head2."));
   StreamOutput out;
   out.frame_index = s.frames - 1;
   out.from_coarse_head = true;

@@ -10,9 +10,6 @@
 #include <stdexcept>
 
 #include "long3r/io/safetensors_header.hpp"
-#include "long3r/model/long3r_model.hpp"
-#include "long3r/model/model_config.hpp"
-#include "long3r/model/spann3r_model.hpp"
 
 namespace long3r {
 namespace {
@@ -80,31 +77,6 @@ bool has_random_weights(const std::map<std::string, std::string>& metadata) {
   return it != metadata.end() && it->second == "true";
 }
 
-std::unique_ptr<StreamingModel> load_streaming_model(const std::string& path) {
-  const auto metadata = read_checkpoint_metadata(path);
-  ModelConfig config;
-  try {
-    config = model_config_from_metadata(metadata, path);
-  } catch (const ModelConfigError& e) {
-    throw CheckpointError(e.what());
-  }
-  if (config.kind == ModelKind::kSpann3r || config.kind == ModelKind::kLong3r) {
-    try {
-      if (config.kind == ModelKind::kLong3r) return Long3rModel::from_file(path);
-      return Spann3rModel::from_file(path);
-    } catch (const ModelConfigError& e) {
-      throw CheckpointError(e.what());
-    }
-  }
-  if (config.kind == ModelKind::kDust3r) {
-    throw CheckpointError(path +
-                          ": a DUSt3R pair model (AsymmetricCroCo3DStereo), not a streaming "
-                          "model; the pipeline needs a Spann3R (or LONG3R) checkpoint");
-  }
-  throw CheckpointError(path + ": model kind \"" + std::string(model_kind_name(config.kind)) +
-                        "\" is not supported by the streaming pipeline yet");
-}
-
 Reconstruction::Reconstruction(std::unique_ptr<StreamingModel> model,
                                const ReconstructionConfig& config)
     : model_(std::move(model)),
@@ -112,17 +84,13 @@ Reconstruction::Reconstruction(std::unique_ptr<StreamingModel> model,
       tracker_(config_.pnp),
       map_(config_.map) {
   if (!model_) throw std::invalid_argument("Reconstruction: null model");
-  if (config_.preprocess.height > config_.preprocess.width) {
-    // Landscape-only Spann3R returns portrait maps transposed on a scrambled
-    // token grid (as the official model does); refuse rather than mislead.
-    if (const auto* s = dynamic_cast<const Spann3rModel*>(model_.get())) {
-      if (s->config().dust3r.landscape_only) {
-        throw std::invalid_argument("Reconstruction: portrait model input (" +
-                                    std::to_string(config_.preprocess.width) + "x" +
-                                    std::to_string(config_.preprocess.height) +
-                                    ") with a landscape-only Spann3R model; use width >= height");
-      }
-    }
+  // A landscape-only Spann3R returns portrait maps transposed on a scrambled
+  // token grid (as the official model does); refuse rather than mislead.
+  if (config_.preprocess.height > config_.preprocess.width && !model_->accepts_portrait()) {
+    throw std::invalid_argument("Reconstruction: portrait model input (" +
+                                std::to_string(config_.preprocess.width) + "x" +
+                                std::to_string(config_.preprocess.height) +
+                                ") with a landscape-only Spann3R model; use width >= height");
   }
 }
 
