@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Installs what is missing, builds, and runs every test (core gtests, golden
+# Installs what is missing, builds, and runs every test (module gtests, golden
 # parity runs, rostests) through ctest. Exits non-zero if any test fails.
 # (`catkin_make run_tests` would exit 0 on failures; ctest does not.)
 set -euo pipefail
