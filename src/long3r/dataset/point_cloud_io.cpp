@@ -138,40 +138,26 @@ struct Element {
   std::vector<Property> props;
 };
 
+// One scalar of type T from its bytes (already in host order).
+template <class T>
+double load_as(const unsigned char* b) {
+  T v;
+  std::memcpy(&v, b, sizeof(T));
+  return static_cast<double>(v);
+}
+
 double decode(const std::string& type, const unsigned char* p, bool swap) {
   unsigned char b[8];
   const int n = type_size(type);
   for (int i = 0; i < n; ++i) b[i] = swap ? p[n - 1 - i] : p[i];
-  if (type == "char" || type == "int8") return static_cast<int8_t>(b[0]);
-  if (type == "uchar" || type == "uint8") return b[0];
-  if (type == "short" || type == "int16") {
-    int16_t v;
-    std::memcpy(&v, b, 2);
-    return v;
-  }
-  if (type == "ushort" || type == "uint16") {
-    uint16_t v;
-    std::memcpy(&v, b, 2);
-    return v;
-  }
-  if (type == "int" || type == "int32") {
-    int32_t v;
-    std::memcpy(&v, b, 4);
-    return v;
-  }
-  if (type == "uint" || type == "uint32") {
-    uint32_t v;
-    std::memcpy(&v, b, 4);
-    return v;
-  }
-  if (type == "float" || type == "float32") {
-    float v;
-    std::memcpy(&v, b, 4);
-    return v;
-  }
-  double v;
-  std::memcpy(&v, b, 8);
-  return v;
+  if (type == "char" || type == "int8") return load_as<int8_t>(b);
+  if (type == "uchar" || type == "uint8") return load_as<uint8_t>(b);
+  if (type == "short" || type == "int16") return load_as<int16_t>(b);
+  if (type == "ushort" || type == "uint16") return load_as<uint16_t>(b);
+  if (type == "int" || type == "int32") return load_as<int32_t>(b);
+  if (type == "uint" || type == "uint32") return load_as<uint32_t>(b);
+  if (type == "float" || type == "float32") return load_as<float>(b);
+  return load_as<double>(b);
 }
 
 std::vector<Eigen::Vector3f> load_ply(const std::string& path) {
