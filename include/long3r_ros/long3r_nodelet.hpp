@@ -57,6 +57,7 @@ class Long3rNodelet : public nodelet::Nodelet {
 
   NodeletConfig config_;
   long3r::ThreadConfig thread_config_;
+  long3r::InferenceConfig inference_config_;
   long3r::ReconstructionConfig recon_config_;
 
   std::unique_ptr<image_transport::ImageTransport> it_;

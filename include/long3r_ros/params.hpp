@@ -13,6 +13,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "long3r/model/inference_config.hpp"
 #include "long3r/model/threads.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 
@@ -38,11 +39,13 @@ struct NodeletConfig {
 
 NodeletConfig readNodeletConfig(const ros::NodeHandle& pnh);
 long3r::ThreadConfig readThreadConfig(const ros::NodeHandle& pnh);
+long3r::InferenceConfig readInferenceConfig(const ros::NodeHandle& pnh);
 long3r::ReconstructionConfig readReconstructionConfig(const ros::NodeHandle& pnh);
 
 // One line per parameter, for the start-up log.
 std::string describe(const NodeletConfig& config);
 std::string describe(const long3r::ThreadConfig& config);
+std::string describe(const long3r::InferenceConfig& config);
 std::string describe(const long3r::ReconstructionConfig& config);
 
 }  // namespace long3r_ros

@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "long3r/io/cli_options.hpp"
+#include "long3r/model/inference.hpp"
 #include "long3r/model/long3r_model.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/threads.hpp"
@@ -91,8 +92,11 @@ int main(int argc, char** argv) {
            "recompute the memory blocks' key/value projections of the relevant tokens at every "
            "step (the reference path)",
            false);
+  long3r::InferenceConfig inference;
+  long3r::add_inference_options(cli, &inference);
   if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
   try {
+    const long3r::InferenceTarget target = long3r::resolve_inference_target(inference);
     long3r::ThreadConfig tc;
     tc.torch_threads = threads;
     tc.openblas_threads = openblas_threads;
@@ -101,13 +105,14 @@ int main(int argc, char** argv) {
     const long3r::ModelConfig config = long3r::named_model_config(config_name);
     const auto t_build = std::chrono::steady_clock::now();
     long3r::Long3rModel model(config);
+    model.to(target);
     model.set_memory_projection_cache(projection_cache);
     int64_t params = 0;
     for (const auto& p : model.module().parameters()) params += p.numel();
     const int64_t P = (size / config.dust3r.patch_size) * (size / config.dust3r.patch_size);
     std::printf(
         "config %s: %.1f M parameters, %lldx%lld frames (P = %lld tokens), %d threads, "
-        "K = %lld, L = %lld, bound K*P + L = %lld tokens, memory projection cache %s "
+        "K = %lld, L = %lld, bound K*P + L = %lld tokens, memory projection cache %s, %s "
         "(built in %.1f s)\n",
         config_name.c_str(), params / 1e6, static_cast<long long>(size),
         static_cast<long long>(size), static_cast<long long>(P), used,
@@ -115,7 +120,7 @@ int main(int argc, char** argv) {
         static_cast<long long>(config.long3r.long_term_capacity),
         static_cast<long long>(config.long3r.short_term_frames * P +
                                config.long3r.long_term_capacity),
-        projection_cache ? "on" : "off",
+        projection_cache ? "on" : "off", long3r::describe(target).c_str(),
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t_build).count());
     std::fflush(stdout);
 

@@ -17,6 +17,7 @@
 #include "long3r/io/atomic_file.hpp"
 #include "long3r/io/cli_options.hpp"
 #include "long3r/model/checkpoint.hpp"
+#include "long3r/model/inference.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/safetensors.hpp"
 #include "long3r/model/threads.hpp"
@@ -50,6 +51,7 @@ int main(int argc, char** argv) {
   int pixel_step = 2;
   bool normals = true, estimate_intrinsics = false;
   int threads = static_cast<int>(std::thread::hardware_concurrency());
+  int openblas_threads = long3r::ThreadConfig().openblas_threads;
   long3r::CliOptions cli("long3r_model_eval",
                          "Give exactly one of --model, --untrained, --baseline.");
   cli.option("--model", "FILE", &model_path, "LONG3R safetensors checkpoint");
@@ -78,14 +80,21 @@ int main(int argc, char** argv) {
              "top views of the first sequence (prediction vs GT)");
   cli.option("--json", "FILE", &json_path, "write the per-sequence and mean metrics");
   cli.option("--threads", "N", &threads, "torch threads").min(1).shown_default("all cores");
+  cli.option("--openblas-threads", "N", &openblas_threads,
+             "OpenBLAS threads (0 = OPENBLAS_NUM_THREADS; see long3r/model/threads.hpp)")
+      .min(0);
+  long3r::InferenceConfig inference;
+  long3r::add_inference_options(cli, &inference);
   cli.option("--seed", "N", &seed, "initialisation seed of --untrained");
   if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
   const int sources = !model_path.empty() + !untrained.empty() + !baseline.empty();
   if (sources != 1) return cli.usage_error("give exactly one of --model, --untrained, --baseline");
   try {
     long3r::ThreadConfig tc;
-    tc.torch_threads = threads;  // OpenBLAS at its default of 1: see threads.hpp
+    tc.torch_threads = threads;
+    tc.openblas_threads = openblas_threads;
     long3r::apply_thread_config(tc);
+    const long3r::InferenceTarget target = long3r::resolve_inference_target(inference);
 
     std::unique_ptr<long3r::Long3rModel> model;
     std::string what;
@@ -115,12 +124,14 @@ int main(int argc, char** argv) {
       at::manual_seed(seed);
       model = std::make_unique<long3r::Long3rModel>(mc);
       if (!weights.empty()) model->load_weights(weights, model_path);
+      model->to(target);
       if (img_size % mc.dust3r.patch_size != 0) {
         throw std::invalid_argument("--img-size must be a multiple of the patch size");
       }
       what += " (K " + std::to_string(mc.long3r.short_term_frames) + ", L " +
               std::to_string(mc.long3r.long_term_capacity) + ", " +
-              long3r::config::enum_name(mc.long3r.long_term_policy) + " long-term memory)";
+              long3r::config::enum_name(mc.long3r.long_term_policy) + " long-term memory, " +
+              long3r::describe(target) + ")";
     } else {
       what = "baseline constant-depth";
     }

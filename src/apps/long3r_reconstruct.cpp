@@ -22,6 +22,7 @@
 #include "long3r/dataset/tum_dataset.hpp"
 #include "long3r/io/atomic_file.hpp"
 #include "long3r/io/cli_options.hpp"
+#include "long3r/model/inference_config.hpp"
 #include "long3r/model/threads.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 
@@ -74,6 +75,8 @@ int main(int argc, char** argv) {
   cli.option("--threads", "N", &threads, "torch threads (0 = all)");
   cli.option("--openblas-threads", "N", &openblas_threads,
              "OpenBLAS threads (0 = OPENBLAS_NUM_THREADS)");
+  InferenceConfig inference;
+  add_inference_options(cli, &inference);
   cli.custom(
          "--calib", {"fx", "fy", "cx", "cy"},
          [&](const std::vector<std::string>& v) {
@@ -130,7 +133,7 @@ int main(int argc, char** argv) {
     tc.openblas_threads = openblas_threads;
     const int nthreads = apply_thread_config(tc);
     cfg.preprocess.width = cfg.preprocess.height = img;
-    Reconstruction rec(make_streaming_model(model_path), cfg);
+    Reconstruction rec(make_streaming_model(model_path, inference), cfg);
     rec.set_calibration(calib);
     fs::create_directories(out_dir);
     AtomicFile csv((fs::path(out_dir) / "frames.csv").string());  // appears at the end, whole
@@ -218,10 +221,11 @@ int main(int argc, char** argv) {
     std::printf(
         "summary: %ld frames used (%ld unreadable skipped), %zu results, %zu with a good pose, "
         "map %zu points\n"
-        "         mean %.2f FPS, median %.2f FPS, peak RSS %.1f MiB, %d threads\n"
+        "         mean %.2f FPS, median %.2f FPS, peak RSS %.1f MiB, %d threads, %s %s\n"
         "         outputs in %s\n",
         used, skipped, frame_ms.size(), traj.size(), rec.map().size(), mean_fps,
-        median_ms > 0 ? 1000.0 / median_ms : 0.0, peak_rss / 1024.0, nthreads, out_dir.c_str());
+        median_ms > 0 ? 1000.0 / median_ms : 0.0, peak_rss / 1024.0, nthreads,
+        inference.device.c_str(), config::enum_name(inference.precision), out_dir.c_str());
     if (random)
       std::printf("WARNING: the model has RANDOM weights; the results are meaningless.\n");
   } catch (const std::exception& e) {

@@ -10,6 +10,7 @@
 #include <chrono>
 #include <fstream>
 
+#include "long3r/model/inference.hpp"
 #include "long3r_ros/Pointmap.h"
 #include "long3r_ros/conversions.hpp"
 
@@ -38,6 +39,7 @@ void Long3rNodelet::onInit() {
   try {
     config_ = readNodeletConfig(pnh);
     thread_config_ = readThreadConfig(pnh);
+    inference_config_ = readInferenceConfig(pnh);
     recon_config_ = readReconstructionConfig(pnh);
   } catch (const ParamError& e) {
     NODELET_FATAL("invalid configuration: %s", e.what());
@@ -46,23 +48,32 @@ void Long3rNodelet::onInit() {
   NODELET_INFO_STREAM("configuration:\n"
                       << describe(config_) << "\n"
                       << describe(thread_config_) << "\n"
+                      << describe(inference_config_) << "\n"
                       << describe(recon_config_));
 
   // A missing or bad model must stop the nodelet here, with the reason.
   const std::string model_path =
       config_.model_path.empty() ? defaultModelPath() : config_.model_path;
+  long3r::InferenceTarget target;
+  try {
+    target = long3r::resolve_inference_target(inference_config_);
+  } catch (const std::exception& e) {
+    NODELET_FATAL("cannot run the model as configured (~device, ~precision): %s", e.what());
+    throw;
+  }
   try {
     if (model_path.empty() || !std::ifstream(model_path).good()) {
       throw std::runtime_error("model file '" + model_path +
                                "' does not exist or is not readable (set ~model_path)");
     }
-    recon_ = std::make_unique<long3r::Reconstruction>(long3r::make_streaming_model(model_path),
-                                                      recon_config_);
+    recon_ = std::make_unique<long3r::Reconstruction>(
+        long3r::make_streaming_model(model_path, inference_config_), recon_config_);
   } catch (const std::exception& e) {
     NODELET_FATAL("cannot load the model: %s", e.what());
     throw;
   }
-  NODELET_INFO("model loaded from %s", model_path.c_str());
+  NODELET_INFO("model loaded from %s, running in %s", model_path.c_str(),
+               long3r::describe(target).c_str());
 
   frame_cloud_pub_ = pnh.advertise<sensor_msgs::PointCloud2>("frame_cloud", 2);
   pointmap_pub_ = pnh.advertise<Pointmap>("pointmap", 2);

@@ -31,6 +31,13 @@ long3r::config::FieldsOf<S, long3r::ThreadConfig> ros_fields(S& c, V& v) {
   v("openblas_threads", c.openblas_threads, "(from environment)");
 }
 
+template <class S, class V>
+long3r::config::FieldsOf<S, long3r::InferenceConfig> ros_fields(S& c, V& v) {
+  v("device", c.device);
+  v("precision", c.precision);
+  v("allow_emulated_precision", c.allow_emulated_precision);
+}
+
 // Flat parameter names for the nested pipeline settings. The one confidence
 // threshold (conf_threshold) is copied to the map and PnP after reading.
 template <class S, class V>
@@ -60,7 +67,14 @@ class RosReader {
  private:
   template <class T>
   void read(const std::string& name, T& value) {
-    if (!pnh_.getParam(name, value)) {
+    if constexpr (std::is_enum<T>::value) {
+      std::string text;
+      read(name, text);
+      if (!long3r::config::enum_from_name(text, &value)) {
+        throw ParamError("parameter " + pnh_.resolveName(name) + " must be " +
+                         long3r::config::enum_choices<T>() + ", got \"" + text + "\"");
+      }
+    } else if (!pnh_.getParam(name, value)) {
       throw ParamError("parameter " + pnh_.resolveName(name) + " has the wrong type");
     }
   }
@@ -99,6 +113,8 @@ class Describer {
     out_ << name << ": ";
     if constexpr (std::is_same<T, std::string>::value) {
       out_ << (value.empty() && empty_note ? empty_note : value);
+    } else if constexpr (std::is_enum<T>::value) {
+      out_ << long3r::config::enum_name(value);
     } else {
       out_ << std::boolalpha << value;
       if (empty_note && value == T{}) out_ << " " << empty_note;
@@ -153,6 +169,14 @@ long3r::ThreadConfig readThreadConfig(const ros::NodeHandle& pnh) {
   return c;
 }
 
+long3r::InferenceConfig readInferenceConfig(const ros::NodeHandle& pnh) {
+  const long3r::InferenceConfig c = read_all<long3r::InferenceConfig>(pnh);
+  // Whether this machine can serve it is checked when the model loads.
+  require(long3r::is_device_name(c.device), pnh, "device",
+          "must be cpu, cuda or cuda:N, got \"" + c.device + "\"");
+  return c;
+}
+
 long3r::ReconstructionConfig readReconstructionConfig(const ros::NodeHandle& pnh) {
   long3r::ReconstructionConfig c = read_all<long3r::ReconstructionConfig>(pnh);
   auto multiple_of_16 = [](int v) { return v >= 16 && v <= 4096 && v % 16 == 0; };
@@ -176,6 +200,7 @@ long3r::ReconstructionConfig readReconstructionConfig(const ros::NodeHandle& pnh
 
 std::string describe(const NodeletConfig& c) { return describe_all(c); }
 std::string describe(const long3r::ThreadConfig& c) { return describe_all(c); }
+std::string describe(const long3r::InferenceConfig& c) { return describe_all(c); }
 std::string describe(const long3r::ReconstructionConfig& c) { return describe_all(c); }
 
 }  // namespace long3r_ros

@@ -3,6 +3,18 @@
 # (CONFIGURE_DEPENDS re-globs on build), so new cases are picked up without
 # editing this file. long3r_golden compares every stored tensor at 1e-4
 # relative and fails on any tensor it did not compare.
+#
+# golden_bf16_<case>: the same case in bfloat16 (emulated where the CPU has no
+# native bfloat16), its outputs bounded at the deviation measured on the
+# development machine plus about 50 % (docs/performance.md, "Precision"):
+#   dust3r_pair_land112x80 2.34e-2, dust3r_pair_port80x112 1.97e-2,
+#   dust3r_pair_sq224 8.91e-2, spann3r_seq_land96x64 1.72e-2,
+#   spann3r_seq_sq224 6.68e-2 (max relative deviation of any output).
+set(LONG3R_GOLDEN_BF16_TOL_dust3r_pair_land112x80 0.035)
+set(LONG3R_GOLDEN_BF16_TOL_dust3r_pair_port80x112 0.03)
+set(LONG3R_GOLDEN_BF16_TOL_dust3r_pair_sq224 0.135)
+set(LONG3R_GOLDEN_BF16_TOL_spann3r_seq_land96x64 0.026)
+set(LONG3R_GOLDEN_BF16_TOL_spann3r_seq_sq224 0.10)
 if(TARGET app_long3r_golden)
   file(GLOB LONG3R_GOLDEN_CASE_DIRS LIST_DIRECTORIES true CONFIGURE_DEPENDS
        "${LONG3R_SHARED_DIR}/golden/*")
@@ -17,6 +29,14 @@ if(TARGET app_long3r_golden)
       set_tests_properties(golden_${case} PROPERTIES
         TIMEOUT 600 LABELS golden
         ENVIRONMENT "OMP_NUM_THREADS=1;OPENBLAS_NUM_THREADS=1")
+      if(DEFINED LONG3R_GOLDEN_BF16_TOL_${case})
+        add_test(NAME golden_bf16_${case}
+                 COMMAND app_long3r_golden --precision bfloat16 --allow-emulated-precision
+                         --tol ${LONG3R_GOLDEN_BF16_TOL_${case}} ${LONG3R_SHARED_DIR}/golden/${case})
+        set_tests_properties(golden_bf16_${case} PROPERTIES
+          TIMEOUT 600 LABELS golden
+          ENVIRONMENT "OMP_NUM_THREADS=1;OPENBLAS_NUM_THREADS=1")
+      endif()
     endif()
   endforeach()
 endif()

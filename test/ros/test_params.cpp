@@ -6,6 +6,7 @@
 #include "long3r_ros/params.hpp"
 
 using long3r_ros::ParamError;
+using long3r_ros::readInferenceConfig;
 using long3r_ros::readNodeletConfig;
 using long3r_ros::readReconstructionConfig;
 using long3r_ros::readThreadConfig;
@@ -23,6 +24,7 @@ class ParamsTest : public ::testing::Test {
     try {
       readNodeletConfig(pnh_);
       readThreadConfig(pnh_);
+      readInferenceConfig(pnh_);
       readReconstructionConfig(pnh_);
       FAIL() << "no error for bad " << name;
     } catch (const ParamError& e) {
@@ -150,4 +152,34 @@ int main(int argc, char** argv) {
   ros::init(argc, argv, "test_params");
   ros::NodeHandle nh;
   return RUN_ALL_TESTS();
+}
+
+TEST_F(ParamsTest, InferenceDefaultsAndValues) {
+  const long3r::InferenceConfig d = readInferenceConfig(pnh_);
+  EXPECT_EQ(d.device, "cpu");
+  EXPECT_EQ(d.precision, long3r::Precision::kFloat32);
+  EXPECT_FALSE(d.allow_emulated_precision);
+  pnh_.setParam("device", "cuda:1");
+  pnh_.setParam("precision", "bfloat16");
+  pnh_.setParam("allow_emulated_precision", true);
+  const long3r::InferenceConfig c = readInferenceConfig(pnh_);
+  EXPECT_EQ(c.device, "cuda:1");
+  EXPECT_EQ(c.precision, long3r::Precision::kBFloat16);
+  EXPECT_TRUE(c.allow_emulated_precision);
+  EXPECT_NE(long3r_ros::describe(c).find("precision: bfloat16"), std::string::npos);
+}
+
+TEST_F(ParamsTest, RejectsUnknownDevice) {
+  pnh_.setParam("device", "gpu0");
+  expectError("device");
+}
+
+TEST_F(ParamsTest, RejectsUnknownPrecision) {
+  pnh_.setParam("precision", "fp8");
+  expectError("precision");
+}
+
+TEST_F(ParamsTest, RejectsPrecisionOfWrongType) {
+  pnh_.setParam("precision", 16);
+  expectError("precision");
 }

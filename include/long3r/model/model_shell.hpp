@@ -10,6 +10,7 @@
 #include <memory>
 #include <string>
 
+#include "long3r/model/inference.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/model_trace.hpp"  // TensorMap
 
@@ -59,7 +60,13 @@ class ModelShell {
 
   // Moves the weights; ends a stream in progress.
   void to(const at::Device& device);
+  // Moves and converts the floating-point weights once (e.g. to bfloat16: the
+  // model then runs in that precision, see InferenceConfig); ends a stream.
+  void to(const at::Device& device, at::ScalarType dtype);
+  void to(const InferenceTarget& target) { to(target.device, target.dtype); }
   at::Device device() const;
+  // The weights' precision, in which inputs are given to the network.
+  at::ScalarType dtype() const;
 
   // The module tree (names as in the official state_dict).
   torch::nn::Module& module();

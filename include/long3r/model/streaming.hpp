@@ -14,6 +14,8 @@
 #include <optional>
 #include <string>
 
+#include "long3r/model/inference_config.hpp"
+
 namespace long3r {
 
 // Per-step statistics of the memory, for logs, CSVs and diagnostics.
@@ -65,9 +67,13 @@ class StreamingModel {
 };
 
 // Loads a checkpoint and builds the StreamingModel variant its metadata config
-// names (Spann3R or LONG3R), reading the file once. Throws CheckpointError with
-// a clear message for an unreadable or bad file and for kinds that do not
-// stream (e.g. a DUSt3R pair model).
-std::unique_ptr<StreamingModel> make_streaming_model(const std::string& path);
+// names (Spann3R or LONG3R), reading the file once, then moves and converts
+// the weights once to the requested device and precision. The request is
+// checked first (resolve_inference_target: ConfigError,
+// InferenceUnsupportedError). Throws CheckpointError with a clear message for
+// an unreadable or bad file and for kinds that do not stream (e.g. a DUSt3R
+// pair model).
+std::unique_ptr<StreamingModel> make_streaming_model(const std::string& path,
+                                                     const InferenceConfig& inference = {});
 
 }  // namespace long3r

@@ -34,7 +34,9 @@ GatedRead gated_read(const at::Tensor& queries, const at::Tensor& keys, const at
     logits = logits.masked_fill(invalid, -std::numeric_limits<double>::infinity());
   }
   GatedRead r;
-  r.weights = at::softmax(logits, -1);
+  // float32 weights whatever the precision: tau (5e-4) and the attention
+  // statistics the memories accumulate need them.
+  r.weights = at::softmax(logits, -1, at::kFloat);
   if (valid.defined()) {
     // Exact zeros at padding; also clears the NaN rows of a stream whose memory
     // is all padding.

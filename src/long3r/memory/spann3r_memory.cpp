@@ -104,7 +104,8 @@ void Spann3rMemory::add_mem(const at::Tensor& key, const at::Tensor& value) {
   if (num_patches_ == 0) num_patches_ = key.size(1);
   TORCH_CHECK(key.size(1) == num_patches_, "Spann3rMemory: key has ", key.size(1),
               " tokens, the memory holds frames of ", num_patches_);
-  const at::Tensor zeros = at::zeros({key.size(0), key.size(1)}, key.options());
+  // float32 counters and attention sums whatever the keys' precision.
+  const at::Tensor zeros = at::zeros({key.size(0), key.size(1)}, key.options().dtype(at::kFloat));
   if (!keys_.defined()) {
     keys_ = key.contiguous().clone();
     values_ = value.contiguous().clone();

@@ -50,7 +50,7 @@ PairPrediction Dust3rModel::infer(const at::Tensor& img1, const at::Tensor& img2
   if (img1.sizes().equals(img2.sizes())) {
     // One batch of 2B, as the official _encode_image_pairs does for equal shapes.
     TensorMap records;
-    const at::Tensor feats = net->encode(at::cat({img1, img2}).to(dev, at::kFloat),
+    const at::Tensor feats = net->encode(at::cat({img1, img2}).to(dev, dtype()),
                                          trace.enabled() ? Trace(&records) : Trace());
     for (const auto& kv : records) {
       trace.put("img1." + kv.first, kv.second.narrow(0, 0, B));
@@ -59,8 +59,8 @@ PairPrediction Dust3rModel::infer(const at::Tensor& img1, const at::Tensor& img2
     f1 = feats.narrow(0, 0, B);
     f2 = feats.narrow(0, B, B);
   } else {
-    f1 = net->encode(img1.to(dev, at::kFloat), trace.child("img1."));
-    f2 = net->encode(img2.to(dev, at::kFloat), trace.child("img2."));
+    f1 = net->encode(img1.to(dev, dtype()), trace.child("img1."));
+    f2 = net->encode(img2.to(dev, dtype()), trace.child("img2."));
   }
 
   const auto dec = net->decode(f1, g1, f2, g2, trace);

@@ -91,7 +91,7 @@ std::optional<StreamOutput> Long3rModel::push(const at::Tensor& image) {
   std::optional<c10::InferenceMode> guard;
   if (!s.training) guard.emplace();
   const auto t0 = Clock::now();
-  const at::Tensor img = image.to(device(), at::kFloat);
+  const at::Tensor img = image.to(device(), dtype());
   const at::Tensor next = dust3r->encode(img, Trace());
   const bool cached = s.projection_cache && !s.training;
   if (s.frames == 0) {

@@ -50,10 +50,12 @@ at::Tensor MemoryCrossAttentionImpl::forward_projected(const at::Tensor& query,
     at::Tensor a = at::matmul(q, k.transpose(-2, -1)).mul(std::pow(static_cast<double>(Dh), -0.5));
     // Finite fill: a stream whose entries are all masked gets a uniform (not
     // NaN) row, zeroed below, so gradients stay finite.
+    // In float32 whatever the precision: the fill value and the softmax
+    // statistics (no-ops in float32).
     const at::Tensor masked = valid.logical_not().view({B, 1, 1, R});
-    a = a.masked_fill(masked, std::numeric_limits<float>::lowest());
+    a = a.to(at::kFloat).masked_fill(masked, std::numeric_limits<float>::lowest());
     a = at::softmax(a, -1).masked_fill(masked, 0.0);
-    out = at::matmul(a, v);
+    out = at::matmul(a.to(v.scalar_type()), v);
   }
   return proj(out.transpose(1, 2).reshape({B, N, C}));
 }

@@ -4,6 +4,7 @@
 
 #include <ATen/ATen.h>
 #include <torch/nn/module.h>
+#include <torch/nn/modules/conv.h>
 
 #include "long3r/model/checkpoint.hpp"
 #include "long3r/model/long3r_model.hpp"
@@ -51,9 +52,36 @@ void ModelShell::to(const at::Device& device) {
   weights_changed();
 }
 
+void ModelShell::to(const at::Device& device, at::ScalarType dtype) {
+  // Convolutions stay float32 on the CPU: libtorch 1.13's bfloat16 CPU
+  // convolutions lose accuracy (measured: 5 % max relative error on a patch
+  // embedding against float32 on the same rounded inputs, where a bfloat16
+  // linear stays at 0.3 %) and conv_transpose2d has no bfloat16 CPU kernel.
+  // The patch embeddings and the DPT heads (convolutions only) then run in
+  // float32 (docs/performance.md, "Precision").
+  const bool convs_float32 = device.is_cpu() && dtype != at::kFloat;
+  // Not Module::to(device, dtype): it would convert integer buffers too.
+  for (const auto& item : module_->named_modules()) {
+    torch::nn::Module& m = *item.value();
+    const bool conv = m.as<torch::nn::Conv2dImpl>() != nullptr ||
+                      m.as<torch::nn::ConvTranspose2dImpl>() != nullptr;
+    const at::ScalarType want = conv && convs_float32 ? at::kFloat : dtype;
+    for (auto& p : m.named_parameters(/*recurse=*/false)) {
+      p.value().set_data(
+          p.value().to(device, p.value().is_floating_point() ? want : p.value().scalar_type()));
+    }
+    for (auto& b : m.named_buffers(/*recurse=*/false)) {
+      b.value().set_data(
+          b.value().to(device, b.value().is_floating_point() ? want : b.value().scalar_type()));
+    }
+  }
+  weights_changed();
+}
+
 // Every network registers a parameter first (DUSt3R's mask_token) and keeps all
 // of them on one device.
 at::Device ModelShell::device() const { return module_->parameters().front().device(); }
+at::ScalarType ModelShell::dtype() const { return module_->parameters().front().scalar_type(); }
 
 torch::nn::Module& ModelShell::module() { return *module_; }
 
@@ -62,11 +90,23 @@ ModelCheckpoint read_model_checkpoint(const std::string& path) {
   return {model_config_from_metadata(file.metadata, path), std::move(file.tensors)};
 }
 
-std::unique_ptr<StreamingModel> make_streaming_model(const std::string& path) {
+namespace {
+template <class Model>
+std::unique_ptr<StreamingModel> load_to(const ModelCheckpoint& c, const std::string& path,
+                                        const InferenceTarget& target) {
+  std::unique_ptr<Model> model = model_from_checkpoint<Model>(c, path);
+  if (target.device != model->device() || target.dtype != model->dtype()) model->to(target);
+  return model;
+}
+}  // namespace
+
+std::unique_ptr<StreamingModel> make_streaming_model(const std::string& path,
+                                                     const InferenceConfig& inference) {
+  const InferenceTarget target = resolve_inference_target(inference);
   try {
     const ModelCheckpoint c = read_model_checkpoint(path);
-    if (c.config.kind == ModelKind::kLong3r) return model_from_checkpoint<Long3rModel>(c, path);
-    if (c.config.kind == ModelKind::kSpann3r) return model_from_checkpoint<Spann3rModel>(c, path);
+    if (c.config.kind == ModelKind::kLong3r) return load_to<Long3rModel>(c, path, target);
+    if (c.config.kind == ModelKind::kSpann3r) return load_to<Spann3rModel>(c, path, target);
     if (c.config.kind == ModelKind::kDust3r) {
       throw CheckpointError(path +
                             ": a DUSt3R pair model (AsymmetricCroCo3DStereo), not a streaming "

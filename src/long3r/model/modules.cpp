@@ -117,7 +117,8 @@ at::Tensor attend(const at::Tensor& q, const at::Tensor& k, const at::Tensor& v)
 #else
   at::Tensor a = at::matmul(q, k.transpose(-2, -1));
   a.mul_(std::pow(static_cast<double>(q.size(-1)), -0.5));
-  return at::matmul(at::softmax(a, -1), v);
+  // Softmax statistics in float32 whatever the precision (no-op in float32).
+  return at::matmul(at::softmax(a, -1, at::kFloat).to(v.scalar_type()), v);
 #endif
 }
 
@@ -234,7 +235,9 @@ at::Tensor PatchEmbedImpl::forward(const at::Tensor& image) {
   TORCH_CHECK(image.dim() == 4 && image.size(2) % patch == 0 && image.size(3) % patch == 0,
               "patch embedding: expected [B, C, H, W] with H and W multiples of ", patch, ", got ",
               image.sizes());
-  return proj(image).flatten(2).transpose(1, 2).contiguous();
+  // In the convolution's precision (float32 on the CPU, see ModelShell::to);
+  // callers cast the tokens to theirs.
+  return proj(image.to(proj->weight.scalar_type())).flatten(2).transpose(1, 2).contiguous();
 }
 
 // ---------------------------------------------------------------------------
@@ -313,8 +316,11 @@ at::Tensor DptAdapterImpl::forward(const std::vector<at::Tensor>& decout, int64_
     const at::Tensor& tok = decout.at(static_cast<std::size_t>(hooks[i]));
     TORCH_CHECK(tok.size(1) == nh * nw, "DPT head: ", tok.size(1), " tokens for a ", nh, "x", nw,
                 " patch grid");
-    // 'b (nh nw) c -> b c nh nw'
-    at::Tensor l = tok.transpose(1, 2).reshape({tok.size(0), tok.size(2), nh, nw});
+    // 'b (nh nw) c -> b c nh nw', in the convolutions' precision (float32 on
+    // the CPU, see ModelShell::to).
+    at::Tensor l = tok.transpose(1, 2)
+                       .reshape({tok.size(0), tok.size(2), nh, nw})
+                       .to(scratch->layer_rn_convs[i]->weight.scalar_type());
     l = act_postprocess_seq[i]->forward(l);
     if (trace.enabled()) trace.put("act_postprocess" + std::to_string(i), l);
     l = scratch->layer_rn_convs[i](l);
@@ -432,7 +438,7 @@ at::Tensor Dust3rNetImpl::encode(const at::Tensor& images, const Trace& trace) {
         "ManyAR_PatchEmbed models take landscape images only (W >= H), got " + std::to_string(H) +
         "x" + std::to_string(W));
   }
-  at::Tensor x = patch_embed(images);
+  at::Tensor x = patch_embed(images).to(images.scalar_type());
   if (trace.enabled()) {
     trace.put("patch_embed", x);
     trace.put("pos", grid_positions(x.size(0), g.first, g.second, x.device()));
@@ -492,7 +498,8 @@ HeadOutput Dust3rNetImpl::head(int which, const DecoderOutputs& dec, int64_t H, 
                                const Trace& trace) {
   TORCH_CHECK(which == 1 || which == 2, "head: 1 or 2");
   DptHead& h = which == 1 ? downstream_head1 : downstream_head2;
-  HeadOutput out = postprocess(h->dpt(dec, H, W, trace), config_);
+  // The postprocess (exp / square of the depth, the confidence) in float32.
+  HeadOutput out = postprocess(h->dpt(dec, H, W, trace).to(at::kFloat), config_);
   // transpose_to_landscape: with PatchEmbedDust3R the tokens of a portrait
   // image are in image order, the head runs at (H, W) and only its outputs are
   // transposed.
@@ -556,7 +563,9 @@ at::Tensor Spann3rNetImpl::cur_value(const at::Tensor& pts3d, const at::Tensor& 
     const int64_t p = config_.dust3r.patch_size;
     vh = pts3d.size(1) / p;
     vw = pts3d.size(2) / p;
-    x = pos_patch_embed(pts3d.permute({0, 3, 1, 2}));
+    // The float32 pointmap goes to the convolution as it is; its tokens then
+    // continue in the model's precision.
+    x = pos_patch_embed(pts3d.permute({0, 3, 1, 2})).to(dec_last.scalar_type());
   }
   RopeTable r;
   if (config_.spann3r.mem_pos_enc) {

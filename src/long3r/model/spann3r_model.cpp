@@ -80,7 +80,7 @@ std::optional<StreamOutput> Spann3rModel::push(const at::Tensor& image) {
   s.shape.check(image, s.frames == 0, *dust3r, "Spann3rModel::push");
   c10::InferenceMode guard;
   const auto t0 = Clock::now();
-  const at::Tensor img = image.to(device(), at::kFloat);
+  const at::Tensor img = image.to(device(), dtype());
   if (s.frames == 0) {
     s.first_image = img;
     s.frames = 1;

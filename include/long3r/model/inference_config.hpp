@@ -1,0 +1,59 @@
+// Where and in which precision a model runs (torch-free, so the nodelet's
+// parameters, the tools' flags and JSON all fill the same struct). The
+// libtorch side, which checks that this machine can serve the request and
+// converts a model, is include/long3r/model/inference.hpp.
+#pragma once
+
+#include <array>
+#include <string>
+#include <utility>
+
+#include "long3r/io/config_fields.hpp"
+
+namespace long3r {
+
+class CliOptions;
+
+// Storage and compute precision of the weights and activations. Layer norms,
+// softmax statistics and the heads' postprocess stay float32 whatever is set
+// (docs/performance.md, "Precision").
+enum class Precision { kFloat32, kBFloat16, kFloat16 };
+inline const std::array<std::pair<Precision, const char*>, 3>& enum_names(Precision) {
+  static const std::array<std::pair<Precision, const char*>, 3> names{
+      {{Precision::kFloat32, "float32"},
+       {Precision::kBFloat16, "bfloat16"},
+       {Precision::kFloat16, "float16"}}};
+  return names;
+}
+
+constexpr const char* kDefaultInferenceDevice = "cpu";
+
+struct InferenceConfig {
+  // "cpu", "cuda" (the current CUDA device) or "cuda:N".
+  std::string device = kDefaultInferenceDevice;
+  Precision precision = Precision::kFloat32;
+  // bfloat16 on a CPU without native bfloat16 arithmetic (AVX512-BF16 or
+  // AMX) is emulated: correct but slower than float32. Refused unless this is
+  // set, e.g. to measure its accuracy on such a machine.
+  bool allow_emulated_precision = false;
+
+  // Syntax only (what any machine can check); whether this machine can serve
+  // it is resolve_inference_target()'s job. Throws ConfigError naming the field.
+  void validate(const config::FieldCheck& check) const;
+};
+
+// "cpu", "cuda" or "cuda:N" (N up to 4 digits).
+bool is_device_name(const std::string& name);
+
+template <class S, class V>
+config::FieldsOf<S, InferenceConfig> visit_fields(S& s, V& v) {
+  v("device", s.device);
+  v("precision", s.precision);
+  v("allow_emulated_precision", s.allow_emulated_precision);
+}
+
+// --device, --precision and --allow-emulated-precision, written once for
+// every tool that runs a model.
+void add_inference_options(CliOptions& cli, InferenceConfig* config);
+
+}  // namespace long3r

@@ -1,0 +1,214 @@
+// Device and precision: the request checks (what this machine cannot serve is
+// an error naming what is missing), and the models converted to bfloat16,
+// whose outputs stay float32 and within a measured distance of float32.
+#include <ATen/ATen.h>
+#include <ATen/Context.h>
+#include <gtest/gtest.h>
+#include <torch/nn/module.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <string>
+#include <vector>
+
+#include "long3r/io/config_json.hpp"
+#include "long3r/model/inference.hpp"
+#include "long3r/model/long3r_model.hpp"
+#include "long3r/model/spann3r_model.hpp"
+#include "long3r/model/streaming.hpp"
+#include "support/test_support.hpp"
+
+namespace {
+
+using long3r::InferenceConfig;
+using long3r::InferenceUnsupportedError;
+using long3r::Precision;
+
+const std::string kGolden = std::string(LONG3R_SHARED_DIR) + "/golden/";
+
+std::string error_of(const InferenceConfig& c) {
+  try {
+    long3r::resolve_inference_target(c);
+  } catch (const std::exception& e) {
+    return e.what();
+  }
+  return "";
+}
+
+bool contains(const std::string& text, const std::string& part) {
+  return text.find(part) != std::string::npos;
+}
+
+// A smooth moving pattern in [-1, 1], different per frame.
+at::Tensor frame(int64_t t, int64_t h, int64_t w) {
+  const at::Tensor y = at::linspace(0, 1, h).view({1, 1, h, 1});
+  const at::Tensor x = at::linspace(0, 1, w).view({1, 1, 1, w});
+  const double s = 0.15 * static_cast<double>(t);
+  std::vector<at::Tensor> ch;
+  for (int c = 0; c < 3; ++c) {
+    ch.push_back(at::sin(6.0 * (x + s) + 2.0 * c) * at::cos(5.0 * (y - 0.5 * s) + c));
+  }
+  return at::cat(ch, 1).clamp(-1, 1);
+}
+
+std::vector<long3r::StreamOutput> stream(long3r::StreamingModel& model, int64_t n, int64_t h,
+                                         int64_t w) {
+  model.reset();
+  std::vector<long3r::StreamOutput> outs;
+  for (int64_t t = 0; t < n; ++t) {
+    if (auto o = model.push(frame(t, h, w))) outs.push_back(*o);
+  }
+  outs.push_back(*model.flush());
+  return outs;
+}
+
+}  // namespace
+
+TEST(InferenceConfig, DeviceNames) {
+  for (const char* ok : {"cpu", "cuda", "cuda:0", "cuda:12"})
+    EXPECT_TRUE(long3r::is_device_name(ok)) << ok;
+  for (const char* bad : {"", "gpu", "CPU", "cuda:", "cuda:x", "cuda:-1", "cpu:0", "cuda:0 "}) {
+    EXPECT_FALSE(long3r::is_device_name(bad)) << bad;
+  }
+  InferenceConfig c;
+  c.device = "gpu";
+  try {
+    c.validate({"inference config", ""});
+    FAIL() << "no error";
+  } catch (const long3r::ConfigError& e) {
+    EXPECT_TRUE(contains(e.what(), "device")) << e.what();
+    EXPECT_TRUE(contains(e.what(), "gpu")) << e.what();
+  }
+}
+
+TEST(InferenceConfig, JsonFieldsAndUnknownPrecision) {
+  InferenceConfig c;
+  long3r::config::read_object(
+      long3r::config::parse(R"({"device": "cuda:1", "precision": "bfloat16"})", "test"), c,
+      {"inference config"});
+  EXPECT_EQ(c.device, "cuda:1");
+  EXPECT_EQ(c.precision, Precision::kBFloat16);
+  EXPECT_EQ(long3r::config::to_json(c).dump(),
+            R"({"device":"cuda:1","precision":"bfloat16","allow_emulated_precision":false})");
+  InferenceConfig d;
+  EXPECT_THROW(long3r::config::read_object(long3r::config::parse(R"({"precision": "fp8"})", "t"), d,
+                                           {"inference config"}),
+               long3r::ConfigError);
+}
+
+TEST(InferenceConfig, CpuFloat32IsAlwaysServed) {
+  const long3r::InferenceTarget t = long3r::resolve_inference_target(InferenceConfig{});
+  EXPECT_EQ(t.device, at::Device(at::kCPU));
+  EXPECT_EQ(t.dtype, at::kFloat);
+  EXPECT_EQ(long3r::describe(t), "cpu float32");
+}
+
+TEST(InferenceConfig, CudaWithoutCudaSaysWhatToSet) {
+  if (at::hasCUDA()) GTEST_SKIP() << "this machine has CUDA";
+  InferenceConfig c;
+  c.device = "cuda";
+  const std::string e = error_of(c);
+  EXPECT_TRUE(contains(e, "no CUDA device")) << e;
+  EXPECT_TRUE(contains(e, "set device to cpu")) << e;
+  EXPECT_THROW(long3r::resolve_inference_target(c), InferenceUnsupportedError);
+}
+
+TEST(InferenceConfig, Float16OnTheCpuIsRefused) {
+  InferenceConfig c;
+  c.precision = Precision::kFloat16;
+  c.allow_emulated_precision = true;  // no CPU kernels at all: refused regardless
+  const std::string e = error_of(c);
+  EXPECT_TRUE(contains(e, "float16 on the CPU")) << e;
+  EXPECT_TRUE(contains(e, "bfloat16")) << e;
+}
+
+TEST(InferenceConfig, EmulatedBfloat16OnlyWhenAllowed) {
+  InferenceConfig c;
+  c.precision = Precision::kBFloat16;
+  if (long3r::cpu_has_native_bfloat16()) {
+    EXPECT_EQ(long3r::resolve_inference_target(c).dtype, at::kBFloat16);
+  } else {
+    const std::string e = error_of(c);
+    EXPECT_TRUE(contains(e, "no native bfloat16")) << e;
+    EXPECT_TRUE(contains(e, "allow_emulated_precision")) << e;
+  }
+  c.allow_emulated_precision = true;
+  EXPECT_EQ(long3r::resolve_inference_target(c).dtype, at::kBFloat16);
+}
+
+// The factory converts the weights once; a request this machine cannot serve
+// fails before the file is read.
+TEST(InferenceConfig, StreamingModelFactoryConvertsOnce) {
+  const std::string path = kGolden + "spann3r_seq_land96x64/weights.safetensors";
+  InferenceConfig c;
+  c.precision = Precision::kFloat16;
+  EXPECT_THROW(long3r::make_streaming_model("/nonexistent.safetensors", c),
+               InferenceUnsupportedError);
+  c.precision = Precision::kBFloat16;
+  c.allow_emulated_precision = true;
+  const auto model = long3r::make_streaming_model(path, c);
+  const auto& spann3r = dynamic_cast<const long3r::Spann3rModel&>(*model);
+  EXPECT_EQ(spann3r.dtype(), at::kBFloat16);
+}
+
+namespace {
+
+// Streams the same frames through a float32 and a bfloat16 copy of a model;
+// returns the largest relative deviation of the pointmaps and confidences.
+template <class Model>
+double bfloat16_deviation(Model& f32, Model& bf16, int64_t frames, int64_t h, int64_t w) {
+  bf16.to(at::Device(at::kCPU), at::kBFloat16);
+  const auto ref = stream(f32, frames, h, w);
+  const auto got = stream(bf16, frames, h, w);
+  EXPECT_EQ(got.size(), ref.size());
+  double worst = 0.0;
+  for (std::size_t i = 0; i < got.size() && i < ref.size(); ++i) {
+    EXPECT_EQ(got[i].pts3d.scalar_type(), at::kFloat);  // outputs stay float32
+    EXPECT_EQ(got[i].conf.scalar_type(), at::kFloat);
+    worst = std::max(worst, long3r::test::rel_diff(got[i].pts3d, ref[i].pts3d));
+    worst = std::max(worst, long3r::test::rel_diff(got[i].conf, ref[i].conf));
+  }
+  return worst;
+}
+
+// What ModelShell::to keeps float32 on the CPU: the convolutions only.
+void expect_convolutions_float32(torch::nn::Module& module) {
+  for (const auto& p : module.named_parameters()) {
+    const bool conv = p.key().find("patch_embed.proj.") != std::string::npos ||
+                      p.key().find("downstream_head") != std::string::npos;
+    EXPECT_EQ(p.value().scalar_type(), conv ? at::kFloat : at::kBFloat16) << p.key();
+  }
+}
+
+}  // namespace
+
+// Bounds: the measured deviation (printed) plus a margin; reduced precision
+// is not bit-exact, float32 stays so (the golden cases).
+TEST(Bfloat16, Spann3rStreamStaysCloseToFloat32) {
+  const std::string path = kGolden + "spann3r_seq_land96x64/weights.safetensors";
+  auto f32 = long3r::Spann3rModel::from_file(path);
+  auto bf16 = long3r::Spann3rModel::from_file(path);
+  const double dev = bfloat16_deviation(*f32, *bf16, 8, 64, 96);
+  std::printf("Spann3R (golden weights) 8 frames 64x96: max relative deviation %.3e\n", dev);
+  EXPECT_LT(dev, 0.06);  // measured 4.12e-2
+  // The memory holds the model's precision (flush ended the stream: two more frames).
+  bf16->push(frame(0, 64, 96));
+  bf16->push(frame(1, 64, 96));
+  EXPECT_EQ(bf16->memory().keys().scalar_type(), at::kBFloat16);
+  expect_convolutions_float32(bf16->module());
+}
+
+TEST(Bfloat16, Long3rStreamStaysCloseToFloat32) {
+  at::manual_seed(3);
+  long3r::Long3rModel f32(long3r::test::tiny_long3r_config());
+  long3r::Long3rModel bf16(long3r::test::tiny_long3r_config());
+  long3r::test::copy_parameters(f32.module(), bf16.module());
+  const double dev = bfloat16_deviation(f32, bf16, 8, 64, 64);
+  std::printf("LONG3R (long3r_tiny, random weights) 8 frames 64x64: max relative deviation %.3e\n",
+              dev);
+  EXPECT_LT(dev, 2e-3);  // measured 1.17e-3
+  bf16.push(frame(0, 64, 64));
+  bf16.push(frame(1, 64, 64));
+  EXPECT_EQ(bf16.memory().keys().scalar_type(), at::kBFloat16);
+  expect_convolutions_float32(bf16.module());
+}
