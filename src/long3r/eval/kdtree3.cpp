@@ -78,11 +78,17 @@ class ExactKnn {
 
 }  // namespace
 
+// Points per leaf. nanoflann bounds a subtree by the distance to its split
+// cells, looser than the box of its points, so larger leaves pay off: on the
+// scoring benchmark's 200k-point clouds 32 took about half the CPU time of
+// nanoflann's default 10 for k = 30 and a third less for the nearest point.
+constexpr size_t kLeafSize = 32;
+
 struct KdTree3::Index {
   Cloud cloud;
   Tree tree;
   explicit Index(const std::vector<Eigen::Vector3f>* points)
-      : cloud{points}, tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10)) {}
+      : cloud{points}, tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(kLeafSize)) {}
 };
 
 KdTree3::KdTree3() = default;
