@@ -1,6 +1,8 @@
 // Point-cloud reading and writing; see include/long3r/dataset/point_cloud_io.hpp.
 #include "long3r/dataset/point_cloud_io.hpp"
 
+#include "long3r/dataset/tum_dataset.hpp"
+
 #include <pcl/io/pcd_io.h>
 #include <pcl/point_types.h>
 
@@ -260,19 +262,11 @@ std::vector<Eigen::Vector3f> load_ply(const std::string& path) {
 }
 
 std::vector<Eigen::Vector3f> load_xyz(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw std::runtime_error("cannot open " + path);
   std::vector<Eigen::Vector3f> out;
-  std::string line;
-  int number = 0;
-  while (std::getline(in, line)) {
-    ++number;
-    const size_t hash = line.find('#');
-    if (hash != std::string::npos) line.resize(hash);
-    std::replace(line.begin(), line.end(), ',', ' ');
+  for (const auto& [number, line] : data_lines(path)) {
     std::istringstream ss(line);
     float x, y, z;
-    if (!(ss >> x)) continue;  // blank line
+    if (!(ss >> x)) continue;  // not a number (e.g. a header line without '#')
     if (!(ss >> y >> z))
       throw std::runtime_error(path + ":" + std::to_string(number) + ": expected x y z");
     out.emplace_back(x, y, z);

@@ -39,8 +39,18 @@ __attribute__((format(printf, 2, 3))) void append_printf(std::string* out, const
   va_end(again);
 }
 
-// Lines of a text file without comments ('#') and blank lines; commas become
-// spaces. Keeps the 1-based line number for error messages.
+[[noreturn]] void bad_line(const std::string& path, int number, const std::string& what) {
+  throw std::runtime_error(path + ":" + std::to_string(number) + ": " + what);
+}
+
+std::string join(const std::string& root, const std::string& rel) {
+  fs::path p(rel);
+  if (p.is_absolute()) return p.string();
+  return (fs::path(root) / p).string();
+}
+
+}  // namespace
+
 std::vector<std::pair<int, std::string>> data_lines(const std::string& path) {
   std::ifstream in(path);
   if (!in) throw std::runtime_error("cannot open " + path);
@@ -57,18 +67,6 @@ std::vector<std::pair<int, std::string>> data_lines(const std::string& path) {
   }
   return out;
 }
-
-[[noreturn]] void bad_line(const std::string& path, int number, const std::string& what) {
-  throw std::runtime_error(path + ":" + std::to_string(number) + ": " + what);
-}
-
-std::string join(const std::string& root, const std::string& rel) {
-  fs::path p(rel);
-  if (p.is_absolute()) return p.string();
-  return (fs::path(root) / p).string();
-}
-
-}  // namespace
 
 std::vector<Eigen::Vector3d> PoseTrajectory::positions() const {
   std::vector<Eigen::Vector3d> out;
