@@ -1,19 +1,16 @@
 // AtomicFile / write_file_atomically: the target is either the old file or
 // the complete new one, and no temporary is ever left behind.
 #include <gtest/gtest.h>
-#include <sys/resource.h>
 #include <unistd.h>
 
-#include <algorithm>
-#include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <functional>
-#include <sstream>
 #include <string>
 #include <vector>
 
 #include "long3r/io/atomic_file.hpp"
+#include "support/test_support.hpp"
 
 namespace long3r {
 namespace {
@@ -22,26 +19,11 @@ namespace fs = std::filesystem;
 
 fs::path test_dir() {
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  const fs::path dir = fs::temp_directory_path() / ("long3r_atomic_" + std::string(info->name()) +
-                                                    "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
+  return test::scratch_dir(std::string("atomic_file/") + info->name());
 }
 
-std::vector<std::string> entries(const fs::path& dir) {
-  std::vector<std::string> names;
-  for (const auto& e : fs::directory_iterator(dir)) names.push_back(e.path().filename().string());
-  std::sort(names.begin(), names.end());
-  return names;
-}
-
-std::string read_all(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
+std::vector<std::string> entries(const fs::path& dir) { return test::folder_entries(dir.string()); }
+std::string read_all(const fs::path& p) { return test::read_file(p.string()); }
 
 std::string message_of(const std::function<void()>& f) {
   try {
@@ -131,16 +113,11 @@ TEST(AtomicFile, FailedWriteLeavesTargetAndNoTemporary) {
   const fs::path dir = test_dir();
   const fs::path target = dir / "big.bin";
   { std::ofstream(target) << "old"; }
-  struct rlimit old_limit {};
-  ASSERT_EQ(::getrlimit(RLIMIT_FSIZE, &old_limit), 0);
-  const auto old_handler = std::signal(SIGXFSZ, SIG_IGN);
-  struct rlimit limit = old_limit;
-  limit.rlim_cur = 4096;
-  ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &limit), 0);
-  const std::string what =
-      message_of([&] { write_file_atomically(target.string(), std::string(1 << 16, 'y')); });
-  ::setrlimit(RLIMIT_FSIZE, &old_limit);
-  std::signal(SIGXFSZ, old_handler);
+  std::string what;
+  {
+    const test::FileSizeLimit limit(4096);
+    what = message_of([&] { write_file_atomically(target.string(), std::string(1 << 16, 'y')); });
+  }
   EXPECT_NE(what.find("write failed"), std::string::npos) << what;
   EXPECT_NE(what.find(target.string()), std::string::npos) << what;
   EXPECT_EQ(read_all(target), "old");

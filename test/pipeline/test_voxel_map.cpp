@@ -4,7 +4,6 @@
 #include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
 #include <pcl/point_types.h>
-#include <sys/resource.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -13,7 +12,6 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -53,12 +51,7 @@ fs::path test_dir() {
   return test::scratch_dir(std::string("voxel_map/") + info->name());
 }
 
-std::vector<std::string> entries(const fs::path& dir) {
-  std::vector<std::string> names;
-  for (const auto& e : fs::directory_iterator(dir)) names.push_back(e.path().filename().string());
-  std::sort(names.begin(), names.end());
-  return names;
-}
+std::vector<std::string> entries(const fs::path& dir) { return test::folder_entries(dir.string()); }
 
 std::string read_all(const fs::path& p) { return test::read_file(p.string()); }
 
@@ -395,22 +388,17 @@ TEST(MapFile, FailedWriteLeavesTheOldFileAndNoTemporary) {
   const MapSnapshot s = small_cloud();  // ~18 kB as binary PLY
   { std::ofstream(target) << "old map"; }
 
-  struct rlimit old_limit {};
-  ASSERT_EQ(::getrlimit(RLIMIT_FSIZE, &old_limit), 0);
-  const auto old_handler = std::signal(SIGXFSZ, SIG_IGN);
-  struct rlimit limit = old_limit;
-  limit.rlim_cur = 4096;
-  ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &limit), 0);
   bool threw = false;
   std::string what;
-  try {
-    save_colored_cloud(target.string(), s.points, s.colors);
-  } catch (const std::runtime_error& e) {
-    threw = true;
-    what = e.what();
+  {
+    const test::FileSizeLimit limit(4096);
+    try {
+      save_colored_cloud(target.string(), s.points, s.colors);
+    } catch (const std::runtime_error& e) {
+      threw = true;
+      what = e.what();
+    }
   }
-  ::setrlimit(RLIMIT_FSIZE, &old_limit);
-  std::signal(SIGXFSZ, old_handler);
 
   EXPECT_TRUE(threw);
   EXPECT_NE(what.find("write failed"), std::string::npos) << what;

@@ -7,6 +7,7 @@
 #include <ATen/core/Tensor.h>
 
 #include <string>
+#include <vector>
 
 #include "long3r/model/model_config.hpp"
 
@@ -21,6 +22,22 @@ std::string scratch_dir(const std::string& name);
 
 std::string read_file(const std::string& path);  // all bytes; "" when unreadable
 void write_file(const std::string& path, const std::string& bytes);
+// Names of a folder's entries, sorted (e.g. to see that no temporary is left).
+std::vector<std::string> folder_entries(const std::string& dir);
+
+// While alive, files this process writes are limited to `bytes` (RLIMIT_FSIZE,
+// SIGXFSZ ignored), so a write past it fails with EFBIG as on a full disk.
+class FileSizeLimit {
+ public:
+  explicit FileSizeLimit(unsigned long bytes);
+  ~FileSizeLimit();
+  FileSizeLimit(const FileSizeLimit&) = delete;
+  FileSizeLimit& operator=(const FileSizeLimit&) = delete;
+
+ private:
+  unsigned long old_soft_limit_ = 0;
+  void (*old_handler_)(int) = nullptr;
+};
 
 // A small DUSt3R with the golden models' tiny widths (encoder 32 x 2 blocks,
 // decoder 16 x 4, DPT features 8), for shape and mechanics tests.
