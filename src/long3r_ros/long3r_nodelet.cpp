@@ -54,13 +54,6 @@ void Long3rNodelet::onInit() {
   // A missing or bad model must stop the nodelet here, with the reason.
   const std::string model_path =
       config_.model_path.empty() ? defaultModelPath() : config_.model_path;
-  long3r::InferenceTarget target;
-  try {
-    target = long3r::resolve_inference_target(inference_config_);
-  } catch (const std::exception& e) {
-    NODELET_FATAL("cannot run the model as configured (~device, ~precision): %s", e.what());
-    throw;
-  }
   try {
     if (model_path.empty() || !std::ifstream(model_path).good()) {
       throw std::runtime_error("model file '" + model_path +
@@ -68,12 +61,16 @@ void Long3rNodelet::onInit() {
     }
     recon_ = std::make_unique<long3r::Reconstruction>(
         long3r::make_streaming_model(model_path, inference_config_), recon_config_);
+  } catch (const long3r::InferenceUnsupportedError& e) {
+    NODELET_FATAL("cannot run the model as configured (~device, ~precision): %s", e.what());
+    throw;
   } catch (const std::exception& e) {
     NODELET_FATAL("cannot load the model: %s", e.what());
     throw;
   }
-  NODELET_INFO("model loaded from %s, running in %s", model_path.c_str(),
-               long3r::describe(target).c_str());
+  NODELET_INFO("model loaded from %s, running on %s in %s", model_path.c_str(),
+               inference_config_.device.c_str(),
+               long3r::config::enum_name(inference_config_.precision));
 
   frame_cloud_pub_ = pnh.advertise<sensor_msgs::PointCloud2>("frame_cloud", 2);
   pointmap_pub_ = pnh.advertise<Pointmap>("pointmap", 2);

@@ -107,10 +107,11 @@ InferenceTarget resolve_inference_target(const InferenceConfig& config) {
 }
 
 std::string describe(const InferenceTarget& target) {
-  std::string dtype = "float32";
-  if (target.dtype == at::kBFloat16) dtype = "bfloat16";
-  if (target.dtype == at::kHalf) dtype = "float16";
-  return target.device.str() + " " + dtype;
+  for (const auto& entry : enum_names(Precision{})) {
+    if (precision_dtype(entry.first) == target.dtype)
+      return target.device.str() + " " + entry.second;
+  }
+  return target.device.str() + " " + c10::toString(target.dtype);
 }
 
 }  // namespace long3r
