@@ -6,6 +6,7 @@
 #   bash scripts/bench_scoring.sh [--baseline REV] [--points N] [--repeats R]
 # --baseline: the revision to compare with (default f65af4e, the last one
 # with the hand-written k-d tree); the working tree is the other side.
+# Work folder: $LONG3R_BENCH_SCORING_DIR, default /tmp/long3r_bench_scoring.
 # Runs alternate (baseline, current, baseline, ...) so both meet the same
 # load; the best and median wall and CPU times of each side are printed.
 set -euo pipefail
@@ -23,7 +24,9 @@ while [ $# -gt 0 ]; do
   esac
 done
 
-work="$LONG3R_ROOT/build/bench_scoring"
+# Outside the package: a checkout of another revision inside it would give
+# roslaunch two files of each launch name.
+work=${LONG3R_BENCH_SCORING_DIR:-${TMPDIR:-/tmp}/long3r_bench_scoring}
 mkdir -p "$work"
 src_base="$work/src_baseline"
 if [ ! -d "$src_base" ] || [ "$(git -C "$src_base" rev-parse HEAD)" != "$(git -C "$LONG3R_ROOT" rev-parse "$baseline^{commit}")" ]; then
