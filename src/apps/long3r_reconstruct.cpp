@@ -23,6 +23,7 @@
 #include "long3r/io/atomic_file.hpp"
 #include "long3r/io/cli_options.hpp"
 #include "long3r/model/inference_config.hpp"
+#include "long3r/model/safetensors.hpp"
 #include "long3r/model/threads.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 
@@ -119,7 +120,7 @@ int main(int argc, char** argv) {
     }
     if (!calib) calib = src.calib;
 
-    const auto metadata = read_checkpoint_metadata(model_path);
+    const auto metadata = read_safetensors_metadata(model_path);
     const bool random = has_random_weights(metadata);
     if (random) {
       std::fprintf(stderr,

@@ -479,6 +479,45 @@ TEST(Safetensors, LoadReportsFileName) {
   EXPECT_THROW(long3r::load_safetensors(dir.file("")), CheckpointError);  // a directory
 }
 
+// What is not a regular readable file is refused before anything is read,
+// with the file named: a directory (whose read would return garbage), a FIFO
+// (whose open would block the caller forever), an unreadable file.
+TEST(Safetensors, RefusesWhatIsNotARegularReadableFile) {
+  TempDir dir;
+  auto expect_refused = [](const std::string& path, const std::string& why) {
+    for (int reader = 0; reader < 2; ++reader) {
+      try {
+        if (reader == 0) {
+          long3r::load_safetensors(path);
+        } else {
+          long3r::read_safetensors_metadata(path);
+        }
+        ADD_FAILURE() << "no throw for " << path;
+      } catch (const CheckpointError& e) {
+        EXPECT_CONTAINS(e.what(), path);
+        EXPECT_CONTAINS(e.what(), why);
+      }
+    }
+  };
+  const std::string sub = dir.file("model.safetensors");
+  ASSERT_EQ(::mkdir(sub.c_str(), 0755), 0);
+  expect_refused(sub, "is a directory");
+  const std::string fifo = dir.file("fifo.safetensors");
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0644), 0);
+  expect_refused(fifo, "not a regular file");
+  const std::string locked = dir.file("locked.safetensors");
+  write_file(locked, read_file(kGolden + "spann3r_seq_land96x64/weights.safetensors"));
+  ASSERT_EQ(::chmod(locked.c_str(), 0), 0);
+  if (::access(locked.c_str(), R_OK) != 0) {  // root reads it anyway
+    expect_refused(locked, "cannot open");
+  }
+}
+
+TEST(Safetensors, MetadataAloneMatchesTheWholeFile) {
+  const std::string path = kGolden + "spann3r_seq_land96x64/weights.safetensors";
+  EXPECT_EQ(long3r::read_safetensors_metadata(path), long3r::load_safetensors(path).metadata);
+}
+
 TEST(Safetensors, LoadsEveryGoldenFileWithCaseJsonShapes) {
   for (const char* c : kCases) {
     SCOPED_TRACE(c);

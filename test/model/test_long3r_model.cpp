@@ -217,6 +217,32 @@ TEST(Long3rModel, FlushReturnsCoarseHeadPrediction) {
   EXPECT_FALSE(model.flush().has_value());  // the stream ended
 }
 
+// peek_last() is a pause in the input, not its end: it returns what flush()
+// would, and the stream then goes on exactly as if it had not been called.
+TEST(Long3rModel, PeekLastKeepsTheStream) {
+  at::manual_seed(8);
+  long3r::Long3rModel model(tiny());
+  const auto reference = run_stream(model, 6);
+  std::vector<long3r::StreamOutput> peeked;
+  for (int64_t t = 0; t < 6; ++t) {
+    auto o = model.push(frame(t));
+    if (o) expect_same({*o}, {reference[o->frame_index]});
+    if (auto p = model.peek_last()) {
+      EXPECT_EQ(p->frame_index, t);
+      EXPECT_TRUE(p->from_coarse_head);
+      peeked.push_back(*p);
+    } else {
+      EXPECT_EQ(t, 0);  // a single frame has no pair yet
+    }
+    EXPECT_EQ(model.frames_pushed(), t + 1);
+  }
+  ASSERT_EQ(peeked.size(), 5u);
+  expect_same({peeked.back()}, {reference.back()});  // the last peek is the flush
+  EXPECT_EQ(model.memory().frames_added(), 5);
+  expect_same({*model.flush()}, {reference.back()});
+  EXPECT_EQ(model.frames_pushed(), 0);
+}
+
 TEST(Long3rModel, ResetAndRepeatGiveIdenticalOutputs) {
   at::manual_seed(7);
   long3r::Long3rModel model(tiny());

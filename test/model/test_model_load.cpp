@@ -157,8 +157,16 @@ TEST(ModelLoad, Spann3rStreamSemantics) {
   EXPECT_EQ(o1->stats.mem_long_tokens, 24);
   EXPECT_THROW(model->push(frames.narrow(0, 3, 1).narrow(3, 0, 64)), std::invalid_argument);
 
+  // A pause: the coarse head's frame 2 now, the stream kept.
+  const auto peeked = model->peek_last();
+  ASSERT_TRUE(peeked.has_value());
+  EXPECT_EQ(peeked->frame_index, 2);
+  EXPECT_EQ(model->frames_pushed(), 3);
+  EXPECT_EQ(model->memory().size(), 48);
+
   const auto last = model->flush();  // frame 2 from the coarse head of step 1
   ASSERT_TRUE(last.has_value());
+  EXPECT_TRUE(last->pts3d.equal(peeked->pts3d));
   EXPECT_EQ(last->frame_index, 2);
   EXPECT_TRUE(last->from_coarse_head);
   EXPECT_EQ(last->pts3d.sizes(), (std::vector<int64_t>{1, 64, 96, 3}));

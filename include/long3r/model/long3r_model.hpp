@@ -13,7 +13,7 @@
 //   (k_t = attn_head_1(cat(F^I_t, x_B)), v_t = value encoder of pointmap_t + k_t,
 //   token positions = confidence-weighted patch means of pointmap_t);
 //   F^c_{t+1} = y_B.
-// flush() returns the last frame from head2 of the last step. All point maps
+// peek_last() / flush() return the last frame from head2 of the last step. All point maps
 // are in the frame of camera 0. Portrait frames with landscape_only give maps
 // of shape [B, W, H, .] (as the DUSt3R heads do); the memory always works on
 // the token grid of the image (the maps are transposed back for it).
@@ -67,12 +67,12 @@ class Long3rModel : public StreamingModel, public ModelShell {
 
   // StreamingModel. image: [B, 3, H, W] float, (rgb - 0.5) / 0.5, H and W
   // multiples of the patch size, one size and batch for the whole stream.
-  // flush() after a single frame returns nothing (the model needs a pair).
+  // peek_last() after a single frame returns nothing (the model needs a pair).
   // StepStats: memory sizes after the step's write; mem_long_tokens and
   // relevant_tokens are the maxima over the batch (0 relevant at step 0);
   // voxel_size is v_scene of stream 0 (0 while undefined).
   std::optional<StreamOutput> push(const at::Tensor& image) override;
-  std::optional<StreamOutput> flush() override;
+  std::optional<StreamOutput> peek_last() override;
   void reset() override;
   int64_t frames_pushed() const override;
   std::string variant() const override { return "long3r"; }

@@ -21,8 +21,14 @@ struct TensorFile {
   std::map<std::string, std::string> metadata;
 };
 
-// Reads and validates a whole file. Throws CheckpointError on any problem.
+// Reads and validates a whole file. Throws CheckpointError on any problem;
+// what is not a regular readable file (a directory, a FIFO, a device) is
+// refused before anything is read.
 TensorFile load_safetensors(const std::string& path);
+
+// The string metadata only (the header is read and validated, the tensors are
+// not). Throws CheckpointError as load_safetensors does.
+std::map<std::string, std::string> read_safetensors_metadata(const std::string& path);
 
 // Writes tensors (any device; stored as their dtype, C-contiguous) and metadata
 // to path atomically: a temporary file beside it, then rename.

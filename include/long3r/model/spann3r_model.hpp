@@ -11,7 +11,7 @@
 //   feat_k1 = attn_head_1(cat(feat_k, dec1[-1])), feat_k2 = attn_head_2(cat(feat_{k+1}, dec2[-1]));
 //   frame k = head1(dec1); value = value encoder of frame k's point map;
 //   memory.add_mem_check(feat_k1, value + feat_k1).
-// flush() returns the last frame from head 2 of the last step. All point maps
+// peek_last() / flush() return the last frame from head 2 of the last step. All point maps
 // are in the frame of camera 0. Portrait frames with landscape_only (the
 // official Spann3R setting) give maps of shape [B, W, H, .], as the official
 // model does.
@@ -44,10 +44,10 @@ class Spann3rModel : public StreamingModel, public ModelShell {
   static std::unique_ptr<Spann3rModel> from_file(const std::string& path);
 
   // StreamingModel. image: [B, 3, H, W] float, (rgb - 0.5) / 0.5, H and W
-  // multiples of the patch size, the same size for the whole stream. flush()
-  // after a single frame returns nothing (Spann3R needs a pair).
+  // multiples of the patch size, the same size for the whole stream.
+  // peek_last() after a single frame returns nothing (Spann3R needs a pair).
   std::optional<StreamOutput> push(const at::Tensor& image) override;
-  std::optional<StreamOutput> flush() override;
+  std::optional<StreamOutput> peek_last() override;
   void reset() override;
   int64_t frames_pushed() const override;
   std::string variant() const override { return "spann3r"; }
@@ -56,8 +56,8 @@ class Spann3rModel : public StreamingModel, public ModelShell {
 
   // Records, per step k, under "step{k}.": the encoder intermediates of the
   // newly encoded frames (img1.* at step 0, img2.*), dec1.* / dec2.*, head1.*,
-  // feat_fuse (k >= 1), feat_k1, feat_k2, cur_v, pts3d, conf; flush() records
-  // "flush.head2.*", "flush.pts3d", "flush.conf". While a trace is set the
+  // feat_fuse (k >= 1), feat_k1, feat_k2, cur_v, pts3d, conf; peek_last()
+  // (and so flush()) records "flush.head2.*", "flush.pts3d", "flush.conf". While a trace is set the
   // memory keeps each read's softmax weights (memory().last_read().attention).
   void set_trace(const Trace& trace);
 

@@ -2,8 +2,9 @@
 //
 // Frames are pushed one at a time. Step t runs when frame t+1 arrives and
 // returns the result for frame t (one frame of latency, as both models
-// define it); flush() returns the last frame from the coarse head when the
-// stream ends; reset() clears every piece of state (memory, cached features).
+// define it); peek_last() returns the last frame from the coarse head without
+// ending the stream (a pause in the input), flush() returns it and ends the
+// stream; reset() clears every piece of state (memory, cached features).
 // Pointmaps are in the coordinate frame of camera 0 of the current stream.
 #pragma once
 
@@ -34,7 +35,7 @@ struct StreamOutput {
   int64_t frame_index = 0;        // 0-based index of the frame these outputs belong to
   at::Tensor pts3d;               // [B, H, W, 3] float32, camera-0 frame
   at::Tensor conf;                // [B, H, W] float32, >= 1
-  bool from_coarse_head = false;  // true for the frame returned by flush()
+  bool from_coarse_head = false;  // true for the frame returned by peek_last() / flush()
   StepStats stats;
 };
 
@@ -47,9 +48,18 @@ class StreamingModel {
   // All frames of a stream must have the same size.
   virtual std::optional<StreamOutput> push(const at::Tensor& image) = 0;
 
-  // Returns the last pushed frame's result (coarse head) and ends the stream;
-  // empty if no frame is pending. The next push starts a new stream.
-  virtual std::optional<StreamOutput> flush() = 0;
+  // The last pushed frame's result from the coarse head (head 2 of the last
+  // step) while its refined result still waits for the next frame. Changes no
+  // state: a later push continues the stream and returns that frame's refined
+  // result as usual. Empty before the first pair (the models need two frames).
+  virtual std::optional<StreamOutput> peek_last() = 0;
+
+  // The end of a stream: peek_last(), then reset().
+  std::optional<StreamOutput> flush() {
+    std::optional<StreamOutput> out = peek_last();
+    reset();
+    return out;
+  }
 
   // Drops all state; the next push starts a new stream.
   virtual void reset() = 0;

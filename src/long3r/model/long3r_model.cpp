@@ -168,12 +168,9 @@ std::optional<StreamOutput> Long3rModel::push(const at::Tensor& image) {
   return out;
 }
 
-std::optional<StreamOutput> Long3rModel::flush() {
+std::optional<StreamOutput> Long3rModel::peek_last() {
   Impl& s = *impl_;
-  if (s.frames < 2) {
-    s.reset();
-    return std::nullopt;
-  }
+  if (s.frames < 2) return std::nullopt;
   std::optional<c10::InferenceMode> guard;
   if (!s.training) guard.emplace();
   const auto t0 = Clock::now();
@@ -190,7 +187,6 @@ std::optional<StreamOutput> Long3rModel::flush() {
   out.stats.mem_long_tokens = longs.empty() ? 0 : *std::max_element(longs.begin(), longs.end());
   out.pts3d = std::move(res2.pts3d);
   out.conf = std::move(res2.conf);
-  s.reset();
   return out;
 }
 

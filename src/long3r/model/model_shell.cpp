@@ -115,7 +115,9 @@ std::unique_ptr<StreamingModel> make_streaming_model(const std::string& path,
     throw CheckpointError(path + ": model kind \"" + std::string(model_kind_name(c.config.kind)) +
                           "\" is not supported by the streaming pipeline yet");
   } catch (const ModelConfigError& e) {
-    throw CheckpointError(e.what());
+    // Every checkpoint error names the file (the metadata reader already does).
+    const std::string what = e.what();
+    throw CheckpointError(what.rfind(path, 0) == 0 ? what : path + ": " + what);
   }
 }
 

@@ -101,14 +101,24 @@ void read_at(int fd, uint64_t offset, void* dst, uint64_t n, const std::string& 
   }
 }
 
-}  // namespace
-
-TensorFile load_safetensors(const std::string& path) {
-  require_little_endian(path);
+// Opens a checkpoint: refuses, before reading a byte, what is not a regular
+// readable file (a directory; a FIFO, whose open would block until a writer
+// comes; a device), and reads its validated header.
+struct OpenedFile {
   Fd f;
-  f.fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (f.fd < 0) throw CheckpointError(path + ": cannot open: " + errno_text());
+  SafetensorsHeader header;
+};
+void open_checkpoint(const std::string& path, OpenedFile* out) {
+  require_little_endian(path);
   struct stat st;
+  if (::stat(path.c_str(), &st) != 0)
+    throw CheckpointError(path + ": cannot open: " + errno_text());
+  if (S_ISDIR(st.st_mode)) throw CheckpointError(path + ": is a directory, not a checkpoint file");
+  if (!S_ISREG(st.st_mode)) throw CheckpointError(path + ": not a regular file");
+  Fd& f = out->f;
+  // O_NONBLOCK: should the path have become a FIFO since the stat, open must not wait.
+  f.fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK);
+  if (f.fd < 0) throw CheckpointError(path + ": cannot open: " + errno_text());
   if (::fstat(f.fd, &st) != 0) throw CheckpointError(path + ": cannot stat: " + errno_text());
   if (!S_ISREG(st.st_mode)) throw CheckpointError(path + ": not a regular file");
   const uint64_t file_size = static_cast<uint64_t>(st.st_size);
@@ -124,12 +134,26 @@ TensorFile load_safetensors(const std::string& path) {
       read_at(f.fd, 8, head.data() + 8, n, path, "the header");
     }
   }
-  SafetensorsHeader h;
   try {
-    h = parse_safetensors_header(head.data(), head.size(), file_size);
+    out->header = parse_safetensors_header(head.data(), head.size(), file_size);
   } catch (const CheckpointError& e) {
     throw CheckpointError(path + ": " + e.what());
   }
+}
+
+}  // namespace
+
+std::map<std::string, std::string> read_safetensors_metadata(const std::string& path) {
+  OpenedFile file;
+  open_checkpoint(path, &file);
+  return std::move(file.header.metadata);
+}
+
+TensorFile load_safetensors(const std::string& path) {
+  OpenedFile file;
+  open_checkpoint(path, &file);
+  const Fd& f = file.f;
+  SafetensorsHeader& h = file.header;
 
   TensorFile out;
   out.metadata = std::move(h.metadata);

@@ -154,12 +154,9 @@ std::optional<StreamOutput> Spann3rModel::push(const at::Tensor& image) {
   return out;
 }
 
-std::optional<StreamOutput> Spann3rModel::flush() {
+std::optional<StreamOutput> Spann3rModel::peek_last() {
   Impl& s = *impl_;
-  if (s.frames < 2) {
-    s.reset();
-    return std::nullopt;
-  }
+  if (s.frames < 2) return std::nullopt;
   c10::InferenceMode guard;
   const auto t0 = Clock::now();
   const Trace trace = s.trace.child("flush.");
@@ -178,7 +175,6 @@ std::optional<StreamOutput> Spann3rModel::flush() {
   }
   out.pts3d = std::move(res2.pts3d);
   out.conf = std::move(res2.conf);
-  s.reset();
   return out;
 }
 
