@@ -59,11 +59,9 @@ class FakeModel : public StreamingModel {
     if (k == 0) return std::nullopt;
     return output(k - 1, false);
   }
-  std::optional<StreamOutput> flush() override {
+  std::optional<StreamOutput> peek_last() override {
     if (n_ == 0) return std::nullopt;
-    StreamOutput o = output(n_ - 1, true);
-    n_ = 0;
-    return o;
+    return output(n_ - 1, true);
   }
   void reset() override { n_ = 0; }
   int64_t frames_pushed() const override { return n_; }
@@ -132,6 +130,115 @@ TEST(Reconstruction, FakeModelPosesMatchGroundTruth) {
   }
   EXPECT_GT(rec.map().size(), 100u);
   EXPECT_EQ(rec.trajectory().size(), g.bgr.size());
+}
+
+// A pause in the input: flush() gives the pending frame now, and the frames
+// after the pause continue the same stream (world frame, map, trajectory).
+TEST(Reconstruction, FlushIsAPauseNotAnEnd) {
+  const GtSequence g = make_sequence(7);
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), small_config());
+  rec.set_calibration(g.seq.config.intrinsics);
+  std::vector<FrameResult> results;
+  auto take = [&](std::optional<FrameResult> r) {
+    if (r) results.push_back(std::move(*r));
+  };
+  EXPECT_FALSE(rec.flush().has_value());  // nothing pushed
+  for (int k = 0; k < 3; ++k) take(rec.push(g.bgr[k], "bgr8", 0.1 * k));
+  ASSERT_EQ(results.size(), 2u);
+  take(rec.flush());  // frame 2, early
+  ASSERT_EQ(results.size(), 3u);
+  EXPECT_TRUE(results.back().from_coarse_head);
+  EXPECT_FALSE(rec.flush().has_value());  // nothing pending any more
+  const size_t map_before = rec.map().size();
+  take(rec.push(g.bgr[3], "bgr8", 10.0));  // after the pause: frame 2 is not returned again
+  EXPECT_EQ(results.size(), 3u);
+  for (int k = 4; k < 7; ++k) take(rec.push(g.bgr[k], "bgr8", 10.0 + 0.1 * k));
+  take(rec.flush());
+  ASSERT_EQ(results.size(), g.bgr.size());
+  for (size_t k = 0; k < results.size(); ++k) {
+    EXPECT_EQ(results[k].frame_index, static_cast<int64_t>(k));
+    ASSERT_TRUE(results[k].pose.ok()) << k;
+    // One world frame across the pause: camera 0's.
+    const Eigen::Isometry3d d = g.T_0_k[k].inverse() * results[k].pose.T_W_C;
+    EXPECT_LT(d.translation().norm(), 1e-3) << k;
+  }
+  EXPECT_GE(rec.map().size(), map_before);
+  EXPECT_EQ(rec.trajectory().size(), g.bgr.size());
+  EXPECT_EQ(rec.frames_pushed(), 7);
+}
+
+// A metric scale set mid-stream: what was built is rescaled at once, what
+// comes after is in the new scale; the stream stays one.
+TEST(Reconstruction, SetScaleRescalesTheStream) {
+  const GtSequence g = make_sequence(6);
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), small_config());
+  rec.set_calibration(g.seq.config.intrinsics);
+  std::vector<FrameResult> results;
+  for (int k = 0; k < 3; ++k) {
+    if (auto r = rec.push(g.bgr[k], "bgr8", 0.1 * k)) results.push_back(std::move(*r));
+  }
+  ASSERT_EQ(results.size(), 2u);
+  const Eigen::Vector3d before = rec.trajectory()[1].second.translation();
+  const std::size_t points_before = rec.map().size();
+  rec.set_scale(2.0);
+  EXPECT_DOUBLE_EQ(rec.scale(), 2.0);
+  EXPECT_TRUE(rec.trajectory()[1].second.translation().isApprox(2.0 * before));
+  EXPECT_GT(rec.map().size(), 0u);
+  EXPECT_LE(rec.map().size(), points_before);  // the same voxel size holds fewer, larger points
+  for (int k = 3; k < 6; ++k) {
+    if (auto r = rec.push(g.bgr[k], "bgr8", 0.1 * k)) results.push_back(std::move(*r));
+  }
+  results.push_back(*rec.flush());
+  ASSERT_EQ(results.size(), 6u);
+  for (int k = 2; k < 6; ++k) {
+    const FrameResult& r = results[k];
+    EXPECT_DOUBLE_EQ(r.scale, 2.0);
+    ASSERT_TRUE(r.pose.ok());
+    EXPECT_LT((r.pose.T_W_C.translation() - 2.0 * g.T_0_k[k].translation()).norm(), 2e-3) << k;
+    ASSERT_TRUE(r.pose.covariance.has_value());
+  }
+  EXPECT_THROW(rec.set_scale(-1.0), std::invalid_argument);
+  rec.reset();
+  EXPECT_DOUBLE_EQ(rec.scale(), 1.0);
+}
+
+// A pose given to push() places the frame's own geometry (pose from odometry).
+TEST(Reconstruction, GivenPosePlacesTheFrame) {
+  const GtSequence g = make_sequence(6);
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), small_config());
+  rec.set_calibration(g.seq.config.intrinsics);
+  Eigen::Isometry3d shift = Eigen::Isometry3d::Identity();
+  shift.translation() = Eigen::Vector3d(0.5, 0.0, 0.0);
+  std::vector<FrameResult> results;
+  for (int k = 0; k < 4; ++k) {
+    const Eigen::Isometry3d given = k == 0 ? Eigen::Isometry3d::Identity() : shift * g.T_0_k[k];
+    if (auto r = rec.push(g.bgr[k], "bgr8", 0.1 * k, given)) results.push_back(std::move(*r));
+  }
+  results.push_back(*rec.flush());
+  ASSERT_EQ(results.size(), 4u);
+  for (int k = 1; k < 4; ++k) {
+    const FrameResult& r = results[k];
+    ASSERT_TRUE(r.pose.ok());
+    EXPECT_TRUE(r.pose.T_W_C.isApprox(shift * g.T_0_k[k], 1e-9));
+    EXPECT_TRUE(r.model_T_W_C.isApprox(g.T_0_k[k], 1e-3));  // the model's own pose
+    // The frame's points moved with it: world = given pose * camera points.
+    const cv::Vec3f c = r.points_C.at<cv::Vec3f>(kSize / 2, kSize / 2);
+    const cv::Vec3f w = r.points_W.at<cv::Vec3f>(kSize / 2, kSize / 2);
+    if (std::isfinite(c[2])) {
+      const Eigen::Vector3d expected = shift * g.T_0_k[k] * Eigen::Vector3d(c[0], c[1], c[2]);
+      EXPECT_LT((expected - Eigen::Vector3d(w[0], w[1], w[2])).norm(), 1e-4);
+    }
+  }
+  EXPECT_TRUE(rec.trajectory()[2].second.isApprox(shift * g.T_0_k[2], 1e-9));
+  rec.set_mapping(false);  // posed, but not fused
+  const std::size_t n = rec.map().size();
+  EXPECT_FALSE(rec.push(g.bgr[4], "bgr8", 0.4, shift * g.T_0_k[4]).has_value());
+  auto r = rec.push(g.bgr[5], "bgr8", 0.5, shift * g.T_0_k[5]);
+  ASSERT_TRUE(r.has_value());
+  EXPECT_EQ(r->frame_index, 4);
+  EXPECT_TRUE(r->pose.ok());
+  EXPECT_FALSE(r->added_to_map);
+  EXPECT_EQ(rec.map().size(), n);
 }
 
 TEST(Reconstruction, EstimatesIntrinsicsWithoutCalibration) {

@@ -3,7 +3,9 @@
 //
 // Frames: points_W in the world frame W (camera 0 of the stream); points_C in
 // the camera optical frame of this frame (x right, y down, z forward),
-// points_C = T_W_C^-1 points_W. All images are at model resolution.
+// points_C = T_W_C^-1 points_W. All images are at model resolution. Lengths
+// are in the stream's scale at the time of the result (`scale` metres per
+// model unit; 1 = model units).
 #pragma once
 
 #include <opencv2/core/mat.hpp>
@@ -39,7 +41,12 @@ struct FrameResult {
   cv::Mat conf;      // CV_32FC1 [H, W], model confidence (>= 1)
   cv::Mat rgb;       // CV_8UC3 [H, W], RGB order: the model input's colours
 
-  PoseResult pose;               // T_W_C, PnP status, message, inliers
+  // T_W_C, PnP status, message, inliers, covariance. With a pose given to
+  // push() (pose from odometry), T_W_C is that pose and the rest describes
+  // the model's own PnP pose, model_T_W_C.
+  PoseResult pose;
+  Eigen::Isometry3d model_T_W_C = Eigen::Isometry3d::Identity();
+  double scale = 1.0;
   PinholeIntrinsics intrinsics;  // at model resolution
   IntrinsicsSource intrinsics_source = IntrinsicsSource::kCalibration;
   bool added_to_map = false;   // false when the pose failed (or mapping is off)

@@ -12,7 +12,9 @@
 #include <opencv2/core/mat.hpp>
 
 #include <cstdint>
+#include <optional>
 #include <string>
+#include <vector>
 
 #include "long3r/pipeline/intrinsics.hpp"
 
@@ -47,7 +49,37 @@ struct PoseResult {
   int correspondences = 0;  // used (after filtering and subsampling)
   int inliers = 0;
   double inlier_rmse_px = 0.0;  // reprojection RMSE over the inliers after refinement
+  // Covariance of T_W_C from the inliers (pose_covariance), when ok():
+  // (camera position x, y, z in W; rotation about W's x, y, z axes).
+  std::optional<Eigen::Matrix<double, 6, 6>> covariance;
 };
+
+// Covariance of a camera pose from the 2D-3D correspondences it explains,
+// the Gauss-Newton estimate sigma^2 (J^T J)^-1 inflated for correlated errors:
+//   J      the 2x6 Jacobian of each inlier's reprojection (pixel) with respect
+//          to the pose, perturbed as c' = c + dp (position in W) and
+//          R'_WC = Exp(dth) R_WC (rotation about W's axes), the order and axes
+//          of a ROS pose covariance;
+//   sigma  the inliers' reprojection RMSE, at least min_sigma_px (a perfect
+//          fit is not a certain pose);
+//   n / n_eff  the inliers' errors are not independent: the model predicts a
+//          pointmap per 16x16-pixel token (patch_px), and the errors of one
+//          token move together, so the information of n inliers is that of
+//          the n_eff tokens they cover.
+// Inliers: the correspondences whose reprojection error under T_W_C is within
+// threshold_px. nullopt with fewer than 6 or a singular J^T J.
+std::optional<Eigen::Matrix<double, 6, 6>> pose_covariance(
+    const std::vector<Eigen::Vector3d>& points_W, const std::vector<Eigen::Vector2d>& pixels,
+    const PinholeIntrinsics& intrinsics, const Eigen::Isometry3d& T_W_C, double threshold_px,
+    double min_sigma_px = 0.5, int patch_px = 16);
+
+// pose_covariance() over the confident, finite pixels of a pointmap (as PnP
+// selects them), e.g. for frame 0, whose pose is the identity by definition.
+std::optional<Eigen::Matrix<double, 6, 6>> pose_covariance(const cv::Mat& pts3d_W,
+                                                           const cv::Mat& conf,
+                                                           const PinholeIntrinsics& intrinsics,
+                                                           const Eigen::Isometry3d& T_W_C,
+                                                           const PnpConfig& config);
 
 // One PnP solve. pts3d_W: CV_32FC3 [H, W] world points (camera-0 frame);
 // conf: CV_32FC1 [H, W]; intrinsics at the same resolution (width/height, if
@@ -68,6 +100,8 @@ class PoseTracker {
 
   // Identity until the first success.
   const Eigen::Isometry3d& last_good_pose() const { return last_good_; }
+  // The world's scale changed by `factor` (Reconstruction::set_scale).
+  void rescale(double factor) { last_good_.translation() *= factor; }
   bool has_good_pose() const { return has_good_; }
   int64_t consecutive_failures() const { return consecutive_failures_; }
   void reset();  // new stream

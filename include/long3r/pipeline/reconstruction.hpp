@@ -9,7 +9,8 @@
 // Frames: the world frame W is the camera optical frame of frame 0 of the
 // current stream (x right, y down, z forward); frame 0's pose is the identity.
 // Results come with one frame of latency (the models need the next frame);
-// flush() returns the last one.
+// flush() returns the pending one early (a pause in the input) and the stream
+// goes on.
 #pragma once
 
 #include <Eigen/Geometry>
@@ -45,10 +46,6 @@ struct ReconstructionConfig {
   float conf_threshold = 1.0f;
 };
 
-// The string metadata of a safetensors file (header only; tensors untouched).
-// Throws CheckpointError.
-std::map<std::string, std::string> read_checkpoint_metadata(const std::string& path);
-
 // Metadata key long3r_make_random_model writes ("true"): the weights are
 // random placeholders, the outputs meaningless.
 constexpr const char* kRandomWeightsMetadataKey = "random_weights";
@@ -70,17 +67,38 @@ class Reconstruction {
   // mono8, mono16). Returns the result of the previous frame, or nullopt for
   // the first frame of a stream. Throws std::invalid_argument for bad input
   // (unsupported encoding, type mismatch, size change within a stream: call
-  // reset() first); nothing changes then. After flush(), the next push starts
-  // a new stream and implies reset() (new world frame, empty map).
+  // reset() first); nothing changes then. A frame already returned by flush()
+  // is not returned again: its refined result only updates the model's memory.
   // Timings: total_ms = the frame's preprocess time + the wall time of the
   // call that returned it, from its model step to the result (compute time,
   // without the wait for the next frame).
-  std::optional<FrameResult> push(const cv::Mat& image, const std::string& encoding,
-                                  double stamp_s);
-  // The last pending frame (coarse head); nullopt if none. Ends the stream.
+  //
+  // T_W_C, when given, places the frame (pose from odometry, as voxblox and
+  // nvblox place depth): its pointmap, brought into its own camera frame by
+  // its PnP pose, is moved to T_W_C for the map and the result; the result's
+  // pose is T_W_C (W is camera 0's frame in the stream's scale: the caller
+  // keeps frame 0 at the identity).
+  std::optional<FrameResult> push(const cv::Mat& image, const std::string& encoding, double stamp_s,
+                                  const std::optional<Eigen::Isometry3d>& T_W_C = std::nullopt);
+  // The pending frame's result now, from the coarse head (the camera paused,
+  // or the stream ended); nullopt if no frame awaits its result or the model
+  // has no pair yet. The stream is not ended: memory, map, trajectory and
+  // world frame stay, and the next push continues them. Only reset() starts over.
   std::optional<FrameResult> flush();
-  // Model memory, map, trajectory, pose tracker, intrinsics estimate, frame indices.
+  // Model memory, map, trajectory, pose tracker, intrinsics estimate, frame
+  // indices. The scale returns to 1 (model units); mapping stays as set.
   void reset();
+
+  // Metres per model unit (metric_scale.hpp): every result from now on is in
+  // this scale (pointmaps, poses, covariance), and the map and trajectory
+  // built so far are rescaled to it at once, so the stream stays one
+  // consistent reconstruction. Throws std::invalid_argument unless > 0.
+  void set_scale(double scale);
+  double scale() const { return scale_; }
+
+  // Whether posed frames are fused into the map (default on); frames are
+  // still posed and returned when off.
+  void set_mapping(bool on) { mapping_ = on; }
 
   const VoxelMap& map() const { return map_; }
   VoxelMap& map() { return map_; }
@@ -100,6 +118,7 @@ class Reconstruction {
     double stamp = 0.0;
     PreprocessedImage image;  // chw moved into the model input
     double preprocess_ms = 0.0;
+    std::optional<Eigen::Isometry3d> T_W_C;  // given to push()
   };
   FrameResult finish(const StreamOutput& out, double call_start_ms, double model_ms);
 
@@ -114,7 +133,9 @@ class Reconstruction {
   std::vector<std::pair<double, Eigen::Isometry3d>> trajectory_;
   int64_t frames_pushed_ = 0;
   int source_width_ = 0, source_height_ = 0;
-  bool flushed_ = false;
+  int64_t flushed_index_ = -1;  // frame returned early by flush(), whose refined result is dropped
+  double scale_ = 1.0;
+  bool mapping_ = true;
 };
 
 }  // namespace long3r

@@ -85,6 +85,13 @@ class VoxelMap {
   IntegrationStats integrate(const std::vector<Eigen::Vector3f>& points,
                              const std::vector<Rgb8>& colors, std::int64_t frame_index);
 
+  // Multiplies every position by `factor` (about the origin of W) and bins
+  // the voxels again: voxels that land in one new voxel merge (means and
+  // colours weighted by hits, hits summed, the latest last-seen frame). For a
+  // change of the map's metric scale (metric_scale.hpp); the cap then applies
+  // as usual. Throws std::invalid_argument unless factor is finite and > 0.
+  void rescale(double factor);
+
   std::size_t size() const;
   bool empty() const { return size() == 0; }
   void clear();

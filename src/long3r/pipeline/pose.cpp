@@ -3,10 +3,13 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/eigen.hpp>
 
+#include <Eigen/Eigenvalues>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
+#include <unordered_set>
 #include <vector>
 
 namespace long3r {
@@ -186,7 +189,83 @@ PoseResult estimate_pose_pnp(const cv::Mat& pts3d_W, const cv::Mat& conf,
   if (!result.T_W_C.matrix().allFinite()) {
     return failure(PnpStatus::kNonFinite, "PnP pose inverse is not finite", n, inliers);
   }
+  std::vector<Eigen::Vector3d> points(obj.size());
+  std::vector<Eigen::Vector2d> pixels(img.size());
+  for (int i = 0; i < n; ++i) {
+    points[i] = Eigen::Vector3d(obj[i].x, obj[i].y, obj[i].z);
+    pixels[i] = Eigen::Vector2d(img[i].x, img[i].y);
+  }
+  result.covariance =
+      pose_covariance(points, pixels, intrinsics, result.T_W_C, config.reprojection_error_px);
   return result;
+}
+
+std::optional<Eigen::Matrix<double, 6, 6>> pose_covariance(
+    const std::vector<Eigen::Vector3d>& points_W, const std::vector<Eigen::Vector2d>& pixels,
+    const PinholeIntrinsics& k, const Eigen::Isometry3d& T_W_C, double threshold_px,
+    double min_sigma_px, int patch_px) {
+  if (points_W.size() != pixels.size()) {
+    throw std::invalid_argument("pose_covariance: points and pixels differ in number");
+  }
+  const Eigen::Matrix3d R_CW = T_W_C.linear().transpose();
+  const Eigen::Vector3d c = T_W_C.translation();
+  Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+  double sse = 0.0;
+  int n = 0;
+  std::unordered_set<std::int64_t> tokens;
+  const double thr2 = threshold_px * threshold_px;
+  for (std::size_t i = 0; i < points_W.size(); ++i) {
+    const Eigen::Vector3d d = points_W[i] - c;
+    const Eigen::Vector3d X = R_CW * d;
+    if (!(X.z() > 0.0)) continue;
+    const double iz = 1.0 / X.z();
+    const Eigen::Vector2d e(k.fx * X.x() * iz + k.cx - pixels[i].x(),
+                            k.fy * X.y() * iz + k.cy - pixels[i].y());
+    if (!(e.squaredNorm() <= thr2)) continue;
+    Eigen::Matrix<double, 2, 3> A;
+    A << k.fx * iz, 0.0, -k.fx * X.x() * iz * iz, 0.0, k.fy * iz, -k.fy * X.y() * iz * iz;
+    // dX/dp = -R_CW; dX/dth = R_CW [d]x (see the header).
+    Eigen::Matrix3d d_cross;
+    d_cross << 0.0, -d.z(), d.y(), d.z(), 0.0, -d.x(), -d.y(), d.x(), 0.0;
+    Eigen::Matrix<double, 2, 6> J;
+    J.leftCols<3>() = -A * R_CW;
+    J.rightCols<3>() = A * R_CW * d_cross;
+    H += J.transpose() * J;
+    sse += e.squaredNorm();
+    ++n;
+    tokens.insert(static_cast<std::int64_t>(std::floor(pixels[i].y() / patch_px)) * (1 << 20) +
+                  static_cast<std::int64_t>(std::floor(pixels[i].x() / patch_px)));
+  }
+  if (n < 6) return std::nullopt;
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eig(H);
+  const Eigen::Matrix<double, 6, 1> lambda = eig.eigenvalues();
+  if (!(lambda.minCoeff() > 1e-12 * lambda.maxCoeff())) return std::nullopt;
+  const double sigma2 = std::max(sse / n, min_sigma_px * min_sigma_px);
+  const double correlation = static_cast<double>(n) / static_cast<double>(tokens.size());
+  const Eigen::Matrix<double, 6, 6> cov = sigma2 * correlation * eig.eigenvectors() *
+                                          lambda.cwiseInverse().asDiagonal() *
+                                          eig.eigenvectors().transpose();
+  if (!cov.allFinite()) return std::nullopt;
+  return 0.5 * (cov + cov.transpose());
+}
+
+std::optional<Eigen::Matrix<double, 6, 6>> pose_covariance(const cv::Mat& pts3d_W,
+                                                           const cv::Mat& conf,
+                                                           const PinholeIntrinsics& intrinsics,
+                                                           const Eigen::Isometry3d& T_W_C,
+                                                           const PnpConfig& config) {
+  std::vector<Eigen::Vector3d> points;
+  std::vector<Eigen::Vector2d> pixels;
+  for (int v = 0; v < pts3d_W.rows; ++v) {
+    const auto* p = pts3d_W.ptr<cv::Vec3f>(v);
+    const float* c = conf.ptr<float>(v);
+    for (int u = 0; u < pts3d_W.cols; ++u) {
+      if (!(c[u] >= config.conf_threshold) || !finite3(p[u])) continue;
+      points.emplace_back(p[u][0], p[u][1], p[u][2]);
+      pixels.emplace_back(u, v);
+    }
+  }
+  return pose_covariance(points, pixels, intrinsics, T_W_C, config.reprojection_error_px);
 }
 
 PoseResult PoseTracker::track(const cv::Mat& pts3d_W, const cv::Mat& conf,

@@ -6,10 +6,7 @@
 
 #include <chrono>
 #include <cmath>
-#include <fstream>
 #include <stdexcept>
-
-#include "long3r/io/safetensors_header.hpp"
 
 namespace long3r {
 namespace {
@@ -46,31 +43,6 @@ cv::Mat to_mat(const at::Tensor& t, int rows, int cols, int type, const char* wh
 }
 
 }  // namespace
-
-std::map<std::string, std::string> read_checkpoint_metadata(const std::string& path) {
-  std::ifstream f(path, std::ios::binary | std::ios::ate);
-  if (!f) throw CheckpointError(path + ": cannot open the checkpoint file");
-  const auto file_size = static_cast<uint64_t>(f.tellg());
-  if (file_size < 8) throw CheckpointError(path + ": too short to be a safetensors file");
-  f.seekg(0);
-  uint8_t len_bytes[8];
-  f.read(reinterpret_cast<char*>(len_bytes), 8);
-  const uint64_t n = decode_header_length(len_bytes);
-  if (n > kMaxSafetensorsHeaderBytes || n > file_size - 8) {
-    throw CheckpointError(path + ": bad safetensors header length " + std::to_string(n));
-  }
-  std::vector<uint8_t> head(8 + n);
-  std::copy(len_bytes, len_bytes + 8, head.begin());
-  f.read(reinterpret_cast<char*>(head.data() + 8), static_cast<std::streamsize>(n));
-  if (!f) throw CheckpointError(path + ": cannot read the safetensors header");
-  try {
-    return parse_safetensors_header(head.data(), head.size(), file_size).metadata;
-  } catch (const CheckpointError&) {
-    throw;
-  } catch (const std::exception& e) {
-    throw CheckpointError(path + ": " + e.what());
-  }
-}
 
 bool has_random_weights(const std::map<std::string, std::string>& metadata) {
   const auto it = metadata.find(kRandomWeightsMetadataKey);
@@ -117,15 +89,28 @@ void Reconstruction::reset() {
   trajectory_.clear();
   frames_pushed_ = 0;
   source_width_ = source_height_ = 0;
-  flushed_ = false;
+  flushed_index_ = -1;
+  scale_ = 1.0;
+}
+
+void Reconstruction::set_scale(double scale) {
+  if (!(scale > 0.0) || !std::isfinite(scale)) {
+    throw std::invalid_argument("Reconstruction::set_scale: the scale must be positive and finite");
+  }
+  const double factor = scale / scale_;
+  if (factor == 1.0) return;
+  map_.rescale(factor);
+  for (auto& entry : trajectory_) entry.second.translation() *= factor;
+  tracker_.rescale(factor);
+  scale_ = scale;
 }
 
 std::optional<FrameResult> Reconstruction::push(const cv::Mat& image, const std::string& encoding,
-                                                double stamp_s) {
+                                                double stamp_s,
+                                                const std::optional<Eigen::Isometry3d>& T_W_C) {
   const double t0 = now_ms();
   const ImageEncoding enc = parse_image_encoding(encoding);  // throws invalid_argument
   if (image.empty()) throw std::invalid_argument("Reconstruction::push: empty image");
-  if (flushed_) reset();
   if (frames_pushed_ > 0 && (image.cols != source_width_ || image.rows != source_height_)) {
     throw std::invalid_argument(
         "Reconstruction::push: image size changed within a stream (" +
@@ -136,6 +121,7 @@ std::optional<FrameResult> Reconstruction::push(const cv::Mat& image, const std:
   p.image = preprocess_image(image, enc, config_.preprocess);
   p.index = frames_pushed_;
   p.stamp = stamp_s;
+  p.T_W_C = T_W_C;
   const int h = p.image.height, w = p.image.width;
   // The tensor takes over the chw buffer: no copy, and it lives as long as
   // the model keeps the input.
@@ -156,7 +142,7 @@ std::optional<FrameResult> Reconstruction::push(const cv::Mat& image, const std:
   source_height_ = image.rows;
   ++frames_pushed_;
   pending_.push_back(std::move(p));
-  if (!out) return std::nullopt;
+  if (!out || out->frame_index == flushed_index_) return std::nullopt;
   return finish(*out, t_model, model_ms);
 }
 
@@ -166,17 +152,13 @@ std::optional<FrameResult> Reconstruction::flush() {
   std::optional<StreamOutput> out;
   {
     c10::InferenceMode guard;
-    out = model_->flush();
+    out = model_->peek_last();
   }
   const double model_ms = now_ms() - t_model;
-  flushed_ = true;
-  if (!out) {
-    pending_.clear();  // e.g. Spann3R after a single frame: no result
-    return std::nullopt;
-  }
+  if (!out) return std::nullopt;  // e.g. a single frame: it comes with the next one
   FrameResult r = finish(*out, t_model, model_ms);
   r.from_coarse_head = true;
-  pending_.clear();
+  flushed_index_ = r.frame_index;
   return r;
 }
 
@@ -194,6 +176,8 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
   r.stamp = p.stamp;
   r.from_coarse_head = out.from_coarse_head;
   r.points_W = to_mat(out.pts3d, h, w, CV_32FC3, "pts3d");
+  if (scale_ != 1.0) r.points_W.convertTo(r.points_W, CV_32FC3, scale_);
+  r.scale = scale_;
   r.conf = to_mat(out.conf, h, w, CV_32FC1, "conf");
   r.rgb = p.image.rgb;
   r.timings.preprocess_ms = p.preprocess_ms;
@@ -217,6 +201,10 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
   if (p.index == 0) {
     r.pose.status = PnpStatus::kOk;  // defines the world frame
     r.pose.T_W_C = Eigen::Isometry3d::Identity();
+    if (intrinsics_) {
+      r.pose.covariance =
+          pose_covariance(r.points_W, r.conf, r.intrinsics, r.pose.T_W_C, tracker_.config());
+    }
   } else if (intrinsics_) {
     r.pose = tracker_.track(r.points_W, r.conf, r.intrinsics);
   } else {
@@ -224,13 +212,20 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
     r.pose.message = "no intrinsics: no calibration and the focal estimate on frame 0 failed";
     r.pose.T_W_C = tracker_.last_good_pose();
   }
+  r.model_T_W_C = r.pose.T_W_C;
   if (r.pose.ok()) r.points_C = points_in_camera(r.points_W, r.pose.T_W_C);
+  if (p.T_W_C) {  // placed by the given pose
+    r.pose.T_W_C = *p.T_W_C;
+    if (r.pose.ok()) r.points_W = transform_points(r.points_C, r.pose.T_W_C);
+  }
   r.timings.pose_ms = now_ms() - t;
 
   t = now_ms();
   if (r.pose.ok()) {
-    map_.integrate(r.points_W, r.conf, r.rgb, r.frame_index);
-    r.added_to_map = true;
+    if (mapping_) {
+      map_.integrate(r.points_W, r.conf, r.rgb, r.frame_index);
+      r.added_to_map = true;
+    }
     trajectory_.emplace_back(r.stamp, r.pose.T_W_C);
   }
   r.map_points = map_.size();

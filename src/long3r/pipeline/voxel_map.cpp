@@ -190,6 +190,48 @@ IntegrationStats VoxelMap::integrate(const std::vector<Eigen::Vector3f>& points,
   return stats;
 }
 
+void VoxelMap::rescale(double factor) {
+  if (!(factor > 0.0) || !std::isfinite(factor)) {
+    throw std::invalid_argument("VoxelMap::rescale: the factor must be positive and finite");
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<Voxel> old;
+  old.swap(voxels_);
+  index_.clear();
+  IntegrationStats stats;
+  for (const Voxel& o : old) {
+    const double mean[3] = {o.mean[0] * factor, o.mean[1] * factor, o.mean[2] * factor};
+    std::int64_t idx[3];
+    const Eigen::Vector3f p(static_cast<float>(mean[0]), static_cast<float>(mean[1]),
+                            static_cast<float>(mean[2]));
+    if (!index_of(p, config_.voxel_size_m, idx)) {
+      ++stats.out_of_range;
+      continue;
+    }
+    const std::uint64_t key = pack(idx);
+    const auto [it, inserted] = index_.try_emplace(key, static_cast<std::uint32_t>(voxels_.size()));
+    if (inserted) {
+      voxels_.push_back(Voxel{key,
+                              {mean[0], mean[1], mean[2]},
+                              {o.color[0], o.color[1], o.color[2]},
+                              o.hits,
+                              o.last_seen});
+      continue;
+    }
+    Voxel& v = voxels_[it->second];
+    const double total = static_cast<double>(v.hits) + o.hits;
+    for (int a = 0; a < 3; ++a) {
+      v.mean[a] = (v.mean[a] * v.hits + mean[a] * o.hits) / total;
+      v.color[a] = static_cast<float>((v.color[a] * v.hits + o.color[a] * o.hits) / total);
+    }
+    v.hits += o.hits;
+    v.last_seen = std::max(v.last_seen, o.last_seen);
+  }
+  compact_buckets_locked();
+  evict_locked(stats);
+  ++revision_;
+}
+
 std::size_t VoxelMap::size() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return voxels_.size();
