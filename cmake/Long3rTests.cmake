@@ -90,13 +90,17 @@ if(LONG3R_WITH_ROS)
     add_rostest(${t})
   endforeach()
 
+  # A nodelet that cannot start ends the launch, naming the reason.
+  add_test(NAME ros_startup_faults
+    COMMAND ${CATKIN_ENV} /usr/bin/python3 ${PROJECT_SOURCE_DIR}/test/ros/startup_faults.py)
+
   # Nodelet rostests: a fixture generates the bags and a random-weight model.
   set(LONG3R_REPLAY_DATA ${PROJECT_BINARY_DIR}/replay_data)
   add_test(NAME ros_replay_data
     COMMAND ${PROJECT_SOURCE_DIR}/test/ros/make_replay_data.sh
             $<TARGET_FILE_DIR:app_long3r_synth> ${LONG3R_REPLAY_DATA})
   set_tests_properties(ros_replay_data PROPERTIES FIXTURES_SETUP ros_replay_data)
-  foreach(t replay_normal replay_bad smoke)
+  foreach(t replay_normal replay_bad replay_pause replay_slow live_input smoke)
     set_tests_properties(_ctest_${PROJECT_NAME}_rostest_test_ros_${t}.test PROPERTIES
       FIXTURES_REQUIRED ros_replay_data
       ENVIRONMENT "LONG3R_REPLAY_DATA=${LONG3R_REPLAY_DATA}")

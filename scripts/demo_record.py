@@ -1,15 +1,15 @@
 #!/usr/bin/python3
 """Demo helper node: waits until the replay is over (no new pose for a while,
-after the flush of the last frame), saves the map through ~save_map, writes the
-estimated trajectory (TUM format) from ~path, then exits (ending roslaunch)."""
+after the last frame was published), saves the map through ~save_map and the
+trajectory (TUM format) through ~save_trajectory, then exits (ending
+roslaunch)."""
 import os
 import sys
 import time
 
 import rospy
-from nav_msgs.msg import Path
 from long3r_ros.msg import Pointmap
-from long3r_ros.srv import SaveMap
+from long3r_ros.srv import SaveMap, SaveTrajectory
 
 
 def main():
@@ -18,16 +18,12 @@ def main():
     quiet_s = rospy.get_param('~quiet_s', 6.0)
     timeout_s = rospy.get_param('~timeout_s', 1800.0)
     os.makedirs(out_dir, exist_ok=True)
-    state = {'path': None, 'frames': 0, 'last': time.time()}
-
-    def on_path(msg):
-        state['path'] = msg
+    state = {'frames': 0, 'last': time.time()}
 
     def on_pointmap(_):
         state['frames'] += 1
         state['last'] = time.time()
 
-    rospy.Subscriber('/long3r/path', Path, on_path, queue_size=10)
     rospy.Subscriber('/long3r/pointmap', Pointmap, on_pointmap, queue_size=100)
     start = time.time()
     while not rospy.is_shutdown():
@@ -40,18 +36,11 @@ def main():
     rospy.wait_for_service('/long3r/save_map', timeout=10)
     res = rospy.ServiceProxy('/long3r/save_map', SaveMap)(os.path.join(out_dir, 'map.ply'))
     rospy.loginfo('save_map: %s', res.message)
-    traj = os.path.join(out_dir, 'trajectory.txt')
-    poses = state['path'].poses if state['path'] else []
-    with open(traj + '.tmp', 'w') as f:
-        f.write('# timestamp tx ty tz qx qy qz qw (T_W_C, world = camera 0)\n')
-        for p in poses:
-            q, t = p.pose.orientation, p.pose.position
-            f.write('%.6f %.6f %.6f %.6f %.6f %.6f %.6f %.6f\n' % (
-                p.header.stamp.to_sec(), t.x, t.y, t.z, q.x, q.y, q.z, q.w))
-    os.replace(traj + '.tmp', traj)
-    rospy.loginfo('demo: %d frames published, %d poses written to %s', state['frames'],
-                  len(poses), traj)
-    sys.exit(0 if res.success else 1)
+    traj = rospy.ServiceProxy('/long3r/save_trajectory', SaveTrajectory)(
+        os.path.join(out_dir, 'trajectory.txt'))
+    rospy.loginfo('save_trajectory: %s', traj.message)
+    rospy.loginfo('demo: %d frames published', state['frames'])
+    sys.exit(0 if res.success and traj.success else 1)
 
 
 if __name__ == '__main__':

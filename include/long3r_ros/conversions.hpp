@@ -1,11 +1,13 @@
 // Message conversion between the core's types and ROS messages.
 //
 // Frames: `points_C` are in the camera optical frame (x right, y down, z
-// forward); `points_W` and `T_W_C` in the world frame (`world_frame`).
+// forward); map points and poses in map_frame.
 #pragma once
 
 #include <geometry_msgs/Pose.h>
+#include <nav_msgs/Odometry.h>
 #include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
 #include <sensor_msgs/PointCloud2.h>
 #include <std_msgs/Header.h>
 
@@ -17,19 +19,34 @@
 
 namespace long3r_ros {
 
-// Organised cloud (height x width) with fields x, y, z, rgb, confidence.
-// points_C: CV_32FC3, conf: CV_32FC1, rgb: CV_8UC3 in RGB order, all the same size.
-// Pixels whose point is not finite get NaN coordinates (a standard organised
-// cloud hole).
-sensor_msgs::PointCloud2 toOrganizedCloud(const cv::Mat& points_C, const cv::Mat& conf,
-                                          const cv::Mat& rgb, const std_msgs::Header& header);
+// The depth an RGB-D camera would give: 32FC1, z of points_C (camera frame),
+// NaN where the point is not finite or conf < conf_threshold.
+sensor_msgs::ImagePtr toDepthImage(const cv::Mat& points_C, const cv::Mat& conf,
+                                   float conf_threshold, const std_msgs::Header& header);
+
+// Organised cloud (height x width) with fields x, y, z, rgb, confidence: the
+// depth image back-projected through the camera_info exactly as
+// depth_image_proc's point_cloud_xyz does (its own conversion fills x, y, z),
+// so consumers of ~depth and of ~frame_cloud see the same points. NaN depth
+// gives NaN coordinates (a standard organised cloud hole). conf: CV_32FC1,
+// rgb: CV_8UC3 in RGB order, both the depth's size.
+sensor_msgs::PointCloud2 toFrameCloud(const sensor_msgs::ImageConstPtr& depth,
+                                      const sensor_msgs::CameraInfo& info, const cv::Mat& conf,
+                                      const cv::Mat& rgb);
 
 // Unorganised cloud with fields x, y, z, rgb. colors are RGB.
 sensor_msgs::PointCloud2 toColoredCloud(const std::vector<Eigen::Vector3f>& points,
                                         const std::vector<std::array<std::uint8_t, 3>>& colors,
                                         const std_msgs::Header& header);
 
-geometry_msgs::Pose toPoseMsg(const Eigen::Isometry3d& T);
+// A pose covariance (position, then rotation about the fixed axes: ROS's
+// order) of a camera pose in W, as the covariance of the body pose in map:
+// rotated by R_map_W, and moved to the body through the lever arm a = body
+// position - camera position (in map): dp_body = dp - [a]x dth. Row-major,
+// as geometry_msgs/PoseWithCovariance holds it.
+std::array<double, 36> poseCovarianceInMap(const Eigen::Matrix<double, 6, 6>& cov_W,
+                                           const Eigen::Matrix3d& R_map_W,
+                                           const Eigen::Vector3d& lever_arm_map);
 
 // Pinhole camera_info without distortion (the model works on undistorted
 // pixels at model resolution).

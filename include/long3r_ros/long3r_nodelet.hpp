@@ -1,36 +1,61 @@
 // Long3rNodelet: the ROS front door of long3r_ros.
 //
-// Subscribes to `image` (image_transport) and optionally `camera_info`,
-// queues frames in a bounded queue (callbacks only enqueue) and runs the core
-// long3r::Reconstruction on one worker thread, so ROS callbacks never block on
-// the model. Frames: `points_C` and `~frame_cloud` are in the camera optical
-// frame (the image header's frame_id unless `camera_frame` overrides it); the
-// map, `~pose`, `~path` and TF T_W_C live in `world_frame` (= camera 0 of the
-// current stream).
+// Subscribes to `image` (image_transport; or sensor_msgs/CompressedImage on
+// `image/compressed`, decoded here, where the compressed plugin is missing),
+// `camera_info` and, for the depth scale, `depth`; callbacks only enqueue.
+// One worker thread decodes each frame, decides with the StreamMonitor
+// whether it continues the stream, rectifies it with the camera_info matching
+// its stamp (CameraCalibration) and runs the core long3r::Reconstruction on
+// it. Frames (robot_frames.hpp): `~pointmap`, `~depth`, `~frame_cloud` are in
+// the camera optical frame (the image header's frame_id unless `camera_frame`
+// overrides it); the map, `~pose`, `~path`, `~odometry` in `map_frame`, the
+// last three for the body (base_frame, else the camera); the node publishes
+// one transform per frame into the robot's TF tree. Lengths are in metres
+// once a metric scale is in use (metric_scale.hpp), else in model units.
+//
+// The map and the memory are what the user builds: a pause of any length
+// continues the stream (the pending frame is published after
+// `flush_after_s`), odd single messages are dropped with a warning naming the
+// problem, and only `~reset` or a condition named in a warning (time jumping
+// far back, a lasting size change, `lost_reset_frames`) starts a new stream.
 #pragma once
 
 #include <diagnostic_updater/diagnostic_updater.h>
+#include <diagnostic_updater/publisher.h>
 #include <image_transport/image_transport.h>
+#include <message_filters/cache.h>
+#include <nav_msgs/Odometry.h>
+#include <nav_msgs/Path.h>
 #include <nodelet/nodelet.h>
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
 #include <std_srvs/Trigger.h>
+#include <tf2_ros/buffer.h>
 #include <tf2_ros/transform_broadcaster.h>
+#include <tf2_ros/transform_listener.h>
 
-#include <nav_msgs/Path.h>
 #include <atomic>
 #include <deque>
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <string>
 #include <thread>
 
 #include "long3r/pipeline/bounded_queue.hpp"
+#include "long3r/pipeline/metric_scale.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 #include "long3r_ros/SaveMap.h"
+#include "long3r_ros/SaveTrajectory.h"
+#include "long3r_ros/camera_calibration.hpp"
+#include "long3r_ros/image_input.hpp"
+#include "long3r_ros/log_throttle.hpp"
 #include "long3r_ros/params.hpp"
+#include "long3r_ros/robot_frames.hpp"
 #include "long3r_ros/stream_monitor.hpp"
+#include "long3r_ros/window_stats.hpp"
 
 namespace long3r_ros {
 
@@ -41,55 +66,127 @@ class Long3rNodelet : public nodelet::Nodelet {
 
  private:
   void onInit() override;
+  void loadModel();
+  void advertise();
+  void subscribe();
+
+  // Callbacks: they only enqueue (or count a frame dropped while paused).
   void imageCallback(const sensor_msgs::ImageConstPtr& msg);
+  void compressedCallback(const sensor_msgs::CompressedImageConstPtr& msg);
+  void enqueue(InputFrame frame);
   void cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg);
+  void depthCallback(const sensor_msgs::ImageConstPtr& msg);
+  void tfTimerCallback(const ros::TimerEvent& event);
+
   bool resetService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
+  bool pauseService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
+  bool resumeService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
   bool saveMapService(SaveMap::Request& req, SaveMap::Response& res);
+  bool saveTrajectoryService(SaveTrajectory::Request& req, SaveTrajectory::Response& res);
   void mapTimerCallback(const ros::WallTimerEvent& event);
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
+  // Worker thread.
   void workerLoop();
-  void processFrame(const sensor_msgs::ImageConstPtr& msg);
+  void handleFrame(const InputFrame& frame);
+  void processFrame(const InputFrame& frame, const DecodedImage& decoded);
+  cv::Mat calibrate(const InputFrame& frame, const cv::Mat& image);  // recon_mutex_ held
   void flushPending();
-  void publishResult(const long3r::FrameResult& result);
+  void publishResult(long3r::FrameResult result);
+  void trackLoss(const long3r::FrameResult& result);
+  void updateScale(long3r::FrameResult& result, const std_msgs::Header& header,
+                   const cv::Size& image_size);
+  std::optional<double> depthScaleSample(const long3r::FrameResult& result,
+                                         const std_msgs::Header& header,
+                                         const cv::Size& image_size);
+  void publishOutputs(const long3r::FrameResult& r, const std_msgs::Header& header);
+  nav_msgs::Path pathMessage();              // recon_mutex_ held
   void resetStream(const std::string& why);  // recon_mutex_ held
+  void startStreamScale();                   // recon_mutex_ held
   void shutdown();
 
+  // A warning per kind of problem, throttled per kind (LogThrottle).
+  void warnThrottled(const std::string& kind, const std::string& message);
+
   NodeletConfig config_;
+  FramesConfig frames_config_;
+  long3r::MetricScaleConfig scale_config_;
+  StreamMonitorConfig monitor_config_;
   long3r::ThreadConfig thread_config_;
   long3r::InferenceConfig inference_config_;
   long3r::ReconstructionConfig recon_config_;
 
   std::unique_ptr<image_transport::ImageTransport> it_;
   image_transport::Subscriber image_sub_;
-  ros::Subscriber camera_info_sub_;
-  ros::Publisher frame_cloud_pub_, pointmap_pub_, map_pub_, pose_pub_, path_pub_, camera_info_pub_;
-  ros::ServiceServer reset_srv_, save_map_srv_;
+  ros::Subscriber compressed_sub_, camera_info_sub_, depth_sub_;
+  ros::Publisher frame_cloud_pub_, pointmap_pub_, map_pub_, pose_pub_, path_pub_, camera_info_pub_,
+      depth_pub_, odometry_pub_;
+  ros::ServiceServer reset_srv_, pause_srv_, resume_srv_, save_map_srv_, save_trajectory_srv_;
   ros::WallTimer map_timer_;
+  ros::Timer tf_timer_;  // republishes map -> odom (odometry mode), as SLAM nodes do
   tf2_ros::TransformBroadcaster tf_broadcaster_;
+  tf2_ros::Buffer tf_buffer_;
+  std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
   std::unique_ptr<diagnostic_updater::Updater> diagnostics_;
+  // Output rate and stamp delay of ~pointmap over a sliding window (library tasks).
+  double min_rate_hz_ = 0.0, max_rate_hz_ = 0.0;
+  std::unique_ptr<diagnostic_updater::TopicDiagnostic> output_diagnostic_;
+
+  // camera_info and depth messages by stamp, to pair each image with its own.
+  message_filters::Cache<sensor_msgs::CameraInfo> camera_info_cache_{50};
+  message_filters::Cache<sensor_msgs::Image> depth_cache_{30};
 
   // The reconstruction and everything tied to its stream, guarded together:
   // the worker pushes frames, the services reset and save.
   std::mutex recon_mutex_;
   std::unique_ptr<long3r::Reconstruction> recon_;
-  std::deque<std_msgs::Header> pending_headers_;  // headers of frames awaiting their result
-  nav_msgs::Path path_;
-  StreamMonitor monitor_{0.0};
+  // Frames awaiting their result: header and the size of the image as pushed.
+  struct PendingFrame {
+    std_msgs::Header header;
+    cv::Size size;
+  };
+  std::deque<PendingFrame> pending_;
+  std::unique_ptr<RobotFrames> frames_;
+  long3r::ScalePolicy scale_policy_{long3r::MetricScaleConfig()};
+  std::unique_ptr<long3r::OdometryScaleSampler> scale_sampler_;
+  std::optional<geometry_msgs::TransformStamped> last_map_odom_;   // state_mutex_
+  std::optional<std::pair<Eigen::Isometry3d, double>> last_body_;  // pose in map, stamp
+  std::optional<Eigen::Matrix<double, 6, 6>> last_body_cov_;
+  StreamMonitor monitor_;
+  std::optional<std::pair<InputFrame, DecodedImage>> held_;  // see StreamMonitor::kHold
+  CameraCalibration calibration_;
+  std::string calibration_problem_;  // why the latest camera_info was not used ("" if it was)
+  std::string intrinsics_logged_;    // the intrinsics line last logged
+  int lost_frames_ = 0;              // consecutive frames without a pose
+  double lost_since_stamp_ = 0.0;
 
-  std::mutex camera_info_mutex_;
-  std::optional<long3r::PinholeIntrinsics> calibration_;  // source resolution, from camera_info
-
-  std::unique_ptr<long3r::BoundedQueue<sensor_msgs::ImageConstPtr>> queue_;
+  std::unique_ptr<long3r::BoundedQueue<InputFrame>> queue_;
   std::thread worker_;
   std::atomic<bool> running_{false};
+  std::atomic<bool> paused_{false};
   std::uint64_t last_map_revision_ = 0;
 
-  // Statistics for diagnostics (atomics: written by callbacks and worker).
+  // Statistics for diagnostics (written by callbacks and worker).
+  WindowStats window_;
+  LogThrottle throttle_{5.0};
   std::atomic<std::uint64_t> frames_received_{0}, frames_processed_{0}, frames_failed_{0};
-  std::atomic<double> last_latency_s_{0.0};
+  std::atomic<std::uint64_t> frames_dropped_paused_{0}, frames_dropped_input_{0};
+  std::atomic<std::uint64_t> queue_dropped_seen_{0};
+  std::atomic<double> last_input_wall_s_{0.0};  // wall clock of the newest image; 0 = none yet
   std::atomic<std::int64_t> mem_short_{0}, mem_long_{0}, mem_relevant_{-1};
-  ros::WallTime stats_since_;
+  std::atomic<std::int64_t> stream_frames_{0};
+  std::atomic<int> lost_frames_diag_{0};
+  std::atomic<double> lost_for_s_{0.0};
+  // What the timers and diagnostics read, copied here so that they never wait
+  // for recon_mutex_ (held by the worker for a whole model step).
+  std::mutex state_mutex_;
+  std::string tracking_text_ = "not started", calibration_text_ = "none",
+              frames_text_ = "not started";
+  Eigen::Isometry3d T_map_W_ = Eigen::Isometry3d::Identity();
+  long3r::ScaleEstimate scale_estimate_;
+  double scale_in_use_ = 1.0;
+  bool scale_metric_ = false;
+  ros::WallTime started_;
 };
 
 }  // namespace long3r_ros

@@ -15,7 +15,10 @@
 
 #include "long3r/model/inference_config.hpp"
 #include "long3r/model/threads.hpp"
+#include "long3r/pipeline/metric_scale.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
+#include "long3r_ros/robot_frames.hpp"
+#include "long3r_ros/stream_monitor.hpp"
 
 namespace long3r_ros {
 
@@ -24,26 +27,49 @@ class ParamError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-// ROS-side settings: frames, topics, queueing, timers.
+// Where the camera poses come from: PnP on LONG3R's pointmaps (the paper's
+// way), or the robot's odometry in TF, which then places LONG3R's per-frame
+// geometry (as voxblox and nvblox place depth).
+enum class PoseSource { kModel, kOdometry };
+inline const std::array<std::pair<PoseSource, const char*>, 2>& enum_names(PoseSource) {
+  static const std::array<std::pair<PoseSource, const char*>, 2> names{
+      {{PoseSource::kModel, "model"}, {PoseSource::kOdometry, "odometry"}}};
+  return names;
+}
+
+// ROS-side settings: topics, input, queueing, timers, diagnostics.
 struct NodeletConfig {
-  std::string model_path;               // safetensors checkpoint; empty = package default
-  std::string world_frame = "map";      // fixed frame of the map and of T_W_C
-  std::string camera_frame;             // empty = the image header's frame_id
-  bool publish_tf = true;               // broadcast world_frame -> camera frame
+  std::string model_path;  // safetensors checkpoint; empty = package default
+  bool publish_tf = true;  // broadcast the one transform (robot_frames.hpp)
+  PoseSource pose_source = PoseSource::kModel;
   bool use_camera_info = true;          // use camera_info intrinsics when published
+  bool image_is_rectified = false;      // false: rectify with camera_info's distortion
   std::string image_transport = "raw";  // raw, compressed, ...
+  int max_image_pixels = 4096 * 4096;   // larger frames are dropped
   int queue_size = 1;                   // bounded input queue; newest frame wins
-  double flush_after_s = 1.0;           // emit the pending last frame after this silence
+  double flush_after_s = 1.0;           // publish the pending frame after this silence
   double map_publish_period_s = 1.0;    // republish the map (if changed) this often
+  int lost_reset_frames = 0;            // new stream after this many unposed frames; 0 = never
+  double no_input_warn_s = 5.0;         // diagnostics warn after this long without images
+  double max_latency_s = 5.0;           // diagnostics: stamp delay beyond this is an error
 };
 
 NodeletConfig readNodeletConfig(const ros::NodeHandle& pnh);
+// map_frame, odom_frame, base_frame, camera_frame, tf_timeout_s. The old name
+// world_frame is read as map_frame.
+FramesConfig readFramesConfig(const ros::NodeHandle& pnh);
+StreamMonitorConfig readStreamMonitorConfig(const ros::NodeHandle& pnh);
+// scale_source, scale, scale_min_baseline_m, ... (metric_scale.hpp).
+long3r::MetricScaleConfig readMetricScaleConfig(const ros::NodeHandle& pnh);
 long3r::ThreadConfig readThreadConfig(const ros::NodeHandle& pnh);
 long3r::InferenceConfig readInferenceConfig(const ros::NodeHandle& pnh);
 long3r::ReconstructionConfig readReconstructionConfig(const ros::NodeHandle& pnh);
 
 // One line per parameter, for the start-up log.
 std::string describe(const NodeletConfig& config);
+std::string describe(const FramesConfig& config);
+std::string describe(const StreamMonitorConfig& config);
+std::string describe(const long3r::MetricScaleConfig& config);
 std::string describe(const long3r::ThreadConfig& config);
 std::string describe(const long3r::InferenceConfig& config);
 std::string describe(const long3r::ReconstructionConfig& config);

@@ -1,6 +1,10 @@
 #include "long3r_ros/conversions.hpp"
 
+#include <depth_image_proc/depth_conversions.h>
+#include <image_geometry/pinhole_camera_model.h>
+#include <sensor_msgs/image_encodings.h>
 #include <sensor_msgs/point_cloud2_iterator.h>
+#include <boost/make_shared.hpp>
 
 #include <cmath>
 #include <cstring>
@@ -17,48 +21,71 @@ float packRgb(std::uint8_t r, std::uint8_t g, std::uint8_t b) {
   return out;
 }
 
-sensor_msgs::PointCloud2 toOrganizedCloud(const cv::Mat& points_C, const cv::Mat& conf,
-                                          const cv::Mat& rgb, const std_msgs::Header& header) {
-  if (points_C.type() != CV_32FC3 || conf.type() != CV_32FC1 || rgb.type() != CV_8UC3) {
+sensor_msgs::ImagePtr toDepthImage(const cv::Mat& points_C, const cv::Mat& conf,
+                                   float conf_threshold, const std_msgs::Header& header) {
+  if (points_C.type() != CV_32FC3 || conf.type() != CV_32FC1 || conf.size() != points_C.size()) {
     throw std::invalid_argument(
-        "toOrganizedCloud: expected CV_32FC3 points, CV_32FC1 conf, CV_8UC3 rgb");
+        "toDepthImage: expected CV_32FC3 points and CV_32FC1 conf of one size");
   }
-  if (conf.size() != points_C.size() || rgb.size() != points_C.size()) {
-    throw std::invalid_argument("toOrganizedCloud: points, conf and rgb differ in size");
+  auto msg = boost::make_shared<sensor_msgs::Image>();
+  msg->header = header;
+  msg->height = static_cast<std::uint32_t>(points_C.rows);
+  msg->width = static_cast<std::uint32_t>(points_C.cols);
+  msg->encoding = sensor_msgs::image_encodings::TYPE_32FC1;
+  msg->is_bigendian = false;
+  msg->step = msg->width * sizeof(float);
+  msg->data.resize(static_cast<std::size_t>(msg->step) * msg->height);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (int v = 0; v < points_C.rows; ++v) {
+    const auto* p = points_C.ptr<cv::Vec3f>(v);
+    const float* c = conf.ptr<float>(v);
+    auto* d = reinterpret_cast<float*>(&msg->data[static_cast<std::size_t>(v) * msg->step]);
+    for (int u = 0; u < points_C.cols; ++u) {
+      const bool ok = c[u] >= conf_threshold && std::isfinite(p[u][0]) && std::isfinite(p[u][1]) &&
+                      std::isfinite(p[u][2]) && p[u][2] > 0.0f;
+      d[u] = ok ? p[u][2] : nan;
+    }
   }
-  sensor_msgs::PointCloud2 cloud;
-  cloud.header = header;
-  sensor_msgs::PointCloud2Modifier modifier(cloud);
+  return msg;
+}
+
+sensor_msgs::PointCloud2 toFrameCloud(const sensor_msgs::ImageConstPtr& depth,
+                                      const sensor_msgs::CameraInfo& info, const cv::Mat& conf,
+                                      const cv::Mat& rgb) {
+  const cv::Size size(static_cast<int>(depth->width), static_cast<int>(depth->height));
+  if (depth->encoding != sensor_msgs::image_encodings::TYPE_32FC1 || conf.type() != CV_32FC1 ||
+      rgb.type() != CV_8UC3 || conf.size() != size || rgb.size() != size) {
+    throw std::invalid_argument(
+        "toFrameCloud: expected a 32FC1 depth image and CV_32FC1 conf, CV_8UC3 rgb of its size");
+  }
+  auto cloud = boost::make_shared<sensor_msgs::PointCloud2>();
+  cloud->header = depth->header;
+  sensor_msgs::PointCloud2Modifier modifier(*cloud);
   modifier.setPointCloud2Fields(
       5, "x", 1, sensor_msgs::PointField::FLOAT32, "y", 1, sensor_msgs::PointField::FLOAT32, "z", 1,
       sensor_msgs::PointField::FLOAT32, "rgb", 1, sensor_msgs::PointField::FLOAT32, "confidence", 1,
       sensor_msgs::PointField::FLOAT32);
-  modifier.resize(static_cast<std::size_t>(points_C.rows) * points_C.cols);
-  cloud.height = static_cast<std::uint32_t>(points_C.rows);
-  cloud.width = static_cast<std::uint32_t>(points_C.cols);
-  cloud.row_step = cloud.width * cloud.point_step;
-  cloud.is_dense = true;
-
-  sensor_msgs::PointCloud2Iterator<float> it_x(cloud, "x");
-  sensor_msgs::PointCloud2Iterator<float> it_rgb(cloud, "rgb");
-  sensor_msgs::PointCloud2Iterator<float> it_conf(cloud, "confidence");
-  const float nan = std::numeric_limits<float>::quiet_NaN();
-  for (int v = 0; v < points_C.rows; ++v) {
-    const auto* p = points_C.ptr<cv::Vec3f>(v);
-    const auto* c = conf.ptr<float>(v);
+  modifier.resize(static_cast<std::size_t>(size.area()));
+  cloud->height = depth->height;
+  cloud->width = depth->width;
+  cloud->row_step = cloud->width * cloud->point_step;
+  image_geometry::PinholeCameraModel model;
+  model.fromCameraInfo(info);
+  depth_image_proc::convert<float>(depth, cloud, model);
+  cloud->is_dense = true;
+  sensor_msgs::PointCloud2Iterator<float> it_z(*cloud, "z");
+  sensor_msgs::PointCloud2Iterator<float> it_rgb(*cloud, "rgb");
+  sensor_msgs::PointCloud2Iterator<float> it_conf(*cloud, "confidence");
+  for (int v = 0; v < size.height; ++v) {
+    const float* c = conf.ptr<float>(v);
     const auto* col = rgb.ptr<cv::Vec3b>(v);
-    for (int u = 0; u < points_C.cols; ++u, ++it_x, ++it_rgb, ++it_conf) {
-      const bool finite =
-          std::isfinite(p[u][0]) && std::isfinite(p[u][1]) && std::isfinite(p[u][2]);
-      if (!finite) cloud.is_dense = false;
-      it_x[0] = finite ? p[u][0] : nan;
-      it_x[1] = finite ? p[u][1] : nan;
-      it_x[2] = finite ? p[u][2] : nan;
+    for (int u = 0; u < size.width; ++u, ++it_z, ++it_rgb, ++it_conf) {
+      if (!std::isfinite(*it_z)) cloud->is_dense = false;
       *it_rgb = packRgb(col[u][0], col[u][1], col[u][2]);
       *it_conf = c[u];
     }
   }
-  return cloud;
+  return *cloud;
 }
 
 sensor_msgs::PointCloud2 toColoredCloud(const std::vector<Eigen::Vector3f>& points,
@@ -86,18 +113,23 @@ sensor_msgs::PointCloud2 toColoredCloud(const std::vector<Eigen::Vector3f>& poin
   return cloud;
 }
 
-geometry_msgs::Pose toPoseMsg(const Eigen::Isometry3d& T) {
-  geometry_msgs::Pose pose;
-  const Eigen::Vector3d t = T.translation();
-  const Eigen::Quaterniond q(T.rotation());
-  pose.position.x = t.x();
-  pose.position.y = t.y();
-  pose.position.z = t.z();
-  pose.orientation.x = q.x();
-  pose.orientation.y = q.y();
-  pose.orientation.z = q.z();
-  pose.orientation.w = q.w();
-  return pose;
+std::array<double, 36> poseCovarianceInMap(const Eigen::Matrix<double, 6, 6>& cov_W,
+                                           const Eigen::Matrix3d& R_map_W,
+                                           const Eigen::Vector3d& lever_arm_map) {
+  Eigen::Matrix3d a_cross;
+  a_cross << 0.0, -lever_arm_map.z(), lever_arm_map.y(), lever_arm_map.z(), 0.0, -lever_arm_map.x(),
+      -lever_arm_map.y(), lever_arm_map.x(), 0.0;
+  Eigen::Matrix<double, 6, 6> rotate = Eigen::Matrix<double, 6, 6>::Zero();
+  rotate.topLeftCorner<3, 3>() = R_map_W;
+  rotate.bottomRightCorner<3, 3>() = R_map_W;
+  Eigen::Matrix<double, 6, 6> lever = Eigen::Matrix<double, 6, 6>::Identity();
+  lever.topRightCorner<3, 3>() = -a_cross;
+  const Eigen::Matrix<double, 6, 6> J = lever * rotate;
+  Eigen::Matrix<double, 6, 6> cov = J * cov_W * J.transpose();
+  cov = 0.5 * (cov + cov.transpose());
+  std::array<double, 36> out;
+  Eigen::Map<Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(out.data()) = cov;
+  return out;
 }
 
 sensor_msgs::CameraInfo toCameraInfo(double fx, double fy, double cx, double cy, int width,

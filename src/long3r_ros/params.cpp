@@ -1,5 +1,6 @@
 #include "long3r_ros/params.hpp"
 
+#include <cmath>
 #include <sstream>
 #include <type_traits>
 
@@ -15,14 +16,45 @@ namespace {
 template <class S, class V>
 long3r::config::FieldsOf<S, NodeletConfig> ros_fields(S& c, V& v) {
   v("model_path", c.model_path, "(package default)");
-  v("world_frame", c.world_frame);
-  v("camera_frame", c.camera_frame, "(from image header)");
   v("publish_tf", c.publish_tf);
+  v("pose_source", c.pose_source);
   v("use_camera_info", c.use_camera_info);
+  v("image_is_rectified", c.image_is_rectified);
   v("image_transport", c.image_transport);
+  v("max_image_pixels", c.max_image_pixels);
   v("queue_size", c.queue_size);
   v("flush_after_s", c.flush_after_s);
   v("map_publish_period_s", c.map_publish_period_s);
+  v("lost_reset_frames", c.lost_reset_frames, "(never)");
+  v("no_input_warn_s", c.no_input_warn_s);
+  v("max_latency_s", c.max_latency_s);
+}
+
+template <class S, class V>
+long3r::config::FieldsOf<S, FramesConfig> ros_fields(S& c, V& v) {
+  v("map_frame", c.map_frame);
+  v("odom_frame", c.odom_frame, "(none)");
+  v("base_frame", c.base_frame, "(none)");
+  v("camera_frame", c.camera_frame, "(from image header)");
+  v("tf_timeout_s", c.tf_timeout_s);
+}
+
+template <class S, class V>
+long3r::config::FieldsOf<S, long3r::MetricScaleConfig> ros_fields(S& c, V& v) {
+  v("scale_source", c.source);
+  v("scale", c.fixed_scale);
+  v("scale_min_baseline_m", c.min_baseline_m);
+  v("scale_min_samples", c.min_samples);
+  v("scale_max_rel_stddev", c.max_rel_stddev);
+  v("scale_freeze", c.freeze);
+  v("scale_update_rel_change", c.update_rel_change);
+}
+
+template <class S, class V>
+long3r::config::FieldsOf<S, StreamMonitorConfig> ros_fields(S& c, V& v) {
+  v("max_backward_jump_s", c.max_backward_jump_s);
+  v("max_stamp_jump_s", c.max_stamp_jump_s);
+  v("size_change_frames", c.size_change_frames);
 }
 
 template <class S, class V>
@@ -151,12 +183,58 @@ void require(bool ok, const ros::NodeHandle& pnh, const std::string& name,
 
 NodeletConfig readNodeletConfig(const ros::NodeHandle& pnh) {
   const NodeletConfig c = read_all<NodeletConfig>(pnh);
-  require(!c.world_frame.empty(), pnh, "world_frame", "must not be empty");
-  require(c.world_frame != c.camera_frame, pnh, "camera_frame", "must differ from world_frame");
   require(!c.image_transport.empty(), pnh, "image_transport", "must not be empty");
   require(c.queue_size >= 1 && c.queue_size <= 1000, pnh, "queue_size", "must be in [1, 1000]");
   require(c.flush_after_s > 0.0, pnh, "flush_after_s", "must be > 0");
   require(c.map_publish_period_s > 0.0, pnh, "map_publish_period_s", "must be > 0");
+  require(c.max_image_pixels >= 16 * 16, pnh, "max_image_pixels", "must be >= 256");
+  require(c.lost_reset_frames >= 0, pnh, "lost_reset_frames", "must be >= 0 (0 = never)");
+  require(c.no_input_warn_s > 0.0, pnh, "no_input_warn_s", "must be > 0");
+  require(c.max_latency_s > 0.0, pnh, "max_latency_s", "must be > 0");
+  return c;
+}
+
+FramesConfig readFramesConfig(const ros::NodeHandle& pnh) {
+  FramesConfig c = read_all<FramesConfig>(pnh);
+  if (pnh.hasParam("world_frame")) {  // the name before map_frame
+    std::string world;
+    require(pnh.getParam("world_frame", world), pnh, "world_frame", "must be a string");
+    require(!pnh.hasParam("map_frame") || world == c.map_frame, pnh, "world_frame",
+            "is the old name of map_frame; set only map_frame");
+    c.map_frame = world;
+  }
+  require(!c.map_frame.empty(), pnh, "map_frame", "must not be empty");
+  const std::string names[] = {c.odom_frame, c.base_frame, c.camera_frame};
+  for (const std::string& f : names) {
+    require(f != c.map_frame, pnh, "map_frame",
+            "must differ from odom_frame, base_frame and camera_frame");
+  }
+  require(c.odom_frame.empty() || !c.base_frame.empty(), pnh, "odom_frame",
+          "needs base_frame (map -> odom -> base is what the node estimates)");
+  require(c.odom_frame.empty() || c.odom_frame != c.base_frame, pnh, "odom_frame",
+          "must differ from base_frame");
+  require(c.tf_timeout_s >= 0.0 && c.tf_timeout_s <= 10.0, pnh, "tf_timeout_s",
+          "must be in [0, 10]");
+  return c;
+}
+
+long3r::MetricScaleConfig readMetricScaleConfig(const ros::NodeHandle& pnh) {
+  const long3r::MetricScaleConfig c = read_all<long3r::MetricScaleConfig>(pnh);
+  require(std::isfinite(c.fixed_scale) && c.fixed_scale > 0.0, pnh, "scale", "must be > 0");
+  require(std::isfinite(c.min_baseline_m) && c.min_baseline_m > 0.0, pnh, "scale_min_baseline_m",
+          "must be > 0");
+  require(c.min_samples >= 1 && c.min_samples <= 500, pnh, "scale_min_samples",
+          "must be in [1, 500]");
+  require(c.max_rel_stddev > 0.0, pnh, "scale_max_rel_stddev", "must be > 0");
+  require(c.update_rel_change >= 0.0, pnh, "scale_update_rel_change", "must be >= 0");
+  return c;
+}
+
+StreamMonitorConfig readStreamMonitorConfig(const ros::NodeHandle& pnh) {
+  const StreamMonitorConfig c = read_all<StreamMonitorConfig>(pnh);
+  require(c.max_backward_jump_s >= 0.0, pnh, "max_backward_jump_s", "must be >= 0");
+  require(c.max_stamp_jump_s > 0.0, pnh, "max_stamp_jump_s", "must be > 0");
+  require(c.size_change_frames >= 1, pnh, "size_change_frames", "must be >= 1");
   return c;
 }
 
@@ -199,6 +277,9 @@ long3r::ReconstructionConfig readReconstructionConfig(const ros::NodeHandle& pnh
 }
 
 std::string describe(const NodeletConfig& c) { return describe_all(c); }
+std::string describe(const FramesConfig& c) { return describe_all(c); }
+std::string describe(const long3r::MetricScaleConfig& c) { return describe_all(c); }
+std::string describe(const StreamMonitorConfig& c) { return describe_all(c); }
 std::string describe(const long3r::ThreadConfig& c) { return describe_all(c); }
 std::string describe(const long3r::InferenceConfig& c) { return describe_all(c); }
 std::string describe(const long3r::ReconstructionConfig& c) { return describe_all(c); }

@@ -5,8 +5,15 @@ mode normal: per-frame outputs are consistent (one ~frame_cloud and one path
 pose per ~pointmap, the last frame arrives after the flush), TF resolves at
 every published stamp, the map is non-empty, ~save_map writes a readable PLY
 and ~reset clears map and path.
-mode bad: after an unsupported encoding, a size change and time going
-backwards the node is alive and publishes the frames of the new streams.
+mode bad: through an unsupported encoding, a stray frame of another size, a
+lasting size change and time going backwards (make_bad_bag.py) the node is
+alive and publishes exactly the frames it should.
+mode pause: a pause several times flush_after_s long in the middle
+(make_timing_bag.py --pause-after): the frame before it is published during
+the pause, and the frames after it continue the same stream (frame indices,
+path, map all kept).
+mode slow: a camera slower than flush_after_s (make_timing_bag.py --period):
+every frame gets its result, each before the next frame arrives.
 """
 import argparse
 import os
@@ -20,11 +27,11 @@ import rostest
 import tf2_ros
 from nav_msgs.msg import Path
 from nodelet.srv import NodeletList
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import CameraInfo, PointCloud2
 from std_srvs.srv import Trigger
 
 from long3r_ros.msg import Pointmap
-from long3r_ros.srv import SaveMap
+from long3r_ros.srv import SaveMap, SaveTrajectory
 
 ARGS = None
 
@@ -33,13 +40,24 @@ class Recorder:
     def __init__(self):
         self.lock = threading.Lock()
         self.pointmaps = []
+        self.pointmap_wall = []
+        self.pointmap_clock = []  # the (simulated) ROS clock at receipt
         self.frame_clouds = []
         self.maps = []
         self.paths = []
-        rospy.Subscriber('/long3r/pointmap', Pointmap, self._add('pointmaps'), queue_size=100)
+        self.infos = []
+        rospy.Subscriber('/long3r/pointmap', Pointmap, self._pointmap, queue_size=100)
         rospy.Subscriber('/long3r/frame_cloud', PointCloud2, self._add('frame_clouds'), queue_size=100)
         rospy.Subscriber('/long3r/map', PointCloud2, self._add('maps'), queue_size=100)
         rospy.Subscriber('/long3r/path', Path, self._add('paths'), queue_size=100)
+        # ~camera_info comes with every result, posed or not.
+        rospy.Subscriber('/long3r/camera_info', CameraInfo, self._add('infos'), queue_size=100)
+
+    def _pointmap(self, msg):
+        with self.lock:
+            self.pointmaps.append(msg)
+            self.pointmap_wall.append(time.time())
+            self.pointmap_clock.append(rospy.Time.now().to_sec())
 
     def _add(self, name):
         def cb(msg):
@@ -82,28 +100,33 @@ class ReplayCheck(unittest.TestCase):
         cls.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(600))
         cls.tf_listener = tf2_ros.TransformListener(cls.tf_buffer)
 
-    def _wait_until_quiet(self, timeout_s):
-        # The replay is over when no new pointmap arrived for a few seconds
+    def _wait_until_quiet(self, timeout_s, what):
+        # The replay is over when no new result arrived for a few seconds
         # (this includes the flush of the last frame).
         last = [-1, time.time()]
 
+        # Across a pause in the bag the replay is only over once every frame came.
+        wanted = ARGS.frames if ARGS.mode in ('pause', 'slow') else 1
+
         def quiet():
-            n = self.rec.count('pointmaps')
+            n = self.rec.count(what)
             if n != last[0]:
                 last[0], last[1] = n, time.time()
-            return n > 0 and time.time() - last[1] > 4.0
-        self.assertTrue(wait_for(quiet, timeout_s), 'no pointmap arrived')
+            return n >= wanted and time.time() - last[1] > 4.0
+        self.assertTrue(wait_for(quiet, timeout_s), 'no %s arrived' % what)
 
     def test_replay(self):
         rospy.wait_for_service('/long3r/reset', timeout=60)
-        self._wait_until_quiet(240)
+        self._wait_until_quiet(240, 'infos' if ARGS.mode == 'bad' else 'pointmaps')
         pms = self.rec.get('pointmaps')
         stamps = [p.header.stamp.to_sec() for p in pms]
         rospy.loginfo('received %d pointmaps: %s', len(pms), ['%.2f' % s for s in stamps])
         if ARGS.mode == 'normal':
             self._check_normal(pms)
+        elif ARGS.mode == 'bad':
+            self._check_bad([m.header.stamp.to_sec() for m in self.rec.get('infos')])
         else:
-            self._check_bad(stamps)
+            self._check_continuity(pms)
 
     def _check_normal(self, pms):
         n = len(pms)
@@ -152,20 +175,57 @@ class ReplayCheck(unittest.TestCase):
 
     def _check_bad(self, stamps):
         t0 = ARGS.t0
-        # The half-size stream started at t0 + 0.3; the looped stream at t0 - 5.
-        self.assertTrue(any(abs(s - (t0 + 0.3)) < 1e-3 for s in stamps),
-                        'no output after the image size changed')
-        self.assertTrue(any(abs(s - (t0 - 5.0)) < 1e-3 for s in stamps),
-                        'no output after time went backwards')
-        self.assertFalse(any(abs(s - (t0 + 0.2)) < 1e-3 for s in stamps),
-                         'the unsupported-encoding frame was published')
+        expected = [t0, t0 + 0.1, t0 + 0.4, t0 + 0.7, t0 + 0.8, t0 - 5.0, t0 - 4.9]
+        dropped = [t0 + 0.2, t0 + 0.3, t0 + 0.5, t0 + 0.6]
+        for t in expected:
+            self.assertTrue(any(abs(s - t) < 1e-3 for s in stamps), 'no output for t0%+.1f' % (t - t0))
+        for t in dropped:
+            self.assertFalse(any(abs(s - t) < 1e-3 for s in stamps),
+                             'the frame at t0%+.1f should have been dropped' % (t - t0))
+        self.assertEqual(len(stamps), len(expected), 'one output per accepted frame')
         nodelets = rospy.ServiceProxy('/manager/list', NodeletList)().nodelets
         self.assertIn('/long3r', nodelets)
+
+    def _check_continuity(self, pms):
+        n = len(pms)
+        self.assertEqual(n, ARGS.frames, 'one pointmap per input frame')
+        self.assertEqual([p.frame_index for p in pms], list(range(n)), 'one stream, no restart')
+        paths = self.rec.get('paths')
+        self.assertEqual(len(paths[-1].poses), n, 'the path holds every frame')
+        sizes = [m.width * m.height for m in self.rec.get('maps')]
+        self.assertTrue(all(b >= a for a, b in zip(sizes, sizes[1:])),
+                        'the map lost points: %s' % sizes)
+        wall = self.rec.get('pointmap_wall')
+        if ARGS.mode == 'pause':
+            k = ARGS.pause_after
+            gap = wall[k + 1] - wall[k]
+            self.assertGreater(gap, 3.0, 'frame %d was not published during the pause (%.1f s '
+                               'before frame %d)' % (k, gap, k + 1))
+        else:
+            # slow: every frame from the second on is published before the next
+            # one arrives (the first comes with the second: the model needs a pair).
+            clock = self.rec.get('pointmap_clock')
+            for k in range(1, n - 1):
+                self.assertLess(clock[k], pms[k + 1].header.stamp.to_sec(),
+                                'frame %d waited for the next frame' % k)
+        out = os.path.join(ARGS.out, 'saved_map_%s.ply' % ARGS.mode)
+        res = rospy.ServiceProxy('/long3r/save_map', SaveMap)(out)
+        self.assertTrue(res.success, res.message)
+        self.assertEqual(read_ply_vertex_count(out), sizes[-1])
+        traj = os.path.join(ARGS.out, 'trajectory_%s.txt' % ARGS.mode)
+        res = rospy.ServiceProxy('/long3r/save_trajectory', SaveTrajectory)(traj)
+        self.assertTrue(res.success, res.message)
+        with open(traj) as f:
+            lines = [l for l in f if l.strip() and not l.startswith('#')]
+        self.assertEqual(len(lines), n)
+        for line, p in zip(lines, pms):  # TUM stamps have 6 decimals
+            self.assertAlmostEqual(float(line.split()[0]), p.header.stamp.to_sec(), places=5)
 
 
 if __name__ == '__main__':
     parser = argparse.ArgumentParser()
-    parser.add_argument('--mode', choices=['normal', 'bad'], default='normal')
+    parser.add_argument('--mode', choices=['normal', 'bad', 'pause', 'slow'], default='normal')
+    parser.add_argument('--pause-after', type=int, default=3)
     parser.add_argument('--frames', type=int, default=8)
     parser.add_argument('--t0', type=float, default=1000.0)
     parser.add_argument('--out', default='/tmp')

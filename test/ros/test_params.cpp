@@ -6,9 +6,12 @@
 #include "long3r_ros/params.hpp"
 
 using long3r_ros::ParamError;
+using long3r_ros::readFramesConfig;
 using long3r_ros::readInferenceConfig;
+using long3r_ros::readMetricScaleConfig;
 using long3r_ros::readNodeletConfig;
 using long3r_ros::readReconstructionConfig;
+using long3r_ros::readStreamMonitorConfig;
 using long3r_ros::readThreadConfig;
 
 namespace {
@@ -23,6 +26,9 @@ class ParamsTest : public ::testing::Test {
   void expectError(const std::string& name) {
     try {
       readNodeletConfig(pnh_);
+      readFramesConfig(pnh_);
+      readMetricScaleConfig(pnh_);
+      readStreamMonitorConfig(pnh_);
       readThreadConfig(pnh_);
       readInferenceConfig(pnh_);
       readReconstructionConfig(pnh_);
@@ -38,24 +44,59 @@ class ParamsTest : public ::testing::Test {
 
 TEST_F(ParamsTest, DefaultsWhenUnset) {
   auto c = readNodeletConfig(pnh_);
-  EXPECT_EQ(c.world_frame, "map");
+  EXPECT_EQ(readFramesConfig(pnh_).map_frame, "map");
   EXPECT_EQ(c.queue_size, 1);
   EXPECT_TRUE(c.publish_tf);
   EXPECT_EQ(readThreadConfig(pnh_).torch_threads, 0);
 }
 
 TEST_F(ParamsTest, ReadsValidValues) {
-  pnh_.setParam("world_frame", "odom");
+  pnh_.setParam("map_frame", "world");
   pnh_.setParam("queue_size", 5);
   pnh_.setParam("flush_after_s", 2);  // an int where a double is expected is fine
   pnh_.setParam("publish_tf", false);
   pnh_.setParam("torch_threads", 2);
   auto c = readNodeletConfig(pnh_);
-  EXPECT_EQ(c.world_frame, "odom");
+  EXPECT_EQ(readFramesConfig(pnh_).map_frame, "world");
   EXPECT_EQ(c.queue_size, 5);
   EXPECT_DOUBLE_EQ(c.flush_after_s, 2.0);
   EXPECT_FALSE(c.publish_tf);
   EXPECT_EQ(readThreadConfig(pnh_).torch_threads, 2);
+}
+
+TEST_F(ParamsTest, InputAndContinuityDefaultsAndValues) {
+  const auto c = readNodeletConfig(pnh_);
+  EXPECT_FALSE(c.image_is_rectified);
+  EXPECT_EQ(c.max_image_pixels, 4096 * 4096);
+  EXPECT_EQ(c.lost_reset_frames, 0);
+  const auto m = readStreamMonitorConfig(pnh_);
+  EXPECT_DOUBLE_EQ(m.max_backward_jump_s, 1.0);
+  EXPECT_DOUBLE_EQ(m.max_stamp_jump_s, 5.0);
+  EXPECT_EQ(m.size_change_frames, 3);
+  pnh_.setParam("image_is_rectified", true);
+  pnh_.setParam("lost_reset_frames", 30);
+  pnh_.setParam("max_backward_jump_s", 0.2);
+  pnh_.setParam("size_change_frames", 1);
+  EXPECT_TRUE(readNodeletConfig(pnh_).image_is_rectified);
+  EXPECT_EQ(readNodeletConfig(pnh_).lost_reset_frames, 30);
+  EXPECT_DOUBLE_EQ(readStreamMonitorConfig(pnh_).max_backward_jump_s, 0.2);
+  EXPECT_EQ(readStreamMonitorConfig(pnh_).size_change_frames, 1);
+  EXPECT_NE(long3r_ros::describe(readStreamMonitorConfig(pnh_)).find("size_change_frames: 1"),
+            std::string::npos);
+}
+
+TEST_F(ParamsTest, RejectsBadContinuitySettings) {
+  pnh_.setParam("size_change_frames", 0);
+  expectError("size_change_frames");
+  pnh_.setParam("size_change_frames", 3);
+  pnh_.setParam("max_stamp_jump_s", 0.0);
+  expectError("max_stamp_jump_s");
+  pnh_.setParam("max_stamp_jump_s", 5.0);
+  pnh_.setParam("lost_reset_frames", -1);
+  expectError("lost_reset_frames");
+  pnh_.setParam("lost_reset_frames", 0);
+  pnh_.setParam("max_image_pixels", 10);
+  expectError("max_image_pixels");
 }
 
 TEST_F(ParamsTest, RejectsZeroQueue) {
@@ -78,14 +119,47 @@ TEST_F(ParamsTest, RejectsNonNumericFlush) {
   expectError("flush_after_s");
 }
 
-TEST_F(ParamsTest, RejectsEmptyWorldFrame) {
-  pnh_.setParam("world_frame", "");
-  expectError("world_frame");
+TEST_F(ParamsTest, RejectsEmptyMapFrame) {
+  pnh_.setParam("map_frame", "");
+  expectError("map_frame");
 }
 
-TEST_F(ParamsTest, RejectsCameraFrameEqualToWorld) {
+TEST_F(ParamsTest, RejectsCameraFrameEqualToMap) {
   pnh_.setParam("camera_frame", "map");
-  expectError("camera_frame");
+  expectError("map_frame");
+}
+
+TEST_F(ParamsTest, WorldFrameIsTheOldNameOfMapFrame) {
+  pnh_.setParam("world_frame", "world");
+  EXPECT_EQ(readFramesConfig(pnh_).map_frame, "world");
+  pnh_.setParam("map_frame", "map");
+  expectError("world_frame");  // both, disagreeing
+}
+
+TEST_F(ParamsTest, FramesAndScale) {
+  pnh_.setParam("odom_frame", "odom");
+  expectError("odom_frame");  // odometry without a base
+  pnh_.setParam("base_frame", "base_link");
+  const long3r_ros::FramesConfig f = readFramesConfig(pnh_);
+  EXPECT_EQ(f.odom_frame, "odom");
+  EXPECT_EQ(f.base_frame, "base_link");
+  EXPECT_EQ(readNodeletConfig(pnh_).pose_source, long3r_ros::PoseSource::kModel);
+  pnh_.setParam("pose_source", "odometry");
+  EXPECT_EQ(readNodeletConfig(pnh_).pose_source, long3r_ros::PoseSource::kOdometry);
+  EXPECT_EQ(readMetricScaleConfig(pnh_).source, long3r::ScaleSource::kNone);
+  pnh_.setParam("scale_source", "depth");
+  pnh_.setParam("scale_min_samples", 8);
+  const long3r::MetricScaleConfig s = readMetricScaleConfig(pnh_);
+  EXPECT_EQ(s.source, long3r::ScaleSource::kDepth);
+  EXPECT_EQ(s.min_samples, 8);
+  pnh_.setParam("scale_source", "lidar");
+  expectError("scale_source");
+  pnh_.setParam("scale_source", "fixed");
+  pnh_.setParam("scale", -2.0);
+  expectError("scale");
+  pnh_.setParam("scale", 2.0);
+  pnh_.setParam("pose_source", "gps");
+  expectError("pose_source");
 }
 
 TEST_F(ParamsTest, RejectsBoolAsString) {

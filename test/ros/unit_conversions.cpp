@@ -18,45 +18,83 @@ std::uint32_t unpack(float f) {
 }
 }  // namespace
 
-TEST(Conversions, OrganizedCloudLayoutAndValues) {
-  cv::Mat pts(2, 3, CV_32FC3), conf(2, 3, CV_32FC1), rgb(2, 3, CV_8UC3);
+// ~depth: z of the camera-frame points, NaN where not confident or not finite.
+TEST(Conversions, DepthImage) {
+  cv::Mat pts(2, 3, CV_32FC3), conf(2, 3, CV_32FC1, cv::Scalar(2.0f));
   for (int v = 0; v < 2; ++v)
-    for (int u = 0; u < 3; ++u) {
-      pts.at<cv::Vec3f>(v, u) = cv::Vec3f(u, v, 1.0f + u + 10 * v);
+    for (int u = 0; u < 3; ++u) pts.at<cv::Vec3f>(v, u) = cv::Vec3f(u, v, 1.0f + u + 10 * v);
+  pts.at<cv::Vec3f>(1, 2)[2] = std::nanf("");
+  conf.at<float>(0, 1) = 1.0f;
+  std_msgs::Header h;
+  h.frame_id = "camera";
+  const sensor_msgs::ImagePtr d = toDepthImage(pts, conf, 1.5f, h);
+  EXPECT_EQ(d->encoding, "32FC1");
+  EXPECT_EQ(d->header.frame_id, "camera");
+  EXPECT_EQ(d->step, 3u * 4u);
+  const auto* z = reinterpret_cast<const float*>(d->data.data());
+  EXPECT_FLOAT_EQ(z[0], 1.0f);
+  EXPECT_TRUE(std::isnan(z[1]));  // not confident
+  EXPECT_FLOAT_EQ(z[3], 11.0f);
+  EXPECT_TRUE(std::isnan(z[5]));  // not finite
+  EXPECT_THROW(toDepthImage(pts, cv::Mat(2, 2, CV_32FC1), 1.0f, h), std::invalid_argument);
+}
+
+// ~frame_cloud: the depth through camera_info, exactly as depth_image_proc's
+// point_cloud_xyz computes it, with colour and confidence.
+TEST(Conversions, FrameCloudBackProjectsTheDepth) {
+  cv::Mat pts(4, 5, CV_32FC3), conf(4, 5, CV_32FC1), rgb(4, 5, CV_8UC3);
+  for (int v = 0; v < 4; ++v)
+    for (int u = 0; u < 5; ++u) {
+      pts.at<cv::Vec3f>(v, u) = cv::Vec3f(0.0f, 0.0f, 1.0f + 0.1f * (u + v));
       conf.at<float>(v, u) = 1.5f + u;
       rgb.at<cv::Vec3b>(v, u) = cv::Vec3b(10 * u, 20 * v, 7);
     }
-  pts.at<cv::Vec3f>(1, 2)[2] = std::nanf("");
+  pts.at<cv::Vec3f>(3, 4)[2] = std::nanf("");
   std_msgs::Header h;
   h.frame_id = "camera";
-  auto cloud = toOrganizedCloud(pts, conf, rgb, h);
-  EXPECT_EQ(cloud.height, 2u);
-  EXPECT_EQ(cloud.width, 3u);
+  const sensor_msgs::ImagePtr depth = toDepthImage(pts, conf, 1.0f, h);
+  const sensor_msgs::CameraInfo info = toCameraInfo(4.0, 5.0, 2.0, 1.5, 5, 4, h);
+  const sensor_msgs::PointCloud2 cloud = toFrameCloud(depth, info, conf, rgb);
+  EXPECT_EQ(cloud.height, 4u);
+  EXPECT_EQ(cloud.width, 5u);
   EXPECT_EQ(cloud.header.frame_id, "camera");
   EXPECT_FALSE(cloud.is_dense);
   ASSERT_EQ(cloud.fields.size(), 5u);
   EXPECT_EQ(cloud.fields[4].name, "confidence");
   sensor_msgs::PointCloud2ConstIterator<float> x(cloud, "x"), c(cloud, "confidence"),
       col(cloud, "rgb");
-  for (int v = 0; v < 2; ++v)
-    for (int u = 0; u < 3; ++u, ++x, ++c, ++col) {
-      if (v == 1 && u == 2) {
+  for (int v = 0; v < 4; ++v)
+    for (int u = 0; u < 5; ++u, ++x, ++c, ++col) {
+      EXPECT_FLOAT_EQ(*c, 1.5f + u);
+      EXPECT_EQ(unpack(*col), (static_cast<std::uint32_t>(10 * u) << 16) | ((20u * v) << 8) | 7u);
+      if (v == 3 && u == 4) {
         EXPECT_TRUE(std::isnan(x[0]) && std::isnan(x[1]) && std::isnan(x[2]));
         continue;
       }
-      EXPECT_FLOAT_EQ(x[0], u);
-      EXPECT_FLOAT_EQ(x[1], v);
-      EXPECT_FLOAT_EQ(x[2], 1.0f + u + 10 * v);
-      EXPECT_FLOAT_EQ(*c, 1.5f + u);
-      EXPECT_EQ(unpack(*col), (static_cast<std::uint32_t>(10 * u) << 16) | ((20u * v) << 8) | 7u);
+      const float z = 1.0f + 0.1f * (u + v);
+      EXPECT_FLOAT_EQ(x[2], z);
+      EXPECT_FLOAT_EQ(x[0], (u - 2.0f) * z / 4.0f);
+      EXPECT_FLOAT_EQ(x[1], (v - 1.5f) * z / 5.0f);
     }
+  EXPECT_THROW(toFrameCloud(depth, info, conf, cv::Mat(2, 2, CV_8UC3)), std::invalid_argument);
 }
 
-TEST(Conversions, OrganizedCloudRejectsMismatchedSizes) {
-  cv::Mat pts(2, 3, CV_32FC3), conf(2, 2, CV_32FC1), rgb(2, 3, CV_8UC3);
-  EXPECT_THROW(toOrganizedCloud(pts, conf, rgb, {}), std::invalid_argument);
-  cv::Mat wrong(2, 3, CV_64FC3);
-  EXPECT_THROW(toOrganizedCloud(wrong, cv::Mat(2, 3, CV_32FC1), rgb, {}), std::invalid_argument);
+// The pose covariance moves from camera to body and from W to map.
+TEST(Conversions, PoseCovarianceInMap) {
+  Eigen::Matrix<double, 6, 6> cov = Eigen::Matrix<double, 6, 6>::Zero();
+  cov.diagonal() << 1e-4, 2e-4, 3e-4, 1e-6, 2e-6, 3e-6;
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitZ()).matrix();
+  // No lever arm: a rotation of the blocks.
+  auto c = poseCovarianceInMap(cov, R, Eigen::Vector3d::Zero());
+  EXPECT_NEAR(c[0 * 6 + 0], 2e-4, 1e-15);  // map x is W's y turned
+  EXPECT_NEAR(c[1 * 6 + 1], 1e-4, 1e-15);
+  EXPECT_NEAR(c[5 * 6 + 5], 3e-6, 1e-18);
+  // A body 1 m from the camera along map x: a rotation error about z moves it along y.
+  c = poseCovarianceInMap(cov, Eigen::Matrix3d::Identity(), Eigen::Vector3d(1.0, 0.0, 0.0));
+  EXPECT_NEAR(c[1 * 6 + 1], 2e-4 + 3e-6, 1e-15);
+  EXPECT_NEAR(c[0 * 6 + 0], 1e-4, 1e-15);
+  EXPECT_NEAR(c[1 * 6 + 5], 3e-6, 1e-18);  // correlated with the yaw
+  EXPECT_DOUBLE_EQ(c[1 * 6 + 5], c[5 * 6 + 1]);
 }
 
 TEST(Conversions, ColoredCloud) {
@@ -76,14 +114,7 @@ TEST(Conversions, ColoredCloud) {
   EXPECT_THROW(toColoredCloud(p, c, {}), std::invalid_argument);
 }
 
-TEST(Conversions, PoseAndCameraInfo) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.rotate(Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitZ()));
-  T.pretranslate(Eigen::Vector3d(1, 2, 3));
-  auto pose = toPoseMsg(T);
-  EXPECT_DOUBLE_EQ(pose.position.z, 3.0);
-  EXPECT_NEAR(pose.orientation.z, std::sqrt(0.5), 1e-12);
-  EXPECT_NEAR(pose.orientation.w, std::sqrt(0.5), 1e-12);
+TEST(Conversions, CameraInfo) {
   auto info = toCameraInfo(200, 210, 111.5, 100.5, 224, 224, {});
   EXPECT_DOUBLE_EQ(info.K[0], 200);
   EXPECT_DOUBLE_EQ(info.K[4], 210);

@@ -1,0 +1,122 @@
+// Where the reconstruction sits in the robot's TF tree (REP-105), and the one
+// transform the node publishes for it.
+//
+// Frames: W is the pipeline's world, camera 0's optical frame of the stream;
+// `map` (map_frame) is the fixed frame of every output. The node reads what
+// it needs from TF (a tf2 buffer fed by a listener), at the image stamp with
+// a bounded wait, and never gives an existing frame a second parent:
+//
+//   odom_frame and base_frame set  publishes map -> odom, so that
+//       map -> odom -> base is the pose LONG3R estimates; map starts equal to
+//       odom (T_map_odom = I at the first frame), so it is z-up as odom is;
+//   base_frame set                 publishes map -> base; map is the first
+//       frame's base pose (z-up when the base stands level);
+//   neither                        publishes map -> camera frame when that
+//       frame has no parent; when it has one (the camera driver or
+//       robot_state_publisher gives it one), map -> the root of its tree.
+//       map is camera 0 turned from optical (z forward, y down) to x forward,
+//       y left, z up (REP-103).
+//
+// T_map_W is fixed per stream: T_map_cam(t) = T_map_W * T_W_C(t).
+#pragma once
+
+#include <geometry_msgs/TransformStamped.h>
+#include <ros/time.h>
+#include <tf2_ros/buffer.h>
+
+#include <Eigen/Geometry>
+#include <atomic>
+#include <optional>
+#include <stdexcept>
+#include <string>
+
+namespace long3r_ros {
+
+struct FramesConfig {
+  std::string map_frame = "map";
+  std::string odom_frame;     // empty: no odometry
+  std::string base_frame;     // empty: no robot base
+  std::string camera_frame;   // empty: the image header's frame_id
+  double tf_timeout_s = 0.2;  // wait for a transform at an image stamp
+};
+
+// A transform the node needs is not (yet) in TF; says which and why.
+class TfUnavailable : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+class RobotFrames {
+ public:
+  enum class Mode { kMapToOdom, kMapToBase, kMapToCamera, kMapToRoot };
+
+  RobotFrames(const FramesConfig& config, const tf2_ros::Buffer& buffer)
+      : config_(config), tf_(buffer) {}
+
+  // The first frame of a stream: decides the mode and fixes T_map_W. Throws
+  // TfUnavailable when a transform it needs is missing (the caller retries
+  // with the next frame).
+  void startStream(const std::string& camera_frame, const ros::Time& stamp);
+  bool started() const { return started_; }
+  // Without a base: whether the camera frame gained a parent since (its
+  // static transform arrived late); then the root of its tree is published
+  // from now on (T_map_W stays). Returns true when that changed.
+  bool followRoot();
+  void reset() { started_ = false; }
+
+  Mode mode() const { return mode_; }
+  const std::string& cameraFrame() const { return camera_frame_; }
+  // The frame ~pose, ~path and ~odometry describe: the base if set, else the camera.
+  const std::string& bodyFrame() const {
+    return config_.base_frame.empty() ? camera_frame_ : config_.base_frame;
+  }
+  // The child of the transform the node publishes.
+  const std::string& publishedChild() const { return published_child_; }
+  // One line for the log.
+  std::string describe() const;
+
+  const Eigen::Isometry3d& T_map_W() const { return T_map_W_; }
+  // The camera's extrinsics on the body: T_body_cam (identity without a base).
+  const Eigen::Isometry3d& T_body_cam() const { return T_body_cam_; }
+
+  // The body pose in map for a camera pose in W.
+  Eigen::Isometry3d bodyInMap(const Eigen::Isometry3d& T_W_C) const {
+    return T_map_W_ * T_W_C * T_body_cam_.inverse();
+  }
+  // The camera pose in W from the odometry at `stamp` (pose_source odometry):
+  // T_W_C = T_map_W^-1 * T_odom_base(t) * T_base_cam (map starts as odom).
+  // Needs odom and base frames. Throws TfUnavailable.
+  Eigen::Isometry3d cameraFromOdometry(const ros::Time& stamp) const;
+  // The camera pose in odom at `stamp` (for the odometry scale). Throws TfUnavailable.
+  Eigen::Isometry3d cameraInOdom(const ros::Time& stamp) const;
+
+  // The transform to publish for a camera pose in W at `stamp`; nullopt when
+  // publishing would give a frame a second parent (conflict()). Throws
+  // TfUnavailable (odometry or the root's transform missing at that stamp).
+  std::optional<geometry_msgs::TransformStamped> transformFor(const Eigen::Isometry3d& T_W_C,
+                                                              const ros::Time& stamp) const;
+  // Why no transform is published ("" when one is), e.g. "base_link already
+  // has the parent odom; set odom_frame to publish map -> odom".
+  const std::string& conflict() const { return conflict_; }
+
+ private:
+  Eigen::Isometry3d lookup(const std::string& target, const std::string& source,
+                           const ros::Time& stamp) const;
+  // The frame's parent in TF other than map_frame, if any.
+  std::optional<std::string> parentOf(const std::string& frame) const;
+
+  FramesConfig config_;
+  const tf2_ros::Buffer& tf_;
+  std::atomic<bool> started_{false};  // reset() comes from the services' threads
+  Mode mode_ = Mode::kMapToCamera;
+  std::string camera_frame_, published_child_;
+  Eigen::Isometry3d T_map_W_ = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_body_cam_ = Eigen::Isometry3d::Identity();
+  std::string conflict_;
+};
+
+// Camera optical frame (x right, y down, z forward) to REP-103 body axes
+// (x forward, y left, z up).
+Eigen::Matrix3d bodyFromOptical();
+
+}  // namespace long3r_ros

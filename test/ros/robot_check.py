@@ -1,0 +1,210 @@
+#!/usr/bin/python3
+"""Checks Long3rNodelet on a robot-like bag (tum_to_bag.py --robot: /tf_static
+base_link -> camera_link -> optical frame, /tf odom -> base_link with
+wheel-odometry error, camera_info, registered depth) replayed with base_frame
+and odom_frame set:
+
+  * every child frame in /tf and /tf_static has exactly one parent throughout;
+  * ~odometry arrives for every posed frame (every ~pointmap), with a
+    symmetric positive-definite pose covariance;
+  * ~depth and ~camera_info through depth_image_proc's point_cloud_xyz give the
+    same points as ~frame_cloud, to float precision;
+  * the saved map's floor is horizontal in map (normal within 5 degrees of +z);
+  * with a metric scale source, the saved map's Sim(3) scale against the
+    ground truth in metres (long3r_eval) is within --max-scale-error of 1.
+"""
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import threading
+import time
+import unittest
+
+import numpy as np
+import rospy
+import rostest
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import PointCloud2
+from tf2_msgs.msg import TFMessage
+
+from long3r_ros.msg import Pointmap
+from long3r_ros.srv import SaveMap, SaveTrajectory
+
+ARGS = None
+
+
+def cloud_xyz(msg):
+    """x, y, z of an organised PointCloud2 as an (H*W, 3) float32 array."""
+    offsets = {f.name: f.offset for f in msg.fields}
+    raw = np.frombuffer(msg.data, dtype=np.uint8).reshape(msg.height * msg.width, msg.point_step)
+    return np.stack([raw[:, offsets[c]:offsets[c] + 4].copy().view(np.float32)[:, 0]
+                     for c in 'xyz'], axis=1)
+
+
+def read_ply_xyz(path):
+    with open(path, 'rb') as f:
+        n, fmt = 0, None
+        while True:
+            line = f.readline().decode().strip()
+            if line.startswith('format'):
+                fmt = line.split()[1]
+            if line.startswith('element vertex'):
+                n = int(line.split()[2])
+            if line == 'end_header':
+                break
+        assert fmt == 'binary_little_endian', fmt
+        rec = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'),
+                        ('r', 'u1'), ('g', 'u1'), ('b', 'u1')])
+        return np.frombuffer(f.read(n * rec.itemsize), dtype=rec, count=n)
+
+
+def floor_normal(points):
+    """The floor: RANSAC on the lowest fifth of the map (height in map's z),
+    then a least-squares plane through its inliers. Returns the unit normal."""
+    rng = np.random.default_rng(1)
+    low = points[points[:, 2] <= np.percentile(points[:, 2], 20)]
+    best, best_inliers = None, -1
+    thr = 0.03  # metres: the map is metric here
+    for _ in range(300):
+        p = low[rng.choice(len(low), 3, replace=False)]
+        n = np.cross(p[1] - p[0], p[2] - p[0])
+        if np.linalg.norm(n) < 1e-12:
+            continue
+        n /= np.linalg.norm(n)
+        inliers = np.abs((low - p[0]) @ n) < thr
+        if inliers.sum() > best_inliers:
+            best, best_inliers = inliers, inliers.sum()
+    q = low[best]
+    _, _, vt = np.linalg.svd(q - q.mean(axis=0))
+    n = vt[2]
+    return n if n[2] >= 0 else -n
+
+
+class Recorder:
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.parents = {}
+        self.pointmaps, self.odometry, self.clouds, self.dip = [], [], {}, {}
+        rospy.Subscriber('/tf', TFMessage, self._tf, queue_size=1000)
+        rospy.Subscriber('/tf_static', TFMessage, self._tf, queue_size=100)
+        rospy.Subscriber('/long3r/pointmap', Pointmap, self._add('pointmaps'), queue_size=100)
+        rospy.Subscriber('/long3r/odometry', Odometry, self._add('odometry'), queue_size=100)
+        rospy.Subscriber('/long3r/frame_cloud', PointCloud2, self._cloud('clouds'), queue_size=100)
+        rospy.Subscriber('/dip_points', PointCloud2, self._cloud('dip'), queue_size=100)
+
+    def _tf(self, msg):
+        with self.lock:
+            for t in msg.transforms:
+                self.parents.setdefault(t.child_frame_id, set()).add(t.header.frame_id)
+
+    def _add(self, name):
+        def cb(msg):
+            with self.lock:
+                getattr(self, name).append(msg)
+        return cb
+
+    def _cloud(self, name):
+        def cb(msg):
+            with self.lock:
+                getattr(self, name)[msg.header.stamp.to_nsec()] = cloud_xyz(msg)
+        return cb
+
+    def get(self, name):
+        with self.lock:
+            value = getattr(self, name)
+            return dict(value) if isinstance(value, dict) else list(value)
+
+
+class RobotCheck(unittest.TestCase):
+    def test_robot(self):
+        rec = Recorder()
+        rospy.wait_for_service('/long3r/reset', timeout=120)
+        last = [-1, time.time()]
+
+        def quiet():
+            n = len(rec.get('pointmaps'))
+            if n != last[0]:
+                last[0], last[1] = n, time.time()
+            return n >= ARGS.min_frames and time.time() - last[1] > 6.0
+        deadline = time.time() + ARGS.timeout
+        while time.time() < deadline and not quiet():
+            time.sleep(0.2)
+        pms = rec.get('pointmaps')
+        self.assertGreaterEqual(len(pms), ARGS.min_frames, 'too few posed frames')
+
+        # One parent per frame, throughout.
+        parents = rec.get('parents')
+        rospy.loginfo('TF tree: %s', {c: sorted(p) for c, p in parents.items()})
+        for child, ps in parents.items():
+            self.assertEqual(len(ps), 1, '%s has parents %s' % (child, sorted(ps)))
+        self.assertIn(ARGS.odom_frame, parents)
+        self.assertEqual(parents[ARGS.odom_frame], {'map'})
+
+        # ~odometry for every posed frame, with a PD covariance.
+        odom = {o.header.stamp.to_nsec(): o for o in rec.get('odometry')}
+        for p in pms:
+            o = odom.get(p.header.stamp.to_nsec())
+            self.assertIsNotNone(o, 'no ~odometry for the frame at %.3f' % p.header.stamp.to_sec())
+            self.assertEqual(o.header.frame_id, 'map')
+            self.assertEqual(o.child_frame_id, ARGS.base_frame)
+            c = np.array(o.pose.covariance).reshape(6, 6)
+            self.assertTrue(np.allclose(c, c.T, atol=1e-12 * max(1.0, np.abs(c).max())))
+            self.assertGreater(np.linalg.eigvalsh(c).min(), 0.0)
+
+        # depth_image_proc's cloud of ~depth equals ~frame_cloud.
+        clouds, dip = rec.get('clouds'), rec.get('dip')
+        common = sorted(set(clouds) & set(dip))
+        self.assertGreaterEqual(len(common), min(5, ARGS.min_frames))
+        for stamp in common:
+            a, b = clouds[stamp], dip[stamp]
+            self.assertEqual(a.shape, b.shape)
+            np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+            ok = ~np.isnan(a)
+            np.testing.assert_allclose(a[ok], b[ok], rtol=1e-6, atol=1e-7)
+
+        # The saved map: floor level in map, and metric.
+        map_path = os.path.join(ARGS.out, 'robot_%s_map.ply' % ARGS.mode)
+        traj_path = os.path.join(ARGS.out, 'robot_%s_trajectory.txt' % ARGS.mode)
+        self.assertTrue(rospy.ServiceProxy('/long3r/save_map', SaveMap)(map_path).success)
+        self.assertTrue(rospy.ServiceProxy('/long3r/save_trajectory', SaveTrajectory)(traj_path)
+                        .success)
+        ply = read_ply_xyz(map_path)
+        pts = np.stack([ply['x'], ply['y'], ply['z']], axis=1).astype(np.float64)
+        n = floor_normal(pts)
+        tilt = math.degrees(math.acos(min(1.0, abs(n[2]))))
+        rospy.loginfo('floor normal %s: %.2f degrees from +z', n, tilt)
+        self.assertLess(tilt, 5.0)
+        if ARGS.max_scale_error > 0:
+            out = os.path.join(ARGS.out, 'robot_%s_eval' % ARGS.mode)
+            subprocess.run([ARGS.eval, '--gt', ARGS.seq, '--gt-traj', ARGS.gt_traj,
+                            '--est-traj', traj_path, '--est-map', map_path, '--icp-scale',
+                            '--no-normals', '--gt-frame-step', '4', '--gt-pixel-step', '4',
+                            '--offset', str(-ARGS.time_offset), '--out', out],
+                           check=True, stdout=sys.stdout, stderr=sys.stderr)
+            with open(os.path.join(out, 'metrics.json')) as f:
+                metrics = json.load(f)
+            scale = metrics['reconstruction']['sim3']['scale']
+            rospy.loginfo('map Sim(3) scale against the ground truth: %.4f', scale)
+            self.assertLess(abs(scale - 1.0), ARGS.max_scale_error,
+                            'the map is not metric: Sim(3) scale %.4f' % scale)
+
+
+if __name__ == '__main__':
+    parser = argparse.ArgumentParser()
+    parser.add_argument('--mode', default='odometry')
+    parser.add_argument('--min-frames', type=int, default=10)
+    parser.add_argument('--timeout', type=float, default=400.0)
+    parser.add_argument('--out', default='/tmp')
+    parser.add_argument('--seq', default='')
+    parser.add_argument('--gt-traj', default='')
+    parser.add_argument('--eval', default='long3r_eval')
+    parser.add_argument('--time-offset', type=float, default=1000.0)
+    parser.add_argument('--base-frame', default='base_link')
+    parser.add_argument('--odom-frame', default='odom')
+    parser.add_argument('--max-scale-error', type=float, default=0.05)
+    ARGS, rest = parser.parse_known_args(rospy.myargv()[1:])
+    rospy.init_node('robot_check')
+    rostest.rosrun('long3r_ros', 'robot_check', RobotCheck, [sys.argv[0]] + rest)
