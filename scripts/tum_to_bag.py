@@ -444,9 +444,12 @@ def latched_header(topic, cls):
 
 
 class Robot:
-    """What --robot adds: the static tree, odometry samples and the base ground truth."""
+    """What --robot adds: the static tree and the odometry samples."""
 
     def __init__(self, root, args, frame_stamps):
+        for name in ("camera_mount.txt", "base_groundtruth.txt"):
+            if not os.path.exists(os.path.join(root, name)):
+                raise ValueError("--robot needs %s in %s (long3r_synth --trajectory robot writes it)" % (name, root))
         self.mount = read_pose_file(os.path.join(root, "camera_mount.txt"))  # T_B_C (optical)
         gt = read_trajectory(os.path.join(root, "base_groundtruth.txt"))
         gt_stamps = [g[0] for g in gt]
@@ -490,7 +493,6 @@ def write_image(bag, classes, args, topic, header, img):
     msg.step = msg.width * (3 if img.ndim == 3 else 1)
     msg.data = np.ascontiguousarray(img).tobytes()
     bag.write(topic, msg, header.stamp)
-
 
 
 def convert(args):
