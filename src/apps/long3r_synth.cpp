@@ -31,7 +31,7 @@ int main(int argc, char** argv) {
       .shown_default(to_string(cfg.trajectory.type));
   cli.option("--speed", "M", &cfg.trajectory.speed, "metres per frame (peak speed for pan)");
   cli.option("--yaw-rate", "DEG", &cfg.trajectory.max_yaw_rate_deg,
-             "max turn per frame for walk/pan");
+             "max turn per frame for walk/pan/robot");
   cli.option("--width", "W", &width, "image width").min(1);
   cli.option("--height", "H", &height, "image height").min(1);
   cli.option("--hfov", "DEG", &hfov, "horizontal field of view, which gives the intrinsics");
