@@ -2,10 +2,38 @@
 """Converts a TUM RGB-D style folder (as written by long3r_synth) into a ROS 1 bag.
 
 Topics (defaults):
-  /camera/image_raw     sensor_msgs/Image, rgb8
-  /camera/camera_info   sensor_msgs/CameraInfo from calibration.txt (or --calib)
+  /camera/image_raw     sensor_msgs/Image, rgb8 (mono8 for grey PNGs)
+  /camera/camera_info   sensor_msgs/CameraInfo from calibration.txt (or --calib):
+                        K of the image, D and distortion_model (plumb_bob, zeros
+                        when calibration.txt has none), R = I, P = [K | 0]
   /tf                   tf2_msgs/TFMessage: ground truth T_W_C as map -> gt_camera
   (optional) --depth-topic: sensor_msgs/Image 32FC1 in metres
+  (optional) --compressed [jpeg|png]: the images as sensor_msgs/CompressedImage on
+                        <image-topic>/compressed instead, with the format string
+                        compressed_image_transport writes ("rgb8; jpeg compressed
+                        bgr8", "mono8; png compressed mono8", ...); quality
+                        --jpeg-quality (80, image_transport's default). Needs Pillow.
+
+--robot (a sequence made with `long3r_synth --trajectory robot`, which writes
+base_groundtruth.txt and camera_mount.txt) writes what a robot records instead
+of the camera's ground truth:
+  /tf_static  one TFMessage, latched (connection header latching=1, as rosbag
+              record stores a latched topic, so rosbag play latches it again):
+              base_link -> camera_link     the mount (camera_link: x forward,
+                                           y left, z up)
+              camera_link -> camera_color_optical_frame   rpy (-pi/2, 0, -pi/2)
+  /tf         odom -> base_link at every frame (or at --odom-rate Hz), wheel
+              odometry: the true base motion between samples, (dx, dy, dyaw) in
+              the previous base frame, becomes ((1 + s) dx, (1 + s) dy,
+              dyaw + a * dist + b * dt) with s = --odom-scale-error (0.03),
+              a = --odom-yaw-drift deg/m (1.0), b = --odom-yaw-drift-rate deg/s
+              (0.0), dist the true distance of the step; odom is the base pose
+              at the first frame (identity there), so T_W_odom = T_W_B(t0).
+              Ground truth goes under its own root, gt_world -> gt_base_link
+              (T_W_B; --tf-parent, --tf-child; --no-tf leaves it out), never
+              under a frame the node publishes.
+  Images, camera info and depth carry header.frame_id camera_color_optical_frame.
+Frame names: --base-frame, --camera-frame, --optical-frame, --odom-frame.
 
 Runs with Debian's /usr/bin/python3 and python3-rosbag; needs no ROS workspace:
 message classes come from the installed Python packages when present, otherwise
@@ -16,10 +44,14 @@ built-in decoder (8/16-bit grey, RGB, RGBA; not interlaced).
 
 import argparse
 import bisect
+import collections
 import glob
+import io
+import math
 import os
 import struct
 import sys
+import types
 import zlib
 
 import numpy as np
@@ -29,6 +61,7 @@ import rosbag
 
 IMAGE_MD5 = "060021388200f6f0f447d0fcd9c64743"
 CAMERA_INFO_MD5 = "c9a58c1b0b154e0e6da7578cb991d214"
+COMPRESSED_IMAGE_MD5 = "8f7a12909da2c9d3332d540a0977563f"
 TF_MESSAGE_MD5 = "94810edda583a504dfda3829e70d7eec"
 
 
@@ -47,12 +80,13 @@ def _msg_search_path():
 
 
 def load_message_classes():
-    """Returns (Image, CameraInfo, TFMessage, TransformStamped) classes."""
+    """Namespace of the classes Image, CameraInfo, CompressedImage, TFMessage, TransformStamped."""
     try:
-        from sensor_msgs.msg import CameraInfo, Image
+        from sensor_msgs.msg import CameraInfo, CompressedImage, Image
         from tf2_msgs.msg import TFMessage
         from geometry_msgs.msg import TransformStamped
-        return Image, CameraInfo, TFMessage, TransformStamped
+        return types.SimpleNamespace(Image=Image, CameraInfo=CameraInfo, CompressedImage=CompressedImage,
+                                     TFMessage=TFMessage, TransformStamped=TransformStamped)
     except ImportError:
         pass
     import genmsg
@@ -70,14 +104,17 @@ def load_message_classes():
         genmsg.msg_loader.load_depends(ctx, spec, path)
         return genpy.dynamic.generate_dynamic(type_name, genmsg.compute_full_text(ctx, spec))
 
-    image = build("sensor_msgs/Image")["sensor_msgs/Image"]
-    info = build("sensor_msgs/CameraInfo")["sensor_msgs/CameraInfo"]
     if "tf2_msgs" in path:
         tf = build("tf2_msgs/TFMessage")
     else:  # its one-line definition, when the .msg file is not installed
         tf = build("tf2_msgs/TFMessage", "geometry_msgs/TransformStamped[] transforms\n")
-    classes = (image, info, tf["tf2_msgs/TFMessage"], tf["geometry_msgs/TransformStamped"])
-    for cls, md5 in zip(classes[:3], (IMAGE_MD5, CAMERA_INFO_MD5, TF_MESSAGE_MD5)):
+    classes = types.SimpleNamespace(
+        Image=build("sensor_msgs/Image")["sensor_msgs/Image"],
+        CameraInfo=build("sensor_msgs/CameraInfo")["sensor_msgs/CameraInfo"],
+        CompressedImage=build("sensor_msgs/CompressedImage")["sensor_msgs/CompressedImage"],
+        TFMessage=tf["tf2_msgs/TFMessage"], TransformStamped=tf["geometry_msgs/TransformStamped"])
+    for cls, md5 in ((classes.Image, IMAGE_MD5), (classes.CameraInfo, CAMERA_INFO_MD5),
+                     (classes.CompressedImage, COMPRESSED_IMAGE_MD5), (classes.TFMessage, TF_MESSAGE_MD5)):
         if cls._md5sum != md5:
             raise RuntimeError("%s definition differs from the standard one (md5 %s)" % (cls._type, cls._md5sum))
     return classes
@@ -168,6 +205,25 @@ def read_png(path):
         return decode_png_builtin(f.read())
 
 
+def encode_compressed(img, fmt, jpeg_quality):
+    """(format, bytes) of an 8-bit RGB or grey image as compressed_image_transport
+    publishes it: "<encoding>; <fmt> compressed <bgr8|mono8>", the data decoding
+    (cv::imdecode) to that target."""
+    try:
+        from PIL import Image as PILImage
+    except ImportError:
+        raise RuntimeError("--compressed needs Pillow (Debian: python3-pil)")
+    colour = img.ndim == 3
+    buf = io.BytesIO()
+    pil = PILImage.fromarray(np.ascontiguousarray(img), "RGB" if colour else "L")
+    if fmt == "jpeg":
+        pil.save(buf, "JPEG", quality=jpeg_quality)
+    else:
+        pil.save(buf, "PNG")
+    encoding, target = ("rgb8", "bgr8") if colour else ("mono8", "mono8")
+    return "%s; %s compressed %s" % (encoding, fmt, target), buf.getvalue()
+
+
 # --------------------------------------------------------------------------- TUM
 
 def read_list(path):
@@ -197,13 +253,32 @@ def read_trajectory(path):
     return out
 
 
+Calibration = collections.namedtuple("Calibration", "K size model D")
+DISTORTION_COEFFICIENTS = {"plumb_bob": 5, "rational_polynomial": 8, "equidistant": 4}
+
+
 def read_calibration(path):
+    """calibration.txt -> Calibration: K = (fx, fy, cx, cy), size = (w, h) or None,
+    model = "" or the distortion model, D = its coefficients ([] without)."""
     with open(path) as f:
         for line in f:
             v = line.split("#", 1)[0].split()
-            if v:
-                vals = [float(x) for x in v]
-                return vals[:4], (int(vals[4]), int(vals[5])) if len(vals) >= 6 else None
+            if not v:
+                continue
+            if len(v) not in (4, 6) and len(v) < 7:
+                raise ValueError("%s: expected 'fx fy cx cy [width height [model D...]]'" % path)
+            K = tuple(float(x) for x in v[:4])
+            size = (int(v[4]), int(v[5])) if len(v) >= 6 else None
+            model, D = "", []
+            if len(v) > 6:
+                model = v[6]
+                if model not in DISTORTION_COEFFICIENTS:
+                    raise ValueError("%s: unknown distortion model %s" % (path, model))
+                D = [float(x) for x in v[7:]]
+                if len(D) != DISTORTION_COEFFICIENTS[model]:
+                    raise ValueError("%s: %s needs %d coefficients, got %d"
+                                     % (path, model, DISTORTION_COEFFICIENTS[model], len(D)))
+            return Calibration(K, size, model, D)
     raise ValueError(path + ": no calibration line")
 
 
@@ -237,20 +312,212 @@ def associate(a, b, max_diff):
     return out
 
 
+# --------------------------------------------------------------------------- poses
+
+def quat_to_matrix(q):
+    """(qx, qy, qz, qw) -> 3x3 rotation (normalised first)."""
+    x, y, z, w = np.asarray(q, float) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def matrix_to_quat(R):
+    """3x3 rotation -> (qx, qy, qz, qw) with qw >= 0."""
+    m = np.asarray(R, float)
+    tr = np.trace(m)
+    if tr > 0:
+        s = 2.0 * math.sqrt(1.0 + tr)
+        q = np.array([(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4])
+    else:
+        i = int(np.argmax(np.diag(m)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * math.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k])
+        q = np.zeros(4)
+        q[i] = s / 4
+        q[j] = (m[j, i] + m[i, j]) / s
+        q[k] = (m[k, i] + m[i, k]) / s
+        q[3] = (m[k, j] - m[j, k]) / s
+    q /= np.linalg.norm(q)
+    return tuple(-q if q[3] < 0 else q)
+
+
+def pose_matrix(t, q):
+    T = np.eye(4)
+    T[:3, :3] = quat_to_matrix(q)
+    T[:3, 3] = t
+    return T
+
+
+def read_pose_file(path):
+    """camera_mount.txt: one line 'tx ty tz qx qy qz qw' -> 4x4."""
+    rows = []
+    with open(path) as f:
+        for line in f:
+            v = line.split("#", 1)[0].replace(",", " ").split()
+            if v:
+                rows.append([float(x) for x in v])
+    if len(rows) != 1 or len(rows[0]) != 7:
+        raise ValueError("%s: expected one line 'tx ty tz qx qy qz qw'" % path)
+    return pose_matrix(rows[0][:3], rows[0][3:])
+
+
+# camera_link (x forward, y left, z up) -> optical (x right, y down, z forward): rpy (-pi/2, 0, -pi/2).
+LINK_TO_OPTICAL = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0, 0, 0, 1.0]])
+
+
+def planar(T, what):
+    """4x4 on the floor, yaw only -> (x, y, yaw); refuses anything else."""
+    if abs(T[2, 3]) > 1e-6 or abs(T[2, 2] - 1.0) > 1e-9:
+        raise ValueError("%s is not planar (z = %g, R_zz = %g)" % (what, T[2, 3], T[2, 2]))
+    return T[0, 3], T[1, 3], math.atan2(T[1, 0], T[0, 0])
+
+
+def wrap(a):
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def interpolate_planar(stamps, poses, t):
+    """(x, y, yaw) at t, linear between the samples around it (yaw the short way)."""
+    if len(stamps) == 1 or t <= stamps[0]:
+        return poses[0]
+    if t >= stamps[-1]:
+        return poses[-1]
+    i = bisect.bisect_right(stamps, t) - 1
+    f = (t - stamps[i]) / (stamps[i + 1] - stamps[i])
+    (x0, y0, a0), (x1, y1, a1) = poses[i], poses[i + 1]
+    return x0 + f * (x1 - x0), y0 + f * (y1 - y0), a0 + f * wrap(a1 - a0)
+
+
+def wheel_odometry(stamps, base, scale_error, yaw_drift_deg_per_m, yaw_drift_deg_per_s):
+    """Odometry (x, y, yaw) of the base in the odom frame (the base at stamps[0])
+    from its true planar poses `base` at `stamps`: each step's true motion
+    (dx, dy, dyaw) in the previous base frame is integrated as
+    ((1 + s) dx, (1 + s) dy, dyaw + a * dist + b * dt) (see the module docstring)."""
+    a, b = math.radians(yaw_drift_deg_per_m), math.radians(yaw_drift_deg_per_s)
+    x = y = th = 0.0
+    out = [(x, y, th)]
+    for k in range(1, len(stamps)):
+        (x0, y0, a0), (x1, y1, a1) = base[k - 1], base[k]
+        c, s = math.cos(a0), math.sin(a0)
+        dx, dy = c * (x1 - x0) + s * (y1 - y0), -s * (x1 - x0) + c * (y1 - y0)
+        dist = math.hypot(dx, dy)
+        dth = wrap(a1 - a0) + a * dist + b * (stamps[k] - stamps[k - 1])
+        dx, dy = (1.0 + scale_error) * dx, (1.0 + scale_error) * dy
+        x += math.cos(th) * dx - math.sin(th) * dy
+        y += math.sin(th) * dx + math.cos(th) * dy
+        th += dth
+        out.append((x, y, th))
+    return out
+
+
+def planar_matrix(x, y, yaw):
+    T = np.eye(4)
+    c, s = math.cos(yaw), math.sin(yaw)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[0, 3], T[1, 3] = x, y
+    return T
+
+
 # --------------------------------------------------------------------------- main
 
+def transform_msg(classes, stamp, parent, child, t, q):
+    """TransformStamped parent -> child: translation t, rotation q = (qx, qy, qz, qw)."""
+    ts = classes.TransformStamped()
+    ts.header.stamp = stamp
+    ts.header.frame_id = parent
+    ts.child_frame_id = child
+    ts.transform.translation.x, ts.transform.translation.y, ts.transform.translation.z = (float(v) for v in t)
+    ts.transform.rotation.x, ts.transform.rotation.y, ts.transform.rotation.z, ts.transform.rotation.w = (
+        float(v) for v in q)
+    return ts
+
+
+def transform_of(classes, stamp, parent, child, T):
+    return transform_msg(classes, stamp, parent, child, T[:3, 3], matrix_to_quat(T[:3, :3]))
+
+
+def latched_header(topic, cls):
+    """The connection header rosbag record stores for a latched publisher."""
+    return {"topic": topic, "type": cls._type, "md5sum": cls._md5sum, "message_definition": cls._full_text,
+            "callerid": "/tum_to_bag", "latching": "1"}
+
+
+class Robot:
+    """What --robot adds: the static tree and the odometry samples."""
+
+    def __init__(self, root, args, frame_stamps):
+        for name in ("camera_mount.txt", "base_groundtruth.txt"):
+            if not os.path.exists(os.path.join(root, name)):
+                raise ValueError("--robot needs %s in %s (long3r_synth --trajectory robot writes it)" % (name, root))
+        self.mount = read_pose_file(os.path.join(root, "camera_mount.txt"))  # T_B_C (optical)
+        gt = read_trajectory(os.path.join(root, "base_groundtruth.txt"))
+        gt_stamps = [g[0] for g in gt]
+        gt_planar = [planar(pose_matrix(t, q), "base_groundtruth.txt at %.6f" % s) for s, t, q in gt]
+        first, last = frame_stamps[0], frame_stamps[-1]
+        if args.odom_rate > 0:
+            if len(frame_stamps) > 1:
+                camera_rate = 1.0 / float(np.median(np.diff(frame_stamps)))
+                if args.odom_rate < camera_rate * (1 - 1e-6):
+                    raise ValueError("--odom-rate %g is below the camera's %g Hz" % (args.odom_rate, camera_rate))
+            n = int(math.floor((last - first) * args.odom_rate + 1e-9))
+            stamps = [first + k / args.odom_rate for k in range(n + 1)]
+            if stamps[-1] < last - 1e-9:
+                stamps.append(last)  # so that a lookup at the last image needs no extrapolation
+        else:
+            stamps = list(frame_stamps)
+        self.odom_stamps = stamps
+        true = [interpolate_planar(gt_stamps, gt_planar, t) for t in stamps]
+        self.odom = wheel_odometry(stamps, true, args.odom_scale_error, args.odom_yaw_drift,
+                                   args.odom_yaw_drift_rate)
+
+    def static_message(self, classes, args, stamp):
+        base_to_link = self.mount @ np.linalg.inv(LINK_TO_OPTICAL)
+        return classes.TFMessage(transforms=[
+            transform_of(classes, stamp, args.base_frame, args.camera_frame, base_to_link),
+            transform_of(classes, stamp, args.camera_frame, args.optical_frame, LINK_TO_OPTICAL)])
+
+
+def write_image(bag, classes, args, topic, header, img):
+    if args.compressed:
+        msg = classes.CompressedImage()
+        msg.header = header
+        msg.format, msg.data = encode_compressed(img, args.compressed, args.jpeg_quality)
+        bag.write(topic + "/compressed", msg, header.stamp)
+        return
+    msg = classes.Image()
+    msg.header = header
+    msg.height, msg.width = img.shape[0], img.shape[1]
+    msg.encoding = "rgb8" if img.ndim == 3 else "mono8"
+    msg.is_bigendian = 0
+    msg.step = msg.width * (3 if img.ndim == 3 else 1)
+    msg.data = np.ascontiguousarray(img).tobytes()
+    bag.write(topic, msg, header.stamp)
+
+
 def convert(args):
-    Image, CameraInfo, TFMessage, TransformStamped = load_message_classes()
+    classes = load_message_classes()
     root = args.tum_dir
     rgb = read_list(os.path.join(root, "rgb.txt"))
     if args.calib:
-        intr, size = [float(x) for x in args.calib.split()], None
+        intr = [float(x) for x in args.calib.split()]
         if len(intr) != 4:
             raise ValueError("--calib needs 'fx fy cx cy'")
+        calib = Calibration(tuple(intr), None, "", [])
     else:
-        intr, size = read_calibration(os.path.join(root, "calibration.txt"))
+        calib = read_calibration(os.path.join(root, "calibration.txt"))
+    frame_id = args.frame_id
+    if args.robot:
+        if frame_id not in (None, args.optical_frame):
+            raise ValueError("--robot: images are in --optical-frame (%s), not --frame-id %s"
+                             % (args.optical_frame, frame_id))
+        frame_id = args.optical_frame
+    elif frame_id is None:
+        frame_id = "camera"
+    tf_parent = args.tf_parent or ("gt_world" if args.robot else "map")
+    tf_child = args.tf_child or ("gt_base_link" if args.robot else "gt_camera")
     gt = []
-    gt_path = os.path.join(root, "groundtruth.txt")
+    gt_path = os.path.join(root, "base_groundtruth.txt" if args.robot else "groundtruth.txt")
     if not args.no_tf and os.path.exists(gt_path):
         gt = read_trajectory(gt_path)
     gt_stamps = [g[0] for g in gt]
@@ -262,34 +529,47 @@ def convert(args):
     frames = rgb[args.start:]
     if args.max_frames > 0:
         frames = frames[:args.max_frames]
-    fx, fy, cx, cy = intr
-    counts = {"image": 0, "info": 0, "tf": 0, "depth": 0}
+    robot = Robot(root, args, [f[0] for f in frames]) if args.robot and frames else None
+    fx, fy, cx, cy = calib.K
+    counts = {"image": 0, "info": 0, "tf": 0, "depth": 0, "odom": 0, "tf_static": 0}
+    odom_next = 0
+
+    def stamp_of(t):
+        return genpy.Time.from_sec(t + args.time_offset)
+
     with rosbag.Bag(args.output, "w", compression=args.compression) as bag:
+        if robot:
+            t = stamp_of(frames[0][0])
+            bag.write("/tf_static", robot.static_message(classes, args, t), t,
+                      connection_header=latched_header("/tf_static", classes.TFMessage))
+            counts["tf_static"] += 1
         for k, (stamp, rel) in enumerate(frames):
             index = args.start + k
-            t = genpy.Time.from_sec(stamp + args.time_offset)
+            t = stamp_of(stamp)
+            while robot and odom_next < len(robot.odom_stamps) and robot.odom_stamps[odom_next] <= stamp + 1e-9:
+                ot = stamp_of(robot.odom_stamps[odom_next])
+                T = planar_matrix(*robot.odom[odom_next])
+                bag.write("/tf", classes.TFMessage(transforms=[
+                    transform_of(classes, ot, args.odom_frame, args.base_frame, T)]), ot)
+                counts["odom"] += 1
+                odom_next += 1
             img = read_png(os.path.join(root, rel))
             if img.ndim == 3 and img.shape[2] == 4:
                 img = img[:, :, :3]
             if img.dtype != np.uint8:
                 raise ValueError("%s: expected an 8-bit colour image" % rel)
-            msg = Image()
-            msg.header.stamp = t
-            msg.header.seq = k
-            msg.header.frame_id = args.frame_id
-            msg.height, msg.width = img.shape[0], img.shape[1]
-            msg.encoding = "rgb8" if img.ndim == 3 else "mono8"
-            msg.is_bigendian = 0
-            msg.step = msg.width * (3 if img.ndim == 3 else 1)
-            msg.data = np.ascontiguousarray(img).tobytes()
-            bag.write(args.image_topic, msg, t)
+            header = classes.Image().header  # a std_msgs/Header, shared by the frame's messages
+            header.stamp = t
+            header.seq = k
+            header.frame_id = frame_id
+            write_image(bag, classes, args, args.image_topic, header, img)
             counts["image"] += 1
 
-            info = CameraInfo()
-            info.header = msg.header
-            info.height, info.width = (size[1], size[0]) if size else (msg.height, msg.width)
-            info.distortion_model = "plumb_bob"
-            info.D = [0.0] * 5
+            info = classes.CameraInfo()
+            info.header = header
+            info.height, info.width = (calib.size[1], calib.size[0]) if calib.size else img.shape[:2]
+            info.distortion_model = calib.model or "plumb_bob"
+            info.D = list(calib.D) if calib.model else [0.0] * 5
             info.K = [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]
             info.R = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
             info.P = [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]
@@ -301,8 +581,8 @@ def convert(args):
                 if d.ndim != 2:
                     raise ValueError("depth image is not single-channel")
                 metres = (d.astype(np.float32) / np.float32(args.depth_factor)).astype("<f4")
-                dm = Image()
-                dm.header = msg.header
+                dm = classes.Image()
+                dm.header = header
                 dm.height, dm.width = metres.shape
                 dm.encoding = "32FC1"
                 dm.is_bigendian = 0
@@ -313,15 +593,8 @@ def convert(args):
 
             g = nearest(gt_stamps, stamp, args.max_diff) if gt else None
             if g is not None:
-                _, (tx, ty, tz), (qx, qy, qz, qw) = gt[g]
-                ts = TransformStamped()
-                ts.header.stamp = t
-                ts.header.frame_id = args.tf_parent
-                ts.child_frame_id = args.tf_child
-                ts.transform.translation.x, ts.transform.translation.y, ts.transform.translation.z = tx, ty, tz
-                ts.transform.rotation.x, ts.transform.rotation.y = qx, qy
-                ts.transform.rotation.z, ts.transform.rotation.w = qz, qw
-                bag.write("/tf", TFMessage(transforms=[ts]), t)
+                _, tr, q = gt[g]
+                bag.write("/tf", classes.TFMessage(transforms=[transform_msg(classes, t, tf_parent, tf_child, tr, q)]), t)
                 counts["tf"] += 1
     return counts
 
@@ -333,9 +606,12 @@ def main(argv=None):
     p.add_argument("--image-topic", default="/camera/image_raw")
     p.add_argument("--info-topic", default="/camera/camera_info")
     p.add_argument("--depth-topic", default="", help="also write depth (32FC1, metres) on this topic")
-    p.add_argument("--frame-id", default="camera", help="header.frame_id of images and camera info")
-    p.add_argument("--tf-parent", default="map", help="world frame of the ground-truth transform")
-    p.add_argument("--tf-child", default="gt_camera", help="camera frame of the ground-truth transform")
+    p.add_argument("--frame-id", default=None,
+                   help="header.frame_id of images and camera info (default camera; --robot: --optical-frame)")
+    p.add_argument("--tf-parent", default=None,
+                   help="parent frame of the ground-truth transform (default map; --robot: gt_world)")
+    p.add_argument("--tf-child", default=None,
+                   help="child frame of the ground-truth transform (default gt_camera; --robot: gt_base_link)")
     p.add_argument("--no-tf", action="store_true", help="do not write the ground truth on /tf")
     p.add_argument("--calib", default="", help="'fx fy cx cy' when there is no calibration.txt")
     p.add_argument("--depth-factor", type=float, default=5000.0, help="depth PNG value per metre")
@@ -344,10 +620,29 @@ def main(argv=None):
     p.add_argument("--start", type=int, default=0, help="first frame")
     p.add_argument("--max-frames", type=int, default=0, help="at most this many frames (0: all)")
     p.add_argument("--compression", default="none", choices=["none", "bz2", "lz4"])
+    p.add_argument("--compressed", nargs="?", const="jpeg", default=None, choices=["jpeg", "png"],
+                   help="images as sensor_msgs/CompressedImage on <image-topic>/compressed (default jpeg)")
+    p.add_argument("--jpeg-quality", type=int, default=80, help="JPEG quality of --compressed jpeg (1-100)")
+    r = p.add_argument_group("robot (--robot)")
+    r.add_argument("--robot", action="store_true", help="write /tf_static, odometry on /tf, ground truth apart")
+    r.add_argument("--base-frame", default="base_link")
+    r.add_argument("--camera-frame", default="camera_link")
+    r.add_argument("--optical-frame", default="camera_color_optical_frame")
+    r.add_argument("--odom-frame", default="odom")
+    r.add_argument("--odom-rate", type=float, default=0.0, help="odometry samples per second (0: one per frame)")
+    r.add_argument("--odom-scale-error", type=float, default=0.03,
+                   help="relative error of the odometry's travelled distance")
+    r.add_argument("--odom-yaw-drift", type=float, default=1.0, help="odometry yaw drift, degrees per metre")
+    r.add_argument("--odom-yaw-drift-rate", type=float, default=0.0, help="odometry yaw drift, degrees per second")
     args = p.parse_args(argv)
+    if not 1 <= args.jpeg_quality <= 100:
+        p.error("--jpeg-quality must be within 1-100")
+    if args.odom_rate < 0:
+        p.error("--odom-rate must be >= 0")
     counts = convert(args)
     print("wrote %s: %d images, %d camera infos, %d depth images, %d tf messages"
-          % (args.output, counts["image"], counts["info"], counts["depth"], counts["tf"]))
+          % (args.output, counts["image"], counts["info"], counts["depth"], counts["tf"])
+          + (", %d odometry transforms, %d tf_static" % (counts["odom"], counts["tf_static"]) if args.robot else ""))
     return 0
 
 

@@ -27,11 +27,11 @@ int main(int argc, char** argv) {
          [&](const std::vector<std::string>& v) {
            cfg.trajectory.type = trajectory_type_from_string(v[0]);
          },
-         "walk | orbit | pan")
+         "walk | orbit | pan | robot (a wheeled base with the camera on --mount)")
       .shown_default(to_string(cfg.trajectory.type));
   cli.option("--speed", "M", &cfg.trajectory.speed, "metres per frame (peak speed for pan)");
   cli.option("--yaw-rate", "DEG", &cfg.trajectory.max_yaw_rate_deg,
-             "max turn per frame for walk/pan");
+             "max turn per frame for walk/pan/robot");
   cli.option("--width", "W", &width, "image width").min(1);
   cli.option("--height", "H", &height, "image height").min(1);
   cli.option("--hfov", "DEG", &hfov, "horizontal field of view, which gives the intrinsics");
@@ -42,6 +42,17 @@ int main(int argc, char** argv) {
   cli.option("--cy", "C", &cy, "explicit principal point y (pixels)").shown_default("from --hfov");
   cli.option("--fps", "F", &cfg.fps, "frame rate for timestamps");
   cli.option("--clearance", "M", &cfg.trajectory.clearance, "min camera distance to any surface");
+  CameraMount& mount = cfg.trajectory.mount;
+  cli.custom(
+         "--mount", {"X", "Y", "Z", "PITCH"},
+         [&](const std::vector<std::string>& v) {
+           mount.x = long3r::parse_cli_value<double>("--mount", v[0]);
+           mount.y = long3r::parse_cli_value<double>("--mount", v[1]);
+           mount.z = long3r::parse_cli_value<double>("--mount", v[2]);
+           mount.pitch_deg = long3r::parse_cli_value<double>("--mount", v[3]);
+         },
+         "robot: camera_link in base_link (m) and its downward pitch (deg)")
+      .shown_default("0.2 0 1.3 12");
   cli.custom(
          "--objects", {"MIN", "MAX"},
          [&](const std::vector<std::string>& v) {
@@ -51,6 +62,37 @@ int main(int argc, char** argv) {
          "furniture count range")
       .shown_default(std::to_string(cfg.scene.min_objects) + " " +
                      std::to_string(cfg.scene.max_objects));
+  cli.section("camera effects (all off by default)");
+  LensDistortion& lens = cfg.distortion;
+  cli.custom(
+         "--distortion", {"K1", "K2", "P1", "P2", "K3"},
+         [&](const std::vector<std::string>& v) {
+           double* d[] = {&lens.k1, &lens.k2, &lens.p1, &lens.p2, &lens.k3};
+           for (int i = 0; i < 5; ++i)
+             *d[i] = long3r::parse_cli_value<double>("--distortion", v[i]);
+         },
+         "plumb_bob lens distortion (OpenCV's k1 k2 p1 p2 k3) of the rendered camera")
+      .shown_default("none");
+  SensorConfig& sensor = cfg.sensor;
+  cli.option("--read-noise", "SIGMA", &sensor.read_noise, "Gaussian read noise (8-bit levels)")
+      .min(0);
+  cli.option("--shot-noise", "K", &sensor.shot_noise,
+             "shot noise: variance K * level added (8-bit levels)")
+      .min(0);
+  cli.option("--exposure-drift", "F", &sensor.exposure_drift,
+             "slow exposure gain drift within 1 +- F (seconds-long waves)")
+      .min(0)
+      .max(0.95);
+  cli.custom(
+         "--exposure-steps", {"P", "S"},
+         [&](const std::vector<std::string>& v) {
+           sensor.exposure_step_prob = long3r::parse_cli_value<double>("--exposure-steps", v[0]);
+           sensor.exposure_step = long3r::parse_cli_value<double>("--exposure-steps", v[1]);
+         },
+         "per frame, with probability P, a new exposure step in [1/(1+S), 1+S]")
+      .shown_default("0 0");
+  cli.flag("--mono", &sensor.mono, "grey images (mono8)");
+  cli.section("run");
   cli.option("--threads", "N", &ropt.threads, "render threads").min(1);
   cli.option("--supersample", "N", &ropt.supersample, "N x N colour rays per pixel").min(1);
   cli.flag("--quiet", &quiet, "no progress output");

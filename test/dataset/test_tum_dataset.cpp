@@ -96,6 +96,71 @@ TEST(TumDataset, TrajectoryAndCalibrationFiles) {
   EXPECT_THROW(read_calibration_file(dir + "/calib_bad.txt"), std::runtime_error);
 }
 
+TEST(TumDataset, CalibrationRoundTripsWithAndWithoutDistortion) {
+  const std::string dir = scratch_dir("tum_calibration");
+  PinholeIntrinsics k;
+  k.fx = 525.25;
+  k.fy = 526.5;
+  k.cx = 319.75;
+  k.cy = 239.125;
+  k.width = 640;
+  k.height = 480;
+  // Without distortion: the file of earlier versions, byte for byte.
+  write_calibration_file(dir + "/plain.txt", k);
+  EXPECT_EQ(test::read_file(dir + "/plain.txt"),
+            "# pinhole intrinsics in pixels; pixel centres at integer coordinates\n"
+            "# fx fy cx cy width height\n525.25 526.5 319.75 239.125 640 480\n");
+  const CameraCalibration plain = read_camera_calibration(dir + "/plain.txt");
+  EXPECT_EQ(plain.distortion_model, "");
+  EXPECT_TRUE(plain.distortion.empty());
+  EXPECT_FALSE(plain.distorted());
+  EXPECT_EQ(read_calibration_file(dir + "/plain.txt").fx, 525.25);
+
+  // With: every coefficient comes back bit for bit, whatever the model.
+  const CameraCalibration lens{k, "plumb_bob", {-0.28, 0.0912345678901234, 1.5e-4, -7e-5, 0.1 / 3}};
+  write_camera_calibration(dir + "/lens.txt", lens);
+  const CameraCalibration back = read_camera_calibration(dir + "/lens.txt");
+  EXPECT_EQ(back.distortion_model, "plumb_bob");
+  EXPECT_EQ(back.distortion, lens.distortion);
+  EXPECT_EQ(back.intrinsics.width, 640);
+  EXPECT_EQ(back.intrinsics.fy, 526.5);
+  EXPECT_TRUE(back.distorted());
+  // A pinhole reader refuses it rather than dropping the lens.
+  EXPECT_THROW(read_calibration_file(dir + "/lens.txt"), std::runtime_error);
+  const CameraCalibration fisheye{k, "equidistant", {0.1, -0.02, 0.003, -0.0004}};
+  write_camera_calibration(dir + "/fisheye.txt", fisheye);
+  EXPECT_EQ(read_camera_calibration(dir + "/fisheye.txt").distortion, fisheye.distortion);
+  // A model with all-zero coefficients is a pinhole camera.
+  write_file(dir + "/zeros.txt", "500 500 320 240 640 480 plumb_bob 0 0 0 0 0\n");
+  EXPECT_EQ(read_calibration_file(dir + "/zeros.txt").cx, 320.0);
+
+  // Bad files: unknown model, too few or too many coefficients, non-finite.
+  for (const char* bad : {"500 500 320 240 640 480 fisheye 0.1 0 0 0\n",
+                          "500 500 320 240 640 480 plumb_bob 0.1 0 0 0\n",
+                          "500 500 320 240 640 480 plumb_bob 0.1 0 0 0 0 0\n",
+                          "500 500 320 240 640 480 plumb_bob nan 0 0 0 0\n"}) {
+    write_file(dir + "/bad.txt", bad);
+    EXPECT_THROW(read_camera_calibration(dir + "/bad.txt"), std::runtime_error) << bad;
+  }
+  EXPECT_THROW(write_camera_calibration(dir + "/x.txt", CameraCalibration{k, "plumb_bob", {0.1}}),
+               std::invalid_argument);
+  EXPECT_THROW(distortion_coefficient_count("fisheye"), std::invalid_argument);
+  EXPECT_EQ(distortion_coefficient_count("rational_polynomial"), 8);
+}
+
+TEST(TumDataset, PoseFileRoundTrips) {
+  const std::string dir = scratch_dir("tum_pose_file");
+  Eigen::Isometry3d p = Eigen::Isometry3d::Identity();
+  p.linear() = Eigen::AngleAxisd(2.0, Eigen::Vector3d(1, -2, 0.5).normalized()).toRotationMatrix();
+  p.translation() = Eigen::Vector3d(0.2, -0.05, 1.3);
+  write_pose_file(dir + "/mount.txt", p, "a mount");
+  EXPECT_LT((read_pose_file(dir + "/mount.txt").matrix() - p.matrix()).norm(), 1e-8);
+  write_file(dir + "/two.txt", "0 0 0 0 0 0 1\n0 0 0 0 0 0 1\n");
+  EXPECT_THROW(read_pose_file(dir + "/two.txt"), std::runtime_error);
+  write_file(dir + "/short.txt", "0 0 0 0 0 1\n");
+  EXPECT_THROW(read_pose_file(dir + "/short.txt"), std::runtime_error);
+}
+
 TEST(TumDataset, AssociationIsTumsGreedyClosestFirst) {
   // a[1] and b[0] are closest, so a[0] stays unmatched although within range.
   auto m = associate_timestamps({0.0, 0.01}, {0.006}, 0.02);

@@ -155,8 +155,8 @@ TEST(SynthGenerator, SameSeedSameBytesAnyThreadCount) {
 }
 
 TEST(SynthGenerator, CameraStaysClearOfEverySurface) {
-  for (TrajectoryType type :
-       {TrajectoryType::kWalk, TrajectoryType::kOrbit, TrajectoryType::kPanReturn}) {
+  for (TrajectoryType type : {TrajectoryType::kWalk, TrajectoryType::kOrbit,
+                              TrajectoryType::kPanReturn, TrajectoryType::kRobot}) {
     for (uint64_t seed : {1u, 2u, 3u}) {
       SequenceConfig cfg = small_config(seed, type, 2000);
       const Sequence seq = generate_sequence(cfg);
@@ -238,4 +238,8 @@ TEST(SynthGenerator, RejectsBadConfigs) {
   EXPECT_THROW(generate_sequence(c), std::invalid_argument);
   EXPECT_THROW(trajectory_type_from_string("spiral"), std::invalid_argument);
   EXPECT_EQ(trajectory_type_from_string("pan"), TrajectoryType::kPanReturn);
+  EXPECT_EQ(trajectory_type_from_string("robot"), TrajectoryType::kRobot);
+  c = small_config(1, TrajectoryType::kRobot, 10);
+  c.trajectory.max_yaw_rate_deg = 0.2;  // a turning circle wider than any room
+  EXPECT_THROW(generate_sequence(c), std::invalid_argument);
 }

@@ -92,8 +92,25 @@ def main():
 
     rgb_list = t2b.read_list(os.path.join(seq, "rgb.txt"))
     gt = t2b.read_trajectory(os.path.join(seq, "groundtruth.txt"))
-    (fx, fy, cx, cy), size = t2b.read_calibration(os.path.join(seq, "calibration.txt"))
-    check(size == (64, 48), "calibration size")
+    calib = t2b.read_calibration(os.path.join(seq, "calibration.txt"))
+    (fx, fy, cx, cy), size = calib.K, calib.size
+    check(size == (64, 48) and calib.model == "" and calib.D == [], "calibration %s" % (calib,))
+    # calibration.txt with a lens (as long3r_synth --distortion writes it), and bad ones.
+    lens_file = os.path.join(args.workdir, "lens.txt")
+    with open(lens_file, "w") as f:
+        f.write("# c\n500 501 31.5 23.5 64 48 plumb_bob -0.28 0.0912345678901234 0.00015 -7e-05 0\n")
+    lens = t2b.read_calibration(lens_file)
+    check(lens.K == (500.0, 501.0, 31.5, 23.5) and lens.size == (64, 48), "lens K")
+    check(lens.model == "plumb_bob" and lens.D == [-0.28, 0.0912345678901234, 0.00015, -7e-05, 0.0], "lens D")
+    for bad in ("500 501 31.5 23.5 64 48 plumb_bob 0.1 0 0 0\n", "500 501 31.5 23.5 64 48 fisheye 0 0 0 0\n",
+                "500 501 31.5 23.5 64\n"):
+        with open(lens_file, "w") as f:
+            f.write(bad)
+        try:
+            t2b.read_calibration(lens_file)
+            fail("accepted " + bad)
+        except ValueError:
+            pass
 
     with rosbag.Bag(bag_path) as bag:
         info = bag.get_type_and_topic_info()
@@ -126,6 +143,7 @@ def main():
         check(pixels.std() > 5.0, "image %d looks blank" % i)
         check(abs(ci.header.stamp.to_sec() - stamp) < 1e-6, "camera info stamp")
         check(list(ci.K) == [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0], "K")
+        check(ci.distortion_model == "plumb_bob" and list(ci.D) == [0.0] * 5, "no distortion")
         check((ci.width, ci.height) == (64, 48), "camera info size")
         check(len(tf.transforms) == 1, "one transform")
         ts = tf.transforms[0]

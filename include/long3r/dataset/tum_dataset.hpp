@@ -9,7 +9,9 @@
 //                           camera optical frame (x right, y down, z forward)
 //                           in the world frame
 //   calibration.txt         (this project's addition; optional) one line
-//                           "fx fy cx cy [width height]" after '#' comments
+//                           "fx fy cx cy [width height [model d1 .. dn]]" after
+//                           '#' comments; model and D as in ROS's CameraInfo
+//                           (below), e.g. "... 640 480 plumb_bob k1 k2 p1 p2 k3"
 //
 // Frames are the rgb.txt entries. Depth images are matched to them one-to-one
 // like TUM's associate.py (closest pairs first, |dt| < max_diff); ground truth
@@ -49,9 +51,35 @@ PoseTrajectory read_tum_trajectory(const std::string& path);
 void write_tum_trajectory(const std::string& path, const PoseTrajectory& trajectory,
                           const std::string& header_comment = "");
 
-// calibration.txt: see above. Throws std::runtime_error.
+// A camera's calibration as calibration.txt holds it: pinhole intrinsics of
+// the (distorted) image and, optionally, its lens distortion named as ROS's
+// CameraInfo names it.
+struct CameraCalibration {
+  PinholeIntrinsics intrinsics;
+  // "" (none), "plumb_bob" (k1 k2 p1 p2 k3: OpenCV's order), "rational_polynomial"
+  // (k1 k2 p1 p2 k3 k4 k5 k6) or "equidistant" (k1 k2 k3 k4).
+  std::string distortion_model;
+  std::vector<double> distortion;  // D: distortion_coefficient_count(model) values
+  bool distorted() const;          // a model with a nonzero coefficient
+};
+// Number of coefficients of a distortion model ("" has 0). Throws
+// std::invalid_argument for an unknown name.
+int distortion_coefficient_count(const std::string& model);
+
+// calibration.txt: see above. Throws std::runtime_error. Without a model
+// the file is the one-line "fx fy cx cy width height" of earlier versions.
+CameraCalibration read_camera_calibration(const std::string& path);
+void write_camera_calibration(const std::string& path, const CameraCalibration& calibration);
+// Intrinsics only; a file with lens distortion is refused (std::runtime_error)
+// rather than read as a pinhole camera.
 PinholeIntrinsics read_calibration_file(const std::string& path);
 void write_calibration_file(const std::string& path, const PinholeIntrinsics& intrinsics);
+
+// One pose "tx ty tz qx qy qz qw" (a TUM trajectory line without its stamp)
+// after '#' comments, e.g. a fixed mount. Throws std::runtime_error.
+Eigen::Isometry3d read_pose_file(const std::string& path);
+void write_pose_file(const std::string& path, const Eigen::Isometry3d& pose,
+                     const std::string& header_comment = "");
 
 struct TimestampedPath {
   double stamp = 0.0;
@@ -71,6 +99,9 @@ struct TumDatasetOptions {
   double depth_factor = 5000.0;  // depth PNG value per metre
   bool require_depth = false;    // drop frames without a depth match
   bool require_pose = false;     // drop frames without a ground-truth match
+  // A calibration.txt with lens distortion is refused unless the caller says
+  // it handles distortion (camera()), so that no tool takes it for a pinhole.
+  bool allow_distortion = false;
 };
 
 struct TumFrame {
@@ -93,6 +124,8 @@ class TumDataset {
   const TumFrame& frame(size_t i) const { return frames_.at(i); }
   const std::vector<TumFrame>& frames() const { return frames_; }
   const std::optional<PinholeIntrinsics>& calibration() const { return calibration_; }
+  // The whole calibration.txt, distortion included.
+  const std::optional<CameraCalibration>& camera() const { return camera_; }
   // All of groundtruth.txt (empty without one).
   const PoseTrajectory& ground_truth() const { return ground_truth_; }
   // Ground truth of the frames that have one, at the rgb timestamps.
@@ -106,6 +139,7 @@ class TumDataset {
   TumDatasetOptions options_;
   std::vector<TumFrame> frames_;
   std::optional<PinholeIntrinsics> calibration_;
+  std::optional<CameraCalibration> camera_;
   PoseTrajectory ground_truth_;
 };
 

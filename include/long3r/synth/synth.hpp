@@ -14,6 +14,16 @@
 // C (x right, y down, z forward). Depth is metric z-depth along the optical
 // axis. Rendering casts one ray per pixel centre (optionally n x n
 // sub-pixel rays averaged for colour; depth always from the centre ray).
+// A camera with lens distortion casts, for each pixel, the ray that the
+// distortion model maps onto that pixel (LensRays), so images and depth are
+// what the real distorted camera records.
+//
+// The `robot` path is a wheeled base on the floor with the camera rigidly
+// mounted on it: T_W_C = T_W_B * T_B_C exactly, base_link B (REP-103: x
+// forward, y left, z up) at z = 0 with yaw only.
+//
+// Sensor effects (exposure gain, mono output, noise) are applied per frame to
+// the rendered image; all of them default to off.
 //
 // Everything is a deterministic function of the seed: the random numbers come
 // from std::mt19937_64 (whose output the standard fixes) through the
@@ -111,9 +121,27 @@ bool intersect(const Scene& scene, const Eigen::Vector3d& origin, const Eigen::V
 // used to fade out detail finer than a pixel.
 Eigen::Vector3f shade(const Scene& scene, const Hit& hit, double footprint);
 
-enum class TrajectoryType { kWalk, kOrbit, kPanReturn };
-TrajectoryType trajectory_type_from_string(const std::string& name);  // walk|orbit|pan
+enum class TrajectoryType { kWalk, kOrbit, kPanReturn, kRobot };
+TrajectoryType trajectory_type_from_string(const std::string& name);  // walk|orbit|pan|robot
 const char* to_string(TrajectoryType type);
+
+// Independent seeds for the parts of a sequence drawn after the scene (so
+// enabling them leaves the scene and path as they were): splitmix64 of both.
+uint64_t derived_seed(uint64_t seed, uint64_t stream);
+
+// The camera on a wheeled base (trajectory `robot`): camera_link at (x, y, z)
+// in base_link, pitched down by pitch_deg, no roll or yaw.
+struct CameraMount {
+  double x = 0.2, y = 0.0, z = 1.3;  // metres; base_link is on the floor
+  double pitch_deg = 12.0;           // downwards (REP-103 pitch about +y)
+  // T_base_link_camera_link (camera_link: x forward, y left, z up).
+  Eigen::Isometry3d base_to_camera_link() const;
+  // T_base_link_optical: base_to_camera_link() * camera_link_to_optical().
+  Eigen::Isometry3d base_to_optical() const;
+};
+// The fixed rotation from a camera's body frame to its optical frame (x right,
+// y down, z forward): rpy (-pi/2, 0, -pi/2), as camera drivers publish it.
+Eigen::Isometry3d camera_link_to_optical();
 
 struct SceneConfig {
   double min_width = 4.0, max_width = 7.0;    // room x, y extent range (m)
@@ -131,11 +159,42 @@ struct TrajectoryConfig {
   double min_height = 1.1, max_height = 1.7;  // camera height range (m)
   double pitch_deg = -12.0;                   // mean look-down angle
   double roll_deg = 2.0;                      // amplitude of a slow roll wobble
+  CameraMount mount;                          // robot only (its height replaces the range)
+};
+
+// Lens distortion of the rendered camera: OpenCV's / ROS's plumb_bob.
+struct LensDistortion {
+  double k1 = 0.0, k2 = 0.0, p1 = 0.0, p2 = 0.0, k3 = 0.0;
+  bool any() const { return k1 != 0.0 || k2 != 0.0 || p1 != 0.0 || p2 != 0.0 || k3 != 0.0; }
+  std::vector<double> coefficients() const { return {k1, k2, p1, p2, k3}; }  // OpenCV's order
+};
+
+// What the image sensor adds to the rendered radiance. Defaults: none.
+struct SensorConfig {
+  // Noise in 8-bit levels on the written values v: Gaussian with variance
+  // read_noise^2 + shot_noise * v (read noise plus signal-dependent shot
+  // noise), per pixel and channel, seeded by (seed, frame).
+  double read_noise = 0.0;
+  double shot_noise = 0.0;
+  // Exposure gain on the linear radiance (before gamma; bright areas clip):
+  // gain(t) = (1 + exposure_drift * w(t)) * step, w a slow random wave in
+  // [-1, 1] (periods 6-12 s and 2.5-5 s); with probability exposure_step_prob
+  // per frame the step factor is redrawn log-uniformly in
+  // [1 / (1 + exposure_step), 1 + exposure_step].
+  double exposure_drift = 0.0;
+  double exposure_step_prob = 0.0;
+  double exposure_step = 0.0;
+  bool mono = false;  // grey images (8-bit luma of the colour render)
+
+  bool noise() const { return read_noise > 0.0 || shot_noise > 0.0; }
+  bool exposure() const { return exposure_drift > 0.0 || exposure_step_prob > 0.0; }
+  bool any() const { return noise() || exposure() || mono; }
 };
 
 struct RenderOptions {
   int threads = 2;      // rows are split among this many std::threads
   int supersample = 1;  // n: n x n colour rays per pixel
+  float gain = 1.0f;    // exposure: scales the linear radiance before encoding
 };
 
 struct SequenceConfig {
@@ -143,6 +202,8 @@ struct SequenceConfig {
   SceneConfig scene;
   TrajectoryConfig trajectory;
   PinholeIntrinsics intrinsics = PinholeIntrinsics::from_hfov(224, 224, 70.0);
+  LensDistortion distortion;  // of the image described by `intrinsics`
+  SensorConfig sensor;
   double fps = 30.0;
   double start_time = 0.0;  // timestamp of frame 0 (s)
 };
@@ -152,7 +213,9 @@ struct Sequence {
   SequenceConfig config;
   Scene scene;
   std::vector<double> stamps;
-  std::vector<Eigen::Isometry3d> poses;  // T_W_C
+  std::vector<Eigen::Isometry3d> poses;       // T_W_C
+  std::vector<Eigen::Isometry3d> base_poses;  // T_W_B, robot only (poses = T_W_B * mount)
+  std::vector<double> exposure;               // per-frame gain (all 1 without exposure effects)
 };
 
 // Builds the room, the camera path (kept `clearance` away from the walls),
@@ -169,6 +232,49 @@ struct RenderedFrame {
 RenderedFrame render_frame(const Scene& scene, const Eigen::Isometry3d& T_W_C,
                            const PinholeIntrinsics& intrinsics, const RenderOptions& options = {});
 
+// The rays of a camera with lens distortion: for every pixel centre (and the
+// n x n sub-pixel samples of supersampling) the normalised ray (x, y, 1) that
+// the plumb_bob model maps onto it, found with cv::undistortPoints (iterated
+// to convergence and checked by projecting back), once per camera.
+class LensRays {
+ public:
+  // Throws std::invalid_argument when the model cannot be inverted over the
+  // image (a back-projected ray misses its pixel by more than 1e-6 px).
+  LensRays(const PinholeIntrinsics& intrinsics, const LensDistortion& distortion,
+           int supersample = 1);
+  const PinholeIntrinsics& intrinsics() const { return k_; }
+  int supersample() const { return n_; }
+  // Normalised ray through pixel (u, v); sample s in [0, n*n) of its n x n grid.
+  const Eigen::Vector2d& centre(int u, int v) const { return centre_[index(u, v)]; }
+  const Eigen::Vector2d& sample(int u, int v, int s) const {
+    return samples_[index(u, v) * n_ * n_ + s];
+  }
+  // Size of the pixel in normalised coordinates (sqrt of the Jacobian's
+  // determinant; 1/f for a pinhole), for the texture filter footprint.
+  double pixel_size(int u, int v) const { return pixel_size_[index(u, v)]; }
+
+ private:
+  size_t index(int u, int v) const { return static_cast<size_t>(v) * k_.width + u; }
+  PinholeIntrinsics k_;
+  int n_ = 1;
+  std::vector<Eigen::Vector2d> centre_, samples_;
+  std::vector<double> pixel_size_;
+};
+// Renders through a distorted lens: pixel (u, v) shows, and its depth is the
+// z-depth of, what lies along rays.centre(u, v). options.supersample must
+// equal rays.supersample().
+RenderedFrame render_frame(const Scene& scene, const Eigen::Isometry3d& T_W_C, const LensRays& rays,
+                           const RenderOptions& options = {});
+
+// The image the sensor writes for frame `index`: `bgr` (rendered with the
+// frame's exposure gain) made grey when sensor.mono, then noise added (seeded
+// by derived_seed(seed, index)). Returns `bgr` itself when neither applies.
+cv::Mat apply_sensor(const cv::Mat& bgr, const SensorConfig& sensor, uint64_t seed, int index);
+
+// Per-frame exposure gains for `stamps` (seconds); all 1 without exposure effects.
+std::vector<double> exposure_gains(const SensorConfig& sensor, uint64_t seed,
+                                   const std::vector<double>& stamps);
+
 struct WriteStats {
   int frames = 0;
   double render_seconds = 0.0;  // wall time spent rendering
@@ -176,10 +282,14 @@ struct WriteStats {
 };
 
 // Writes the TUM layout (see tum_dataset.hpp) into `dir` (created):
-// rgb/<t>.png, depth/<t>.png (uint16, metres * 5000, 0 beyond 13.1 m),
-// rgb.txt, depth.txt, groundtruth.txt, calibration.txt, plus scene.json
-// (config and scene description). <t> is the timestamp with 6 decimals.
-// `progress(i, n)` is called after each frame when given.
+// rgb/<t>.png (colour, or grey with sensor.mono), depth/<t>.png (uint16,
+// metres * 5000, 0 beyond 13.1 m, registered to the image's pixels), rgb.txt,
+// depth.txt, groundtruth.txt, calibration.txt (with the plumb_bob
+// coefficients when distorted), plus scene.json (config and scene
+// description). <t> is the timestamp with 6 decimals. Robot paths add
+// base_groundtruth.txt (T_W_B, TUM format) and camera_mount.txt (T_B_C, the
+// optical frame in base_link); exposure effects add exposure.txt ("timestamp
+// gain"). `progress(i, n)` is called after each frame when given.
 WriteStats write_tum_sequence(const Sequence& sequence, const std::string& dir,
                               const RenderOptions& options = {},
                               const std::function<void(int, int)>& progress = {});

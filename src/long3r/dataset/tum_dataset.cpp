@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <charconv>
 #include <cmath>
 #include <cstdarg>
 #include <cstdio>
@@ -75,25 +76,49 @@ std::vector<Eigen::Vector3d> PoseTrajectory::positions() const {
   return out;
 }
 
+namespace {
+
+// "tx ty tz qx qy qz qw" from `ss`; the quaternion is normalised.
+// `layout` names the whole line for error messages.
+Eigen::Isometry3d parse_pose(std::istringstream& ss, const std::string& path, int number,
+                             const std::string& layout) {
+  double v[7];
+  for (double& x : v) {
+    if (!(ss >> x)) bad_line(path, number, "expected " + layout);
+  }
+  std::string extra;
+  if (ss >> extra) bad_line(path, number, "more values than " + layout);
+  Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
+  const double norm = q.norm();
+  if (!(norm > 1e-9) || !std::isfinite(norm)) bad_line(path, number, "invalid quaternion");
+  q.coeffs() /= norm;
+  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+  pose.linear() = q.toRotationMatrix();
+  pose.translation() = Eigen::Vector3d(v[0], v[1], v[2]);
+  return pose;
+}
+
+void append_pose(std::string* text, const Eigen::Isometry3d& p) {
+  Eigen::Quaterniond q(p.rotation());
+  q.normalize();
+  // A fixed sign (qw >= 0) makes the text a function of the rotation alone.
+  if (q.w() < 0.0) q.coeffs() = -q.coeffs();
+  const Eigen::Vector3d t = p.translation();
+  append_printf(text, "%.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", t.x(), t.y(), t.z(), q.x(), q.y(),
+                q.z(), q.w());
+}
+
+}  // namespace
+
 PoseTrajectory read_tum_trajectory(const std::string& path) {
   PoseTrajectory traj;
   for (const auto& [number, line] : data_lines(path)) {
     std::istringstream ss(line);
-    double v[8];
-    for (double& x : v) {
-      if (!(ss >> x)) bad_line(path, number, "expected 8 numbers 't tx ty tz qx qy qz qw'");
-    }
-    std::string extra;
-    if (ss >> extra) bad_line(path, number, "more than 8 values");
-    Eigen::Quaterniond q(v[7], v[4], v[5], v[6]);
-    const double norm = q.norm();
-    if (!(norm > 1e-9) || !std::isfinite(norm)) bad_line(path, number, "invalid quaternion");
-    q.coeffs() /= norm;
-    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
-    pose.linear() = q.toRotationMatrix();
-    pose.translation() = Eigen::Vector3d(v[1], v[2], v[3]);
-    traj.stamps.push_back(v[0]);
-    traj.poses.push_back(pose);
+    double stamp = 0.0;
+    const std::string layout = "8 numbers 't tx ty tz qx qy qz qw'";
+    if (!(ss >> stamp)) bad_line(path, number, "expected " + layout);
+    traj.poses.push_back(parse_pose(ss, path, number, layout));
+    traj.stamps.push_back(stamp);
   }
   return traj;
 }
@@ -107,24 +132,60 @@ void write_tum_trajectory(const std::string& path, const PoseTrajectory& traject
   if (!header_comment.empty()) text += "# " + header_comment + "\n";
   text += "# timestamp tx ty tz qx qy qz qw\n";
   for (size_t i = 0; i < trajectory.size(); ++i) {
-    const Eigen::Isometry3d& p = trajectory.poses[i];
-    Eigen::Quaterniond q(p.rotation());
-    q.normalize();
-    // A fixed sign (qw >= 0) makes the text a function of the rotation alone.
-    if (q.w() < 0.0) q.coeffs() = -q.coeffs();
-    const Eigen::Vector3d t = p.translation();
-    append_printf(&text, "%.6f %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", trajectory.stamps[i], t.x(),
-                  t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
+    append_printf(&text, "%.6f ", trajectory.stamps[i]);
+    append_pose(&text, trajectory.poses[i]);
   }
   write_file_atomically(path, text);
 }
 
-PinholeIntrinsics read_calibration_file(const std::string& path) {
+Eigen::Isometry3d read_pose_file(const std::string& path) {
+  const auto lines = data_lines(path);
+  if (lines.size() != 1) throw std::runtime_error(path + ": expected one pose line");
+  std::istringstream ss(lines.front().second);
+  return parse_pose(ss, path, lines.front().first, "7 numbers 'tx ty tz qx qy qz qw'");
+}
+
+void write_pose_file(const std::string& path, const Eigen::Isometry3d& pose,
+                     const std::string& header_comment) {
+  std::string text;
+  if (!header_comment.empty()) text += "# " + header_comment + "\n";
+  text += "# tx ty tz qx qy qz qw\n";
+  append_pose(&text, pose);
+  write_file_atomically(path, text);
+}
+
+namespace {
+
+struct DistortionModel {
+  const char* name;
+  int count;
+};
+// ROS CameraInfo's models (sensor_msgs/distortion_models.h) that OpenCV implements.
+constexpr DistortionModel kDistortionModels[] = {
+    {"plumb_bob", 5}, {"rational_polynomial", 8}, {"equidistant", 4}};
+
+}  // namespace
+
+int distortion_coefficient_count(const std::string& model) {
+  if (model.empty()) return 0;
+  for (const auto& m : kDistortionModels) {
+    if (model == m.name) return m.count;
+  }
+  throw std::invalid_argument("unknown distortion model '" + model +
+                              "' (plumb_bob | rational_polynomial | equidistant)");
+}
+
+bool CameraCalibration::distorted() const {
+  return std::any_of(distortion.begin(), distortion.end(), [](double d) { return d != 0.0; });
+}
+
+CameraCalibration read_camera_calibration(const std::string& path) {
   const auto lines = data_lines(path);
   if (lines.empty()) throw std::runtime_error(path + ": no calibration line");
   const auto& [number, line] = lines.front();
   std::istringstream ss(line);
-  PinholeIntrinsics k;
+  CameraCalibration c;
+  PinholeIntrinsics& k = c.intrinsics;
   if (!(ss >> k.fx >> k.fy >> k.cx >> k.cy)) bad_line(path, number, "expected 'fx fy cx cy'");
   double w = 0, h = 0;
   if (ss >> w) {
@@ -134,17 +195,66 @@ PinholeIntrinsics read_calibration_file(const std::string& path) {
     }
     k.width = static_cast<int>(w);
     k.height = static_cast<int>(h);
+    if (ss >> c.distortion_model) {
+      int n = 0;
+      try {
+        n = distortion_coefficient_count(c.distortion_model);
+      } catch (const std::invalid_argument& e) {
+        bad_line(path, number, e.what());
+      }
+      c.distortion.resize(n);
+      for (double& d : c.distortion) {
+        if (!(ss >> d) || !std::isfinite(d)) {
+          bad_line(path, number,
+                   c.distortion_model + " needs " + std::to_string(n) + " finite coefficients");
+        }
+      }
+      std::string extra;
+      if (ss >> extra) bad_line(path, number, "values after the distortion coefficients");
+    }
   }
   if (!k.valid()) bad_line(path, number, "focal lengths must be positive");
-  return k;
+  return c;
+}
+
+void write_camera_calibration(const std::string& path, const CameraCalibration& c) {
+  const PinholeIntrinsics& k = c.intrinsics;
+  if (static_cast<int>(c.distortion.size()) != distortion_coefficient_count(c.distortion_model)) {
+    throw std::invalid_argument("write_camera_calibration: " + c.distortion_model + " takes " +
+                                std::to_string(distortion_coefficient_count(c.distortion_model)) +
+                                " coefficients, got " + std::to_string(c.distortion.size()));
+  }
+  std::string text = "# pinhole intrinsics in pixels; pixel centres at integer coordinates\n";
+  if (c.distortion_model.empty()) {
+    text += "# fx fy cx cy width height\n";
+  } else {
+    text += "# fx fy cx cy width height distortion_model D (as in sensor_msgs/CameraInfo)\n";
+  }
+  append_printf(&text, "%.9g %.9g %.9g %.9g %d %d", k.fx, k.fy, k.cx, k.cy, k.width, k.height);
+  if (!c.distortion_model.empty()) {
+    text += " " + c.distortion_model;
+    // Shortest text that reads back bit for bit (the render used exactly these).
+    for (double d : c.distortion) {
+      char buf[32];
+      const auto end = std::to_chars(buf, buf + sizeof(buf), d).ptr;
+      text += " " + std::string(buf, end);
+    }
+  }
+  text += "\n";
+  write_file_atomically(path, text);
+}
+
+PinholeIntrinsics read_calibration_file(const std::string& path) {
+  const CameraCalibration c = read_camera_calibration(path);
+  if (c.distorted()) {
+    throw std::runtime_error(path + ": has " + c.distortion_model +
+                             " lens distortion; read_camera_calibration reads it");
+  }
+  return c.intrinsics;
 }
 
 void write_calibration_file(const std::string& path, const PinholeIntrinsics& k) {
-  std::string text =
-      "# pinhole intrinsics in pixels; pixel centres at integer coordinates\n"
-      "# fx fy cx cy width height\n";
-  append_printf(&text, "%.9g %.9g %.9g %.9g %d %d\n", k.fx, k.fy, k.cx, k.cy, k.width, k.height);
-  write_file_atomically(path, text);
+  write_camera_calibration(path, CameraCalibration{k, "", {}});
 }
 
 std::vector<TimestampedPath> read_tum_file_list(const std::string& path) {
@@ -208,7 +318,14 @@ TumDataset TumDataset::open(const std::string& root, const TumDatasetOptions& op
     ds.ground_truth_ = read_tum_trajectory((r / "groundtruth.txt").string());
   }
   if (fs::exists(r / "calibration.txt")) {
-    ds.calibration_ = read_calibration_file((r / "calibration.txt").string());
+    const std::string path = (r / "calibration.txt").string();
+    ds.camera_ = read_camera_calibration(path);
+    if (ds.camera_->distorted() && !options.allow_distortion) {
+      throw std::runtime_error(path + ": has " + ds.camera_->distortion_model +
+                               " lens distortion, which this reader's user does not model "
+                               "(TumDatasetOptions::allow_distortion)");
+    }
+    ds.calibration_ = ds.camera_->intrinsics;
   }
 
   std::vector<double> rgb_t, depth_t;

@@ -225,6 +225,78 @@ PathResult walk_path(Rng& rng, const Eigen::Vector3d& room, const TrajectoryConf
   return out;
 }
 
+// A wheeled base patrolling a rounded rectangle at constant speed, heading
+// along it: straight runs and quarter circles whose radius keeps the turn
+// within max_yaw_rate_deg per frame, as a differential drive drives. The
+// rectangle keeps the base `clearance` plus the mount's horizontal offset
+// from the walls, so the camera keeps `clearance` too.
+PathResult robot_path(Rng& rng, const Eigen::Vector3d& room, const TrajectoryConfig& tc,
+                      std::vector<Eigen::Isometry3d>* base_poses) {
+  const CameraMount& m = tc.mount;
+  const double margin = tc.clearance + 0.05 + std::hypot(m.x, m.y);
+  const double ax = room.x() / 2 - margin, ay = room.y() / 2 - margin;
+  const double r_min = 1.05 * tc.speed / deg2rad(tc.max_yaw_rate_deg);
+  if (std::min(ax, ay) < r_min) {
+    throw std::invalid_argument("generate_sequence: room too small for the robot to turn (radius " +
+                                std::to_string(r_min) + " m)");
+  }
+  const double hx = ax * rng.uniform(std::max(0.6, r_min / ax), 1.0);
+  const double hy = ay * rng.uniform(std::max(0.6, r_min / ay), 1.0);
+  const Eigen::Vector2d centre(room.x() / 2 + rng.uniform(hx - ax, ax - hx),
+                               room.y() / 2 + rng.uniform(hy - ay, ay - hy));
+  const double r = std::max(r_min, std::min(hx, hy) * rng.uniform(0.5, 1.0));
+  // Four sides, counter-clockwise from the middle of the bottom one: a straight
+  // run, then a quarter circle.
+  const double straight[4] = {2 * (hx - r), 2 * (hy - r), 2 * (hx - r), 2 * (hy - r)};
+  const double arc = 0.5 * kPi * r;
+  const double length = 2 * (straight[0] + straight[1]) + 4 * arc;
+  const Eigen::Vector2d start = centre + Eigen::Vector2d(0.0, -hy);
+  auto at = [&](double s, Eigen::Vector2d* p, double* heading) {
+    s = std::fmod(s, length);
+    if (s < 0) s += length;
+    s += 0.5 * straight[0];  // start mid-side
+    Eigen::Vector2d q = start - Eigen::Vector2d(0.5 * straight[0], 0.0);
+    for (int side = 0;; side = (side + 1) % 4) {
+      const double h = side * 0.5 * kPi;
+      const Eigen::Vector2d dir(std::cos(h), std::sin(h)), left(-dir.y(), dir.x());
+      if (s <= straight[side]) {
+        *p = q + s * dir;
+        *heading = h;
+        return;
+      }
+      s -= straight[side];
+      q += straight[side] * dir;
+      const double a = std::min(s, arc) / r;  // angle turned on this corner
+      const Eigen::Vector2d pivot = q + r * left;
+      if (s <= arc) {
+        *p = pivot - r * (std::cos(a) * left - std::sin(a) * dir);
+        *heading = h + a;
+        return;
+      }
+      s -= arc;
+      q = pivot + r * dir;
+    }
+  };
+  const double s0 = rng.uniform(0.0, length);
+  const double direction = rng.bernoulli(0.5) ? 1.0 : -1.0;
+  const Eigen::Isometry3d T_B_C = m.base_to_optical();
+  PathResult out;
+  base_poses->clear();
+  for (int i = 0; i < tc.frames; ++i) {
+    Eigen::Vector2d p;
+    double heading = 0.0;
+    at(s0 + direction * tc.speed * i, &p, &heading);
+    if (direction < 0) heading += kPi;  // clockwise: driving the other way
+    Eigen::Isometry3d T_W_B = Eigen::Isometry3d::Identity();
+    T_W_B.linear() =
+        Eigen::AngleAxisd(wrap_angle(heading), Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    T_W_B.translation() = Eigen::Vector3d(p.x(), p.y(), 0.0);
+    base_poses->push_back(T_W_B);
+    out.poses.push_back(T_W_B * T_B_C);
+  }
+  return out;
+}
+
 // Circle (slightly varying radius) around the room centre, looking at it.
 PathResult orbit_path(Rng& rng, const Eigen::Vector3d& room, const TrajectoryConfig& tc,
                       double h_lo, double h_hi) {
@@ -436,7 +508,8 @@ TrajectoryType trajectory_type_from_string(const std::string& name) {
   if (name == "walk") return TrajectoryType::kWalk;
   if (name == "orbit") return TrajectoryType::kOrbit;
   if (name == "pan" || name == "pan_return") return TrajectoryType::kPanReturn;
-  throw std::invalid_argument("unknown trajectory type '" + name + "' (walk|orbit|pan)");
+  if (name == "robot") return TrajectoryType::kRobot;
+  throw std::invalid_argument("unknown trajectory type '" + name + "' (walk|orbit|pan|robot)");
 }
 
 const char* to_string(TrajectoryType type) {
@@ -447,8 +520,39 @@ const char* to_string(TrajectoryType type) {
       return "orbit";
     case TrajectoryType::kPanReturn:
       return "pan";
+    case TrajectoryType::kRobot:
+      return "robot";
   }
   return "?";
+}
+
+uint64_t derived_seed(uint64_t seed, uint64_t stream) {
+  // splitmix64 (Steele et al.) over both words: well-mixed, portable.
+  auto mix = [](uint64_t z) {
+    z += 0x9e3779b97f4a7c15ull;
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    return z ^ (z >> 31);
+  };
+  return mix(mix(seed) ^ stream);
+}
+
+Eigen::Isometry3d camera_link_to_optical() {
+  // Columns: the optical x (right), y (down), z (forward) in camera_link.
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() << 0, 0, 1, -1, 0, 0, 0, -1, 0;
+  return T;
+}
+
+Eigen::Isometry3d CameraMount::base_to_camera_link() const {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(deg2rad(pitch_deg), Eigen::Vector3d::UnitY()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(x, y, z);
+  return T;
+}
+
+Eigen::Isometry3d CameraMount::base_to_optical() const {
+  return base_to_camera_link() * camera_link_to_optical();
 }
 
 Sequence generate_sequence(const SequenceConfig& config) {
@@ -466,6 +570,20 @@ Sequence generate_sequence(const SequenceConfig& config) {
       sc.min_objects > sc.max_objects || sc.min_objects < 0 || tc.min_height > tc.max_height) {
     throw std::invalid_argument("generate_sequence: a min exceeds its max");
   }
+  const bool robot = tc.type == TrajectoryType::kRobot;
+  if (robot && !(std::abs(tc.mount.pitch_deg) < 90.0 && std::isfinite(tc.mount.x) &&
+                 std::isfinite(tc.mount.y))) {
+    throw std::invalid_argument("generate_sequence: mount pitch must be within (-90, 90) degrees");
+  }
+  const SensorConfig& sensor = config.sensor;
+  if (!(sensor.read_noise >= 0.0) || !(sensor.shot_noise >= 0.0) ||
+      !(sensor.exposure_drift >= 0.0 && sensor.exposure_drift < 1.0) ||
+      !(sensor.exposure_step_prob >= 0.0 && sensor.exposure_step_prob <= 1.0) ||
+      !(sensor.exposure_step >= 0.0)) {
+    throw std::invalid_argument(
+        "generate_sequence: noise and exposure step must be >= 0, exposure drift in [0, 1), "
+        "step probability in [0, 1]");
+  }
 
   Rng rng(config.seed);
   Sequence seq;
@@ -478,9 +596,12 @@ Sequence generate_sequence(const SequenceConfig& config) {
   if (std::min(scene.room_size.x(), scene.room_size.y()) < 2 * margin + 1.0) {
     throw std::invalid_argument("generate_sequence: room too small for the clearance");
   }
-  const double h_lo = std::max(tc.min_height, tc.clearance);
-  const double h_hi = std::min(tc.max_height, scene.room_size.z() - tc.clearance);
-  if (h_lo > h_hi) throw std::invalid_argument("generate_sequence: no valid camera height");
+  const double h_lo = robot ? tc.mount.z : std::max(tc.min_height, tc.clearance);
+  const double h_hi =
+      robot ? tc.mount.z : std::min(tc.max_height, scene.room_size.z() - tc.clearance);
+  if (h_lo > h_hi || h_lo < tc.clearance || h_hi > scene.room_size.z() - tc.clearance) {
+    throw std::invalid_argument("generate_sequence: no valid camera height");
+  }
 
   // Room materials: four distinct walls, a patterned floor, a plain ceiling.
   for (int w = 0; w < 4; ++w) {
@@ -512,6 +633,9 @@ Sequence generate_sequence(const SequenceConfig& config) {
     case TrajectoryType::kPanReturn:
       path = pan_path(rng, scene.room_size, tc, h_lo, h_hi);
       break;
+    case TrajectoryType::kRobot:
+      path = robot_path(rng, scene.room_size, tc, &seq.base_poses);
+      break;
   }
   seq.poses = std::move(path.poses);
   for (int i = 0; i < tc.frames; ++i) seq.stamps.push_back(config.start_time + i / config.fps);
@@ -519,6 +643,13 @@ Sequence generate_sequence(const SequenceConfig& config) {
   std::vector<Eigen::Vector3d> cameras;
   cameras.reserve(seq.poses.size());
   for (const auto& p : seq.poses) cameras.push_back(p.translation());
+  // The robot's body too: a column over the base up to the camera, so that
+  // furniture also stays `clearance` away from it (a rug on the floor may pass).
+  for (const auto& b : seq.base_poses) {
+    for (double z = tc.clearance + 0.05; z < tc.mount.z; z += tc.clearance) {
+      cameras.push_back(b.translation() + Eigen::Vector3d(0, 0, z));
+    }
+  }
   Placer placer{&scene, &rng, &cameras, tc.clearance, {}};
 
   // Orbit: a centrepiece the camera circles around.
@@ -620,6 +751,7 @@ Sequence generate_sequence(const SequenceConfig& config) {
     rug.material = add_material(scene, random_material(rng, kAnyPattern, 0.05f, 0.2f, true));
     placer.try_on_top(rug);
   }
+  seq.exposure = exposure_gains(config.sensor, config.seed, seq.stamps);
   return seq;
 }
 

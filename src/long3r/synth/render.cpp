@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <optional>
 #include <sstream>
 #include <stdexcept>
 #include <thread>
@@ -37,20 +38,52 @@ inline uint8_t encode(float linear) {
   return gamma_table()[i];
 }
 
-void render_rows(const Scene& scene, const Eigen::Isometry3d& T, const PinholeIntrinsics& k,
-                 int supersample, int row_begin, int row_step, RenderedFrame* out) {
+// Where pixels look. Pinhole: computed per pixel, as the renderer always has
+// (the arithmetic is kept as it was, so its images stay bit-identical).
+struct PinholeCamera {
+  const PinholeIntrinsics& k;
+  int width() const { return k.width; }
+  int height() const { return k.height; }
+  Eigen::Vector3d centre(int u, int v) const { return {(u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0}; }
+  Eigen::Vector3d sample(int u, int v, int sx, int sy, int n) const {
+    const double du = (sx + 0.5) / n - 0.5, dv = (sy + 0.5) / n - 0.5;
+    return {(u + du - k.cx) / k.fx, (v + dv - k.cy) / k.fy, 1.0};
+  }
+  // Metres per pixel at z-depth t (per sub-pixel with n x n samples).
+  double footprint(int, int, double t) const { return t / k.fx; }
+  double sample_footprint(int, int, double t, int n) const { return t / (k.fx * n); }
+};
+
+// Distorted lens: rays from the table.
+struct LensCamera {
+  const LensRays& rays;
+  int width() const { return rays.intrinsics().width; }
+  int height() const { return rays.intrinsics().height; }
+  Eigen::Vector3d centre(int u, int v) const { return rays.centre(u, v).homogeneous(); }
+  Eigen::Vector3d sample(int u, int v, int sx, int sy, int n) const {
+    return rays.sample(u, v, sy * n + sx).homogeneous();
+  }
+  double footprint(int u, int v, double t) const { return t * rays.pixel_size(u, v); }
+  double sample_footprint(int u, int v, double t, int n) const {
+    return t * rays.pixel_size(u, v) / n;
+  }
+};
+
+template <class Camera>
+void render_rows(const Scene& scene, const Eigen::Isometry3d& T, const Camera& cam,
+                 const RenderOptions& options, int row_begin, int row_step, RenderedFrame* out) {
   const Eigen::Matrix3d R = T.linear();
   const Eigen::Vector3d o = T.translation();
-  const int n = std::max(1, supersample);
-  for (int v = row_begin; v < k.height; v += row_step) {
+  const int n = std::max(1, options.supersample);
+  const float gain = options.gain;
+  for (int v = row_begin; v < cam.height(); v += row_step) {
     cv::Vec3b* rgb = out->bgr.ptr<cv::Vec3b>(v);
     float* depth = out->depth.ptr<float>(v);
     int32_t* sid = out->surface_id.ptr<int32_t>(v);
-    for (int u = 0; u < k.width; ++u) {
+    for (int u = 0; u < cam.width(); ++u) {
       Hit hit;
       Eigen::Vector3f colour = Eigen::Vector3f::Zero();
-      const Eigen::Vector3d dc((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
-      const Eigen::Vector3d d = R * dc;
+      const Eigen::Vector3d d = R * cam.centre(u, v);
       if (intersect(scene, o, d, &hit)) {
         depth[u] = static_cast<float>(hit.t);  // t along R * (x, y, 1) is the z-depth
         sid[u] = hit.surface_id;
@@ -61,25 +94,60 @@ void render_rows(const Scene& scene, const Eigen::Isometry3d& T, const PinholeIn
       if (n == 1) {
         if (sid[u] >= 0) {
           const double cos_inc = std::max(0.25, std::abs(hit.normal.dot(d.normalized())));
-          colour = shade(scene, hit, hit.t / k.fx / cos_inc);
+          colour = shade(scene, hit, cam.footprint(u, v, hit.t) / cos_inc);
         }
       } else {
         for (int sy = 0; sy < n; ++sy) {
           for (int sx = 0; sx < n; ++sx) {
-            const double du = (sx + 0.5) / n - 0.5, dv = (sy + 0.5) / n - 0.5;
-            const Eigen::Vector3d ds =
-                R * Eigen::Vector3d((u + du - k.cx) / k.fx, (v + dv - k.cy) / k.fy, 1.0);
+            const Eigen::Vector3d ds = R * cam.sample(u, v, sx, sy, n);
             Hit h;
             if (!intersect(scene, o, ds, &h)) continue;
             const double cos_inc = std::max(0.25, std::abs(h.normal.dot(ds.normalized())));
-            colour += shade(scene, h, h.t / (k.fx * n) / cos_inc);
+            colour += shade(scene, h, cam.sample_footprint(u, v, h.t, n) / cos_inc);
           }
         }
         colour /= static_cast<float>(n * n);
       }
+      colour *= gain;  // exposure; exact for the default gain 1
       rgb[u] = cv::Vec3b(encode(colour.z()), encode(colour.y()), encode(colour.x()));
     }
   }
+}
+
+void check_scene(const Scene& scene) {
+  for (const Shape& s : scene.shapes) {
+    if (s.material < 0 || s.material >= static_cast<int>(scene.materials.size())) {
+      throw std::invalid_argument("render_frame: shape material out of range");
+    }
+  }
+  for (int m : scene.room_material) {
+    if (m < 0 || m >= static_cast<int>(scene.materials.size())) {
+      throw std::invalid_argument("render_frame: room material out of range");
+    }
+  }
+}
+
+template <class Camera>
+RenderedFrame render_with(const Scene& scene, const Eigen::Isometry3d& T_W_C, const Camera& cam,
+                          const RenderOptions& options) {
+  check_scene(scene);
+  RenderedFrame out;
+  out.bgr.create(cam.height(), cam.width(), CV_8UC3);
+  out.depth.create(cam.height(), cam.width(), CV_32FC1);
+  out.surface_id.create(cam.height(), cam.width(), CV_32SC1);
+  gamma_table();  // build before the threads start
+  const int threads = std::clamp(options.threads, 1, std::max(1, cam.height()));
+  if (threads == 1) {
+    render_rows(scene, T_W_C, cam, options, 0, 1, &out);
+    return out;
+  }
+  // Interleaved rows balance the load (the top and bottom of a view differ in cost).
+  std::vector<std::thread> pool;
+  for (int t = 0; t < threads; ++t) {
+    pool.emplace_back([&, t] { render_rows(scene, T_W_C, cam, options, t, threads, &out); });
+  }
+  for (auto& th : pool) th.join();
+  return out;
 }
 
 std::string stamp_name(double t) {
@@ -110,6 +178,22 @@ nlohmann::json scene_json(const Sequence& seq) {
   const PinholeIntrinsics& k = c.intrinsics;
   j["intrinsics"] = {{"fx", k.fx}, {"fy", k.fy},       {"cx", k.cx},
                      {"cy", k.cy}, {"width", k.width}, {"height", k.height}};
+  // Sections of the optional effects only when used: default files stay as they were.
+  if (c.trajectory.type == TrajectoryType::kRobot) {
+    const CameraMount& m = c.trajectory.mount;
+    j["trajectory"]["mount"] = {
+        {"x_m", m.x}, {"y_m", m.y}, {"z_m", m.z}, {"pitch_deg", m.pitch_deg}};
+  }
+  if (c.distortion.any()) {
+    j["distortion"] = {{"model", "plumb_bob"}, {"D", c.distortion.coefficients()}};
+  }
+  if (c.sensor.any()) {
+    const SensorConfig& s = c.sensor;
+    j["sensor"] = {
+        {"read_noise", s.read_noise},         {"shot_noise", s.shot_noise},
+        {"exposure_drift", s.exposure_drift}, {"exposure_step_prob", s.exposure_step_prob},
+        {"exposure_step", s.exposure_step},   {"mono", s.mono}};
+  }
   j["depth_factor"] = kTumDepthFactor;
   j["world_frame"] = "z up; room spans [0, room_size]";
   j["room_size"] = vec(seq.scene.room_size);
@@ -151,34 +235,15 @@ RenderedFrame render_frame(const Scene& scene, const Eigen::Isometry3d& T_W_C,
   if (!k.valid() || k.width < 1 || k.height < 1) {
     throw std::invalid_argument("render_frame: invalid intrinsics");
   }
-  for (const Shape& s : scene.shapes) {
-    if (s.material < 0 || s.material >= static_cast<int>(scene.materials.size())) {
-      throw std::invalid_argument("render_frame: shape material out of range");
-    }
+  return render_with(scene, T_W_C, PinholeCamera{k}, options);
+}
+
+RenderedFrame render_frame(const Scene& scene, const Eigen::Isometry3d& T_W_C, const LensRays& rays,
+                           const RenderOptions& options) {
+  if (std::max(1, options.supersample) != rays.supersample()) {
+    throw std::invalid_argument("render_frame: the lens rays were made for another supersample");
   }
-  for (int m : scene.room_material) {
-    if (m < 0 || m >= static_cast<int>(scene.materials.size())) {
-      throw std::invalid_argument("render_frame: room material out of range");
-    }
-  }
-  RenderedFrame out;
-  out.bgr.create(k.height, k.width, CV_8UC3);
-  out.depth.create(k.height, k.width, CV_32FC1);
-  out.surface_id.create(k.height, k.width, CV_32SC1);
-  gamma_table();  // build before the threads start
-  const int threads = std::clamp(options.threads, 1, std::max(1, k.height));
-  if (threads == 1) {
-    render_rows(scene, T_W_C, k, options.supersample, 0, 1, &out);
-    return out;
-  }
-  // Interleaved rows balance the load (the top and bottom of a view differ in cost).
-  std::vector<std::thread> pool;
-  for (int t = 0; t < threads; ++t) {
-    pool.emplace_back(render_rows, std::cref(scene), std::cref(T_W_C), std::cref(k),
-                      options.supersample, t, threads, &out);
-  }
-  for (auto& th : pool) th.join();
-  return out;
+  return render_with(scene, T_W_C, LensCamera{rays}, options);
 }
 
 WriteStats write_tum_sequence(const Sequence& seq, const std::string& dir,
@@ -193,14 +258,46 @@ WriteStats write_tum_sequence(const Sequence& seq, const std::string& dir,
   fs::create_directories(root / "rgb");
   fs::create_directories(root / "depth");
 
+  if (!seq.base_poses.empty() && seq.base_poses.size() != seq.poses.size()) {
+    throw std::invalid_argument("write_tum_sequence: base poses and poses differ in size");
+  }
+  if (!seq.exposure.empty() && seq.exposure.size() != seq.poses.size()) {
+    throw std::invalid_argument("write_tum_sequence: exposure gains and poses differ in size");
+  }
   const PinholeIntrinsics& k = seq.config.intrinsics;
-  write_calibration_file((root / "calibration.txt").string(), k);
+  const LensDistortion& lens = seq.config.distortion;
+  const SensorConfig& sensor = seq.config.sensor;
+  std::optional<LensRays> rays;
+  if (lens.any()) {
+    rays.emplace(k, lens, options.supersample);
+    write_camera_calibration((root / "calibration.txt").string(),
+                             CameraCalibration{k, "plumb_bob", lens.coefficients()});
+  } else {
+    write_calibration_file((root / "calibration.txt").string(), k);
+  }
   write_file_atomically((root / "scene.json").string(), scene_json(seq).dump(1) + "\n");
   PoseTrajectory gt;
   gt.stamps = seq.stamps;
   gt.poses = seq.poses;
   write_tum_trajectory((root / "groundtruth.txt").string(), gt,
                        "ground truth T_W_C (camera optical frame: x right, y down, z forward)");
+  if (!seq.base_poses.empty()) {
+    gt.poses = seq.base_poses;
+    write_tum_trajectory((root / "base_groundtruth.txt").string(), gt,
+                         "ground truth T_W_B (base_link: x forward, y left, z up; on the floor)");
+    write_pose_file((root / "camera_mount.txt").string(),
+                    seq.config.trajectory.mount.base_to_optical(),
+                    "T_B_C: the camera optical frame (x right, y down, z forward) in base_link");
+  }
+  if (sensor.exposure()) {
+    std::string text = "# exposure gain on the linear radiance\n# timestamp gain\n";
+    for (size_t i = 0; i < seq.stamps.size(); ++i) {
+      char gain[32];
+      std::snprintf(gain, sizeof(gain), " %.9g\n", seq.exposure[i]);
+      text += stamp_name(seq.stamps[i]) + gain;
+    }
+    write_file_atomically((root / "exposure.txt").string(), text);
+  }
 
   // The lists are written last, so that they only ever name images on disk.
   std::ostringstream rgb_list, depth_list;
@@ -214,7 +311,11 @@ WriteStats write_tum_sequence(const Sequence& seq, const std::string& dir,
   cv::Mat depth16(k.height, k.width, CV_16UC1);
   for (int i = 0; i < n; ++i) {
     const auto t0 = clock::now();
-    const RenderedFrame f = render_frame(seq.scene, seq.poses[i], k, options);
+    RenderOptions frame_options = options;
+    if (!seq.exposure.empty()) frame_options.gain = static_cast<float>(seq.exposure[i]);
+    const RenderedFrame f = rays ? render_frame(seq.scene, seq.poses[i], *rays, frame_options)
+                                 : render_frame(seq.scene, seq.poses[i], k, frame_options);
+    const cv::Mat image = apply_sensor(f.bgr, sensor, seq.config.seed, i);
     const auto t1 = clock::now();
     for (int v = 0; v < k.height; ++v) {
       const float* z = f.depth.ptr<float>(v);
@@ -225,7 +326,7 @@ WriteStats write_tum_sequence(const Sequence& seq, const std::string& dir,
       }
     }
     const std::string name = stamp_name(seq.stamps[i]) + ".png";
-    write_image_atomically((root / "rgb" / name).string(), f.bgr, png_params);
+    write_image_atomically((root / "rgb" / name).string(), image, png_params);
     write_image_atomically((root / "depth" / name).string(), depth16, png_params);
     rgb_list << stamp_name(seq.stamps[i]) << " rgb/" << name << "\n";
     depth_list << stamp_name(seq.stamps[i]) << " depth/" << name << "\n";
