@@ -49,8 +49,7 @@ def main():
 
     frames = [tum_to_bag.read_png(f)
               for f in sorted(glob.glob(os.path.join(args.sequence, 'rgb', '*.png')))]
-    fx, fy, cx, cy = tum_to_bag.read_calibration(
-        os.path.join(args.sequence, 'calibration.txt'))[0]
+    fx, fy, cx, cy = tum_to_bag.read_calibration(os.path.join(args.sequence, 'calibration.txt')).K
     order = list(range(len(frames))) + list(range(len(frames) - 2, 0, -1))
     h, w = frames[0].shape[:2]
 

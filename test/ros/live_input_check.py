@@ -45,7 +45,7 @@ MAX_IMAGE_PIXELS = 1000000  # live_input.test sets it
 def load_sequence(folder):
     frames = [tum_to_bag.read_png(p)
               for p in sorted(glob.glob(os.path.join(folder, 'rgb', '*.png')))]
-    return frames, tum_to_bag.read_calibration(os.path.join(folder, 'calibration.txt'))[0]
+    return frames, tum_to_bag.read_calibration(os.path.join(folder, 'calibration.txt')).K
 
 
 def model_intrinsics(fx, fy, cx, cy, w, h):
