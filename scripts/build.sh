@@ -4,8 +4,13 @@
 # launch files by walking the package folder, following links and skipping
 # only dot-folders: a visible workspace would lead it round the link back into
 # the repository, again and again. Extra arguments go to catkin_make.
+# LONG3R_TORCH_DIR (a folder with TorchConfig.cmake, e.g. a CUDA libtorch;
+# see scripts/install_deps.sh) builds against that libtorch instead of
+# Debian's.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
+torch_args=()
+[ -n "${LONG3R_TORCH_DIR:-}" ] && torch_args=(-DTorch_DIR="$LONG3R_TORCH_DIR")
 
 mkdir -p "$LONG3R_WS/src"
 # catkin snapshots the environment of the test wrapper (env_cached.sh) at
@@ -15,4 +20,5 @@ mkdir -p "$LONG3R_WS/devel/lib/python3/dist-packages"
 ln -sfn "$LONG3R_ROOT" "$LONG3R_WS/src/long3r_ros"
 cd "$LONG3R_WS"
 catkin_make --make-args -j"$LONG3R_JOBS" "$@" -- \
-  "${LONG3R_CMAKE_PY_ARGS[@]}" -DCMAKE_BUILD_TYPE=Release -DCATKIN_ENABLE_TESTING=ON
+  "${LONG3R_CMAKE_PY_ARGS[@]}" "${torch_args[@]}" -DCMAKE_BUILD_TYPE=Release \
+  -DCATKIN_ENABLE_TESTING=ON

@@ -37,6 +37,8 @@ DTYPE_NAMES = {torch.float32: "F32", torch.float16: "F16", torch.bfloat16: "BF16
                torch.int64: "I64"}
 NAME_DTYPES = {v: k for k, v in DTYPE_NAMES.items()}
 ITEM_SIZES = {"F32": 4, "F16": 2, "BF16": 2, "I64": 8}
+# --dtype: the dtype of every floating tensor written.
+STORAGE_DTYPES = {"f32": torch.float32, "bf16": torch.bfloat16, "f16": torch.float16}
 MAX_HEADER = 100 << 20
 
 # Official create_dpt_head widths (dust3r/heads/dpt_head.py) and DPTOutputAdapter
@@ -660,17 +662,20 @@ def to_safetensors(opts):
     for w in notes + (warnings if given is None else []):
         print("warning: " + w, file=sys.stderr)
 
+    # Every floating tensor in one dtype; the C++ loader loads them as stored
+    # (a bfloat16 file gives a bfloat16 model) and converts once, to the
+    # precision asked for.
+    stored = STORAGE_DTYPES[opts.dtype]
     tensors = collections.OrderedDict()
     for k, v in sd.items():
         v = v.detach()
-        if opts.dtype == "f16" and v.is_floating_point():
-            v = v.to(torch.float16)
+        if v.is_floating_point():
+            v = v.to(stored)
         if v.dtype not in DTYPE_NAMES:
             raise ConvertError("tensor %r has dtype %s, which the format here does not carry"
                                % (k, v.dtype))
         tensors[k] = v
-    write_safetensors(opts.output, tensors,
-                      {"config": json.dumps(config, sort_keys=True)})
+    write_safetensors(opts.output, tensors, {"config": json.dumps(config, sort_keys=True)})
     print("wrote %s: %s, %d tensors" % (opts.output, config.get("model", kind), len(tensors)),
           file=sys.stderr)
 
@@ -724,8 +729,8 @@ def main(argv=None):
     ap.add_argument("input")
     ap.add_argument("output", nargs="?")
     ap.add_argument("--kind", choices=["auto", "dust3r", "spann3r", "long3r"], default="auto")
-    ap.add_argument("--dtype", choices=["f32", "f16"], default="f32",
-                    help="store floating tensors as float32 (default) or float16")
+    ap.add_argument("--dtype", choices=sorted(STORAGE_DTYPES), default="f32",
+                    help="store floating tensors as float32 (default), bfloat16 or float16")
     ap.add_argument("--config-json", help="configuration to store instead of the inferred one "
                     "(checked against the tensor shapes)")
     ap.add_argument("--dust3r-model", help="model string of the DUSt3R inside a Spann3R "

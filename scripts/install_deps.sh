@@ -2,6 +2,14 @@
 # Installs every Debian package long3r_ros needs. Idempotent: when everything is
 # already present it only checks and returns within a second or two.
 # Works as root, or through sudo otherwise.
+#
+# Another libtorch (e.g. one built with CUDA): set LONG3R_TORCH_DIR to the
+# folder holding its TorchConfig.cmake,
+#   LONG3R_TORCH_DIR=$(python3 -c 'import torch; print(torch.utils.cmake_prefix_path)')/Torch \
+#     bash scripts/install_deps.sh
+# Debian's CPU libtorch (libtorch-dev) and its Python torch (python3-torch)
+# are then left out; scripts/build.sh builds against LONG3R_TORCH_DIR, and
+# the Python scripts use the python3 of that torch.
 set -euo pipefail
 
 PACKAGES=(
@@ -28,6 +36,19 @@ PACKAGES=(
   # scripts/rviz_snapshot.sh: rviz on a virtual display, PNG capture
   xvfb python3-pil
 )
+
+if [ -n "${LONG3R_TORCH_DIR:-}" ]; then
+  if [ ! -f "$LONG3R_TORCH_DIR/TorchConfig.cmake" ]; then
+    echo "install_deps.sh: LONG3R_TORCH_DIR=$LONG3R_TORCH_DIR holds no TorchConfig.cmake" >&2
+    exit 1
+  fi
+  kept=()
+  for p in "${PACKAGES[@]}"; do
+    case "$p" in libtorch-dev | python3-torch) ;; *) kept+=("$p") ;; esac
+  done
+  PACKAGES=("${kept[@]}")
+  echo "install_deps.sh: libtorch from $LONG3R_TORCH_DIR (Debian's libtorch-dev and python3-torch left out)"
+fi
 
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then

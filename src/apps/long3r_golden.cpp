@@ -19,6 +19,7 @@
 // pruned sets), which a lower precision legitimately flips, are printed as
 // "info".
 #include <ATen/ATen.h>
+#include <ATen/Context.h>
 #include <c10/core/InferenceMode.h>
 
 #include <algorithm>
@@ -274,7 +275,7 @@ void run_spann3r_sequence(const long3r::ModelConfig& config, const long3r::Tenso
       // Read of step k: memory after step k-1, query feat_k2 of step k-1.
       const long3r::Spann3rReadStats& rd = m.last_read();
       read_tokens.push_back(rd.memory_tokens);
-      read_zeroed.push_back(rd.n_zeroed);
+      read_zeroed.push_back(rd.n_zeroed());
       const std::string base = "read" + std::to_string(k - 1) + ".";
       if (r.has(base + "near_thresh_idx")) {
         const at::Tensor idx = r.ref(base + "near_thresh_idx");
@@ -464,6 +465,9 @@ int main(int argc, char** argv) {
   long3r::add_inference_options(cli, &inference);
   if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
   long3r::InferenceTarget target;
+  // Parity in full float32 on a GPU too: no TF32 matmuls or convolutions.
+  at::globalContext().setAllowTF32CuBLAS(false);
+  at::globalContext().setAllowTF32CuDNN(false);
   try {
     target = long3r::resolve_inference_target(inference);
   } catch (const std::exception& e) {

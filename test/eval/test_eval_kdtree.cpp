@@ -8,6 +8,7 @@
 #include <utility>
 
 #include "long3r/eval/kdtree3.hpp"
+#include "long3r/eval/nearest_carry.hpp"
 
 namespace {
 // The reference: (squared distance, index) of every point, closest first.
@@ -132,4 +133,43 @@ TEST(EvalKdTree, FarQueriesAndCoincidentPoints) {
       EXPECT_EQ(idx[k], brute[k].second) << far << " rank " << k;
     }
   }
+}
+
+// The nearest point carried along a moving query (ICP's correspondences):
+// the same point and squared distance as brute force at every position, on a
+// grid full of exact ties and a cloud with duplicates, with steps from far
+// below to far above the point spacing; small steps must reuse answers.
+TEST(EvalKdTree, NearestCarryMatchesBruteForceAlongAPath) {
+  std::mt19937_64 rng(3);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  std::vector<Eigen::Vector3f> pts;
+  for (int x = 0; x < 12; ++x) {
+    for (int y = 0; y < 12; ++y) pts.emplace_back(0.05f * x, 0.05f * y, 0.0f);  // ties
+  }
+  for (int i = 0; i < 1500; ++i) pts.emplace_back(0.3f * u(rng), 0.3f * u(rng), 0.1f * u(rng));
+  for (int i = 0; i < 40; ++i) pts.push_back(pts[200 + i]);  // duplicates
+  const long3r::KdTree3 tree(pts);
+  std::vector<int> idx;
+  std::vector<float> dd;
+  int calls = 0, searches = 0;
+  for (int path = 0; path < 60; ++path) {
+    long3r::detail::NearestCarry carry;
+    Eigen::Vector3f q(0.3f * u(rng), 0.3f * u(rng), 0.1f * u(rng));
+    if (path % 3 == 0) q = pts[static_cast<size_t>(path)];  // starts on a grid point
+    const float step = path % 4 == 0   ? 1e-7f
+                       : path % 4 == 1 ? 1e-4f
+                       : path % 4 == 2 ? 3e-3f
+                                       : 0.05f;
+    for (int s = 0; s < 40; ++s) {
+      const auto brute = by_distance(pts, q);
+      float d2 = -1.0f;
+      const int j = carry.nearest(tree, q, &d2, &idx, &dd);
+      ASSERT_EQ(j, brute[0].second) << "path " << path << " step " << s;
+      ASSERT_EQ(d2, brute[0].first) << "path " << path << " step " << s;
+      q += step * Eigen::Vector3f(u(rng), u(rng), u(rng));
+      ++calls;
+    }
+    searches += carry.searches();
+  }
+  EXPECT_LT(searches, calls / 2);
 }

@@ -243,8 +243,8 @@ TEST_P(Spann3rGolden, IsolatedReads) {
     worst_fuse = std::max(worst_fuse, d_fuse);
     const auto& st = mem.last_read();
     EXPECT_EQ(st.memory_tokens, gd.step_value("read.mem_tokens", k - 1)) << where;
-    EXPECT_EQ(st.n_zeroed, gd.step_value("read.n_zeroed", k - 1)) << where;
-    EXPECT_EQ(st.n_empty_rows, 0) << where;
+    EXPECT_EQ(st.n_zeroed(), gd.step_value("read.n_zeroed", k - 1)) << where;
+    EXPECT_EQ(st.n_empty_rows(), 0) << where;
 
     // Near-threshold weights: same side of attn_thresh, close values.
     const std::string r = "read" + std::to_string(k - 1);
@@ -434,7 +434,7 @@ TEST_P(Spann3rGolden, EndToEndReplay) {
       const double d = rel_diff(out[0], gd.t("read.feat_fuse")[k - 1]);
       EXPECT_LE(d, kRelTol) << where;
       worst_fuse = std::max(worst_fuse, d);
-      EXPECT_EQ(mem.last_read().n_zeroed, gd.step_value("read.n_zeroed", k - 1)) << where;
+      EXPECT_EQ(mem.last_read().n_zeroed(), gd.step_value("read.n_zeroed", k - 1)) << where;
       EXPECT_EQ(mem.last_read().memory_tokens, gd.step_value("read.mem_tokens", k - 1)) << where;
     }
     // Whether the similarity window holds the stored window's tokens in the
@@ -515,7 +515,7 @@ TEST_P(Spann3rGolden, BatchOfTwoMatchesSingleStreams) {
       const at::Tensor ob = b.read(query1(k - 1));
       const at::Tensor oab = ab.read(at::cat({gd.query(k - 1), query1(k - 1)}, 0));
       EXPECT_LE(rel_diff(oab, at::cat({oa, ob}, 0)), 1e-6) << where;
-      EXPECT_EQ(ab.last_read().n_zeroed, a.last_read().n_zeroed + b.last_read().n_zeroed);
+      EXPECT_EQ(ab.last_read().n_zeroed(), a.last_read().n_zeroed() + b.last_read().n_zeroed());
     }
     const bool added_a = a.add_mem_check(gd.key(k), gd.value(k));
     const bool added_b = b.add_mem_check(gd.key(k), value1(k));
@@ -695,8 +695,8 @@ TEST(Spann3rMemory, AllBelowThresholdRowReadsNothing) {
   const at::Tensor q = at::tensor({1.f, 1.f, -1.f, -1.f}).reshape({1, 1, 4});
   const at::Tensor out = mem.read(q, /*residual=*/true, /*keep_attention=*/true);
   EXPECT_NEAR(mem.last_read().attention.max().item<float>(), 0.25f, 1e-6);
-  EXPECT_EQ(mem.last_read().n_zeroed, 4);
-  EXPECT_EQ(mem.last_read().n_empty_rows, 1);
+  EXPECT_EQ(mem.last_read().n_zeroed(), 4);
+  EXPECT_EQ(mem.last_read().n_empty_rows(), 1);
   EXPECT_TRUE(at::equal(out, q));
   EXPECT_TRUE(at::equal(mem.mem_attn(), at::zeros({1, 4})));
 }

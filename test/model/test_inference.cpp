@@ -12,8 +12,11 @@
 #include <vector>
 
 #include "long3r/io/config_json.hpp"
+#include "long3r/io/safetensors_header.hpp"
 #include "long3r/model/inference.hpp"
 #include "long3r/model/long3r_model.hpp"
+#include "long3r/model/model_shell.hpp"
+#include "long3r/model/safetensors.hpp"
 #include "long3r/model/spann3r_model.hpp"
 #include "long3r/model/streaming.hpp"
 #include "support/test_support.hpp"
@@ -211,4 +214,70 @@ TEST(Bfloat16, Long3rStreamStaysCloseToFloat32) {
   bf16.push(frame(1, 64, 64));
   EXPECT_EQ(bf16.memory().keys().scalar_type(), at::kBFloat16);
   expect_convolutions_float32(bf16.module());
+}
+
+// A bfloat16 checkpoint (every floating tensor stored as bfloat16, as
+// scripts/convert_checkpoint.py --dtype bf16 writes it) loads as stored: the
+// values are not converted at load, a bfloat16 run uses them as they are (the
+// CPU's float32 convolutions hold them exactly), a float32 run converts each
+// once. A converted model saved and loaded again is the same model.
+TEST(Bfloat16, CheckpointStoredInBfloat16LoadsAsStored) {
+  const std::string dir = long3r::test::scratch_dir("inference/bf16_checkpoint");
+  at::manual_seed(4);
+  long3r::Long3rModel f32(long3r::test::tiny_long3r_config());
+  long3r::TensorMap stored;
+  for (const auto& p : f32.module().named_parameters()) {
+    stored[p.key()] = p.value().detach().to(at::kBFloat16);
+  }
+  for (const auto& b : f32.module().named_buffers()) {
+    const at::Tensor v = b.value().detach();
+    stored[b.key()] = v.is_floating_point() ? v.to(at::kBFloat16) : v.clone();
+  }
+  const std::string path = dir + "/bf16.safetensors";
+  long3r::save_safetensors(path, stored, {{"config", long3r::model_config_to_json(f32.config())}});
+
+  // As stored: bfloat16 weights bit for bit, the convolutions float32 on the
+  // CPU holding the same values.
+  const auto loaded = long3r::Long3rModel::from_file(path);
+  EXPECT_EQ(loaded->dtype(), at::kBFloat16);
+  expect_convolutions_float32(loaded->module());
+  for (const auto& p : loaded->module().named_parameters()) {
+    EXPECT_TRUE(p.value().equal(stored.at(p.key()).to(p.value().scalar_type()))) << p.key();
+  }
+  // The factory: bfloat16 as loaded; float32 converted once, exactly.
+  InferenceConfig bf16;
+  bf16.precision = Precision::kBFloat16;
+  bf16.allow_emulated_precision = true;
+  const auto as_bf16 = long3r::make_streaming_model(path, bf16);
+  const auto as_f32 = long3r::make_streaming_model(path);
+  auto& run_bf16 = dynamic_cast<long3r::Long3rModel&>(*as_bf16);
+  auto& run_f32 = dynamic_cast<long3r::Long3rModel&>(*as_f32);
+  expect_convolutions_float32(run_bf16.module());
+  for (const auto& p : run_f32.module().named_parameters()) {
+    EXPECT_EQ(p.value().scalar_type(), at::kFloat) << p.key();
+    EXPECT_TRUE(p.value().equal(stored.at(p.key()).to(at::kFloat))) << p.key();
+  }
+  const auto a = stream(*loaded, 4, 64, 64), b = stream(run_bf16, 4, 64, 64);
+  ASSERT_EQ(a.size(), b.size());
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    EXPECT_TRUE(a[i].pts3d.equal(b[i].pts3d)) << "frame " << i;
+  }
+
+  // A model converted to bfloat16, saved and loaded: the same weights (dtype
+  // and bits) and the same outputs.
+  f32.to(at::Device(at::kCPU), at::kBFloat16);
+  const std::string again = dir + "/converted.safetensors";
+  f32.save(again);
+  const auto reloaded = long3r::Long3rModel::from_file(again);
+  for (const auto& p : reloaded->module().named_parameters()) {
+    const at::Tensor& want = f32.module().named_parameters()[p.key()];
+    EXPECT_EQ(p.value().scalar_type(), want.scalar_type()) << p.key();
+    EXPECT_TRUE(p.value().equal(want)) << p.key();
+  }
+  const auto c = stream(f32, 4, 64, 64), d = stream(*reloaded, 4, 64, 64);
+  ASSERT_EQ(c.size(), d.size());
+  for (std::size_t i = 0; i < c.size(); ++i) {
+    EXPECT_TRUE(c[i].pts3d.equal(d[i].pts3d)) << "frame " << i;
+    EXPECT_TRUE(c[i].conf.equal(d[i].conf)) << "frame " << i;
+  }
 }

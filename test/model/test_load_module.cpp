@@ -181,15 +181,23 @@ TEST(LoadModuleStrict, IntegerIntoFloatIsAnError) {
   EXPECT_CONTAINS(load_error(net2, t2), "dtype mismatch: steps: file Float, module Long");
 }
 
-TEST(LoadModuleStrict, HalfPrecisionFileConvertsToFloat) {
+// Floating tensors load as the file declares them: a float16 or bfloat16
+// tensor becomes the parameter, in its dtype, bit for bit (no conversion at
+// load; the model converts once, to the precision it runs in).
+TEST(LoadModuleStrict, HalfPrecisionTensorsLoadAsStored) {
   Net net;
   auto t = good_tensors();
   t["embed.weight"] = t["embed.weight"].to(torch::kHalf);
   t["head.out.weight"] = t["head.out.weight"].to(torch::kBFloat16);
   EXPECT_EQ(load_error(net, t), "");
-  EXPECT_EQ(net.embed->weight.scalar_type(), torch::kFloat);
-  EXPECT_TRUE(torch::equal(net.embed->weight, torch::full({4, 3}, 1.5)));
-  EXPECT_TRUE(torch::equal(net.head->out->weight, torch::full({2, 4}, 3.0)));
+  EXPECT_EQ(net.embed->weight.scalar_type(), torch::kHalf);
+  EXPECT_EQ(net.head->out->weight.scalar_type(), torch::kBFloat16);
+  EXPECT_EQ(net.embed->bias.scalar_type(), torch::kFloat);
+  EXPECT_TRUE(torch::equal(net.embed->weight, t["embed.weight"]));
+  EXPECT_TRUE(torch::equal(net.head->out->weight, t["head.out.weight"]));
+  // The parameters own their data (not the file's tensors).
+  t["embed.weight"].fill_(0);
+  EXPECT_TRUE(torch::equal(net.embed->weight, torch::full({4, 3}, 1.5, torch::kHalf)));
 }
 
 TEST(LoadModuleStrict, AllProblemsReportedAtOnce) {

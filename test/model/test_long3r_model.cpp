@@ -79,7 +79,7 @@ void randomize_norms(torch::nn::Module& module) {
 }
 
 // Layer norm by hand.
-at::Tensor ln(const at::Tensor& x, const torch::nn::LayerNorm& n) {
+at::Tensor ln(const at::Tensor& x, const long3r::model::LayerNorm& n) {
   const at::Tensor mu = x.mean(-1, true);
   const at::Tensor var = (x - mu).pow(2).mean(-1, true);
   return (x - mu) / at::sqrt(var + n->options.eps()) * n->weight + n->bias;

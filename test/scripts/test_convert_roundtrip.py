@@ -156,13 +156,15 @@ def main():
                   "inferred DPT head matches")
             check(d["landscape_only"] is False, "DUSt3R defaults to landscape_only=False")
 
-        # float16 storage.
-        p = convert("--dtype", "f16", tmpf("dust3r.pth"), tmpf("dust3r_f16.safetensors"))
-        if check(p.returncode == 0, "DUSt3R converts to f16"):
-            out, _ = conv.read_safetensors(tmpf("dust3r_f16.safetensors"))
-            same_tensors(collections.OrderedDict((k, v.half()) for k, v in gd.items()), out,
-                         "DUSt3R f16")
-            cpp_reads(tmpf("dust3r_f16.safetensors"), 661)
+        # float16 and bfloat16 storage.
+        for flag, dtype in (("f16", torch.float16), ("bf16", torch.bfloat16)):
+            path = tmpf("dust3r_%s.safetensors" % flag)
+            p = convert("--dtype", flag, tmpf("dust3r.pth"), path)
+            if check(p.returncode == 0, "DUSt3R converts to %s" % flag):
+                out, _ = conv.read_safetensors(path)
+                same_tensors(collections.OrderedDict((k, v.to(dtype)) for k, v in gd.items()),
+                             out, "DUSt3R %s" % flag)
+                cpp_reads(path, 661)
 
         # ---- Spann3R: 'dust3r.'-prefixed keys ----------------------------------
         gs_path = os.path.join(opts.golden, "spann3r_seq_sq224", "weights.safetensors")

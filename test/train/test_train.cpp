@@ -8,6 +8,7 @@
 #include <opencv2/core.hpp>
 
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -16,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "long3r/model/inference.hpp"
 #include "long3r/model/long3r_model.hpp"
 #include "long3r/model/safetensors.hpp"
 #include "long3r/pipeline/pose.hpp"
@@ -373,6 +375,67 @@ TEST(TrainTrainer, ResumeReproducesTheNextStep) {
   d.step();
   d.step();
   EXPECT_NE(d.step().loss, expected);
+}
+
+// Mixed precision (amp "bf16": the forward pass under bfloat16 autocast)
+// against float32, same seed, one fixed sequence (one scene, no augmentation)
+// so that the loss can fall over a few steps: every loss finite, the same fall
+// within a margin, and the master weights float32 throughout. On a CPU
+// without native bfloat16 it runs emulated, so it must be asked for.
+TEST(TrainTrainer, Bfloat16MixedPrecisionTrainsLikeFloat32) {
+  long3r::TrainConfig c = tiny_config();
+  c.stages.resize(1);
+  c.stages[0].steps = 6;
+  c.stages[0].warmup_steps = 0;
+  c.stages[0].min_lr_ratio = 1.0;
+  c.data.synth.train_scenes = 1;
+  c.data.synth.trajectory_frames = c.stages[0].frames;
+  c.data.synth.hfov_max_deg = c.data.synth.hfov_min_deg;
+  c.data.augment.color_jitter = 0.0;
+  c.data.augment.max_crop = 0.0;
+  long3r::TrainOptions o;
+  o.quiet = true;
+  o.seed = 2;
+  auto run = [&](const std::string& amp, const std::string& dir) {
+    long3r::TrainConfig cc = c;
+    cc.amp = amp;
+    cc.allow_emulated_precision = true;
+    long3r::TrainOptions oo = o;
+    oo.out_dir = scratch(dir);
+    long3r::Trainer t(cc, oo);
+    std::vector<double> losses;
+    for (int i = 0; i < 6; ++i) losses.push_back(t.step().loss);
+    for (const auto& p : t.model().module().named_parameters()) {
+      EXPECT_EQ(p.value().scalar_type(), at::kFloat) << amp << " " << p.key();
+    }
+    return losses;
+  };
+  const std::vector<double> f32 = run("off", "amp_off"), bf16 = run("bf16", "amp_bf16");
+  for (std::size_t i = 0; i < f32.size(); ++i) {
+    std::printf("step %zu: loss float32 %.5f, bfloat16 autocast %.5f\n", i + 1, f32[i], bf16[i]);
+    EXPECT_TRUE(std::isfinite(bf16[i])) << "step " << i + 1;
+  }
+  const double fall_f32 = 1.0 - f32.back() / f32.front();
+  const double fall_bf16 = 1.0 - bf16.back() / bf16.front();
+  EXPECT_GT(fall_f32, 0.05);  // the check below means something
+  EXPECT_GT(fall_bf16, 0.5 * fall_f32) << "float32 fell " << fall_f32 << ", bf16 " << fall_bf16;
+  EXPECT_LT(fall_bf16, 1.5 * fall_f32) << "float32 fell " << fall_f32 << ", bf16 " << fall_bf16;
+  EXPECT_NEAR(bf16.front(), f32.front(), 0.05 * f32.front());  // same weights, same data
+
+  // Without the permission, a CPU that only emulates bfloat16 refuses it.
+  if (!long3r::cpu_has_native_bfloat16()) {
+    long3r::TrainConfig cc = c;
+    cc.amp = "bf16";
+    long3r::TrainOptions oo = o;
+    oo.out_dir = scratch("amp_refused");
+    try {
+      long3r::Trainer t(cc, oo);
+      ADD_FAILURE() << "amp bf16 on an emulating CPU was accepted";
+    } catch (const long3r::ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find("allow_emulated_precision"), std::string::npos)
+          << e.what();
+    }
+  }
 }
 
 TEST(TrainLog, CsvColumnsAreReadBackByName) {

@@ -41,7 +41,7 @@ class KdTree3 {
            std::vector<float>* squared_distances) const;
 
  private:
-  struct Index;  // the nanoflann tree, kept out of this header
+  struct Index;  // nodes and points in leaf order, kept out of this header
   std::vector<Eigen::Vector3f> points_;
   std::unique_ptr<Index> index_;
 };

@@ -31,15 +31,19 @@
 namespace long3r {
 
 // Per-read details, for diagnostics and parity checks. Counts are over the
-// whole batch.
+// whole batch; they stay on the model's device as 0-dim int64 tensors (no
+// host sync inside the step) until read through the accessors, and are
+// undefined (read as 0) when the read does not threshold.
 struct Spann3rReadStats {
   int64_t memory_tokens = 0;  // M at the read
   // Softmax weights strictly below attn_thresh, set to 0 (over B x P x M).
-  int64_t n_zeroed = 0;
+  at::Tensor zeroed_count;
   // Query rows whose weights were all below attn_thresh. The official code
   // divides 0 by 0 there (NaN); this class leaves such a row at 0 (the query
   // reads nothing), the only place where it departs from the official numbers.
-  int64_t n_empty_rows = 0;
+  at::Tensor empty_row_count;
+  int64_t n_zeroed() const;
+  int64_t n_empty_rows() const;
   // softmax(norm_q(q) norm_k(K)^T / sqrt(C)) before thresholding, [B, P, M];
   // only defined when read() was asked to keep it.
   at::Tensor attention;

@@ -50,7 +50,9 @@ class ModelShell {
 
   // Strict load of tensors named as the module tree (a name prefix such as
   // "dust3r." can be stripped; see load_module_strict). Throws CheckpointError.
-  // Ends a stream in progress.
+  // Floating tensors load in their stored dtype (a bfloat16 checkpoint gives a
+  // bfloat16 model, converted by nothing but to()'s float32 convolutions on
+  // the CPU). Ends a stream in progress.
   void load_weights(const TensorMap& tensors, const std::string& source_name,
                     const std::string& strip_prefix = "");
 

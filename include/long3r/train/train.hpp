@@ -335,6 +335,7 @@ class Trainer {
   TrainConfig config_;
   TrainOptions options_;
   at::Device device_;
+  bool mixed_precision_ = false;  // forward pass under bfloat16 autocast (config amp)
   std::unique_ptr<Long3rModel> model_;
   struct Optim;
   std::unique_ptr<Optim> optim_;

@@ -71,8 +71,13 @@ struct TrainConfig {
   LossConfig loss;
   double weight_decay = 0.05;
   double beta1 = 0.9, beta2 = 0.95;
-  double grad_clip = 1.0;    // max global L2 norm; <= 0 disables clipping
-  std::string amp = "bf16";  // CUDA autocast dtype: "bf16" or "off" (CPU is always fp32)
+  double grad_clip = 1.0;  // max global L2 norm; <= 0 disables clipping
+  // Mixed precision: the forward pass under bfloat16 autocast, the weights,
+  // optimizer state, gradients and losses float32. "bf16": on any device (a
+  // CPU without native bfloat16 needs allow_emulated_precision); "auto": on
+  // CUDA only; "off": float32 throughout.
+  std::string amp = "auto";
+  bool allow_emulated_precision = false;  // "bf16" on a CPU that only emulates it (slow)
   DataConfig data;
   ValidationConfig validation;
   int64_t checkpoint_every = 100;  // steps; 0 = only at the end
@@ -150,6 +155,7 @@ config::FieldsOf<S, TrainConfig> visit_fields(S& s, V& v) {
     o("grad_clip", s.grad_clip);
   });
   v("amp", s.amp);
+  v("allow_emulated_precision", s.allow_emulated_precision);
   v("data", s.data);
   v("validation", s.validation);
   v("checkpoint_every", s.checkpoint_every);

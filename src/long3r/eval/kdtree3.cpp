@@ -3,8 +3,8 @@
 #include <nanoflann.hpp>
 
 #include <algorithm>
-#include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <stdexcept>
 #include <utility>
@@ -24,87 +24,128 @@ struct Cloud {
   }
 };
 
-// Distances in double inside the tree: its box bounds, accumulated level by
-// level, then carry no rounding worth the name.
-using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Cloud, double>,
-                                                 Cloud, 3, uint32_t>;
+// nanoflann's metric. A point's distance is computed as brute force computes
+// it, (point - query).squaredNorm() in float, and handed over exactly (as a
+// double), so the result set never computes it again. A float overflow to
+// infinity is handed over as the largest double, which converts back to
+// infinity: below an unbounded worstDist(), so such points still enter a list
+// that is not full. The tree's own bounds (the distance from the query to a
+// cell, accum_dist) are accumulated in double, level by level, and carry no
+// rounding worth the name.
+struct ExactL2 {
+  using ElementType = float;
+  using DistanceType = double;
+  const Cloud& data_source;
+  explicit ExactL2(const Cloud& cloud) : data_source(cloud) {}
+  double evalMetric(const float* query, uint32_t index, size_t /*dim*/) const {
+    const float d =
+        ((*data_source.points)[index] - Eigen::Map<const Eigen::Vector3f>(query)).squaredNorm();
+    return d <= std::numeric_limits<float>::max() ? d : std::numeric_limits<double>::max();
+  }
+  template <typename U, typename V>
+  double accum_dist(const U a, const V b, size_t /*dim*/) const {
+    return (a - b) * (a - b);
+  }
+};
 
-// The k best (squared distance, index) pairs seen, in that order, with the
-// distance computed as brute force does ((point - query).squaredNorm() in
-// float). nanoflann offers only points closer than worstDist() (in its double
-// distance, which differs from the float one by a few float roundings) and
-// skips subtrees whose box is not closer; worstDist() is therefore the k-th
-// float distance widened by 2^-18 (over ten times those roundings) and one
-// step up, so that every point that can still enter the list, ties at the
-// k-th distance included, is offered.
+using Tree = nanoflann::KDTreeSingleIndexAdaptor<ExactL2, Cloud, 3, uint32_t>;
+
+// A neighbour as one integer ordered as (squared distance, index): the bits of
+// a float >= 0 (infinity included) order as the float does.
+uint64_t rank_key(float d2, uint32_t index) {
+  uint32_t bits;
+  std::memcpy(&bits, &d2, sizeof bits);
+  return (static_cast<uint64_t>(bits) << 32) | index;
+}
+float key_distance(uint64_t key) {
+  const uint32_t bits = static_cast<uint32_t>(key >> 32);
+  float d2;
+  std::memcpy(&d2, &bits, sizeof d2);
+  return d2;
+}
+int key_index(uint64_t key) { return static_cast<int>(static_cast<uint32_t>(key)); }
+// Index -1 at an infinite distance: what a search that found nothing returns.
+constexpr uint64_t kNoNeighbour = 0x7f800000ffffffffULL;
+
+// The k best (squared distance, index) pairs offered, closest first, ties to
+// the lower index; `original` maps nanoflann's indices (positions in leaf
+// order) to the caller's. nanoflann offers only points closer than
+// worstDist() and skips cells not closer than it; its cell bounds (double)
+// and the float distances differ by a few float roundings, so worstDist() is
+// the k-th float distance widened by 2^-18 (over ten times those roundings;
+// exact in double, so above it even at a tie) plus 2^-140 (the absolute error
+// of float distances that underflow): every point that can still enter the
+// list is offered.
 class ExactKnn {
  public:
-  ExactKnn(const std::vector<Eigen::Vector3f>& points, const Eigen::Vector3f& query, int k,
-           int* idx, float* d2)
-      : points_(points), query_(query), k_(k), idx_(idx), d2_(d2) {}
+  ExactKnn(int k, uint64_t* keys, const uint32_t* original)
+      : k_(k), keys_(keys), original_(original) {}
 
   size_t size() const { return static_cast<size_t>(count_); }
   bool full() const { return count_ == k_; }
   double worstDist() const { return bound_; }
 
-  bool addPoint(double /*nanoflann's distance*/, uint32_t index) {
-    const int i = static_cast<int>(index);
-    const float d = (points_[index] - query_).squaredNorm();
-    if (full() && !(d < d2_[k_ - 1] || (d == d2_[k_ - 1] && i < idx_[k_ - 1]))) return true;
+  bool addPoint(double distance, uint32_t index) {
+    const uint64_t key = rank_key(static_cast<float>(distance), original_[index]);
+    if (full() && key >= keys_[k_ - 1]) return true;
     int pos = count_ < k_ ? count_++ : k_ - 1;
-    while (pos > 0 && (d < d2_[pos - 1] || (d == d2_[pos - 1] && i < idx_[pos - 1]))) {
-      d2_[pos] = d2_[pos - 1];
-      idx_[pos] = idx_[pos - 1];
-      --pos;
-    }
-    d2_[pos] = d;
-    idx_[pos] = i;
+    for (; pos > 0 && key < keys_[pos - 1]; --pos) keys_[pos] = keys_[pos - 1];
+    keys_[pos] = key;
     if (full()) {
-      const double w = d2_[k_ - 1];
-      bound_ = std::nextafter(w + w * 0x1p-18, std::numeric_limits<double>::infinity());
+      const double w = key_distance(keys_[k_ - 1]);
+      bound_ = w + w * 0x1p-18 + 0x1p-140;
     }
     return true;
   }
 
  private:
-  const std::vector<Eigen::Vector3f>& points_;
-  const Eigen::Vector3f query_;
   const int k_;
-  int* idx_;
-  float* d2_;
+  uint64_t* keys_;
+  const uint32_t* original_;
   int count_ = 0;
   double bound_ = std::numeric_limits<double>::infinity();
 };
 
 }  // namespace
 
-// Points per leaf. nanoflann bounds a subtree by the distance to its split
-// cells, looser than the box of its points, so larger leaves pay off: on the
-// scoring benchmark's 200k-point clouds 32 took about half the CPU time of
-// nanoflann's default 10 for k = 30 and a third less for the nearest point.
-constexpr size_t kLeafSize = 32;
+// Points per leaf: the fewest CPU cycles over the nearest-point and 30-nearest
+// searches of the scoring benchmark's room (valgrind's cache and branch
+// model; 8 to 20 tried).
+constexpr size_t kLeafSize = 12;
 
+// nanoflann's tree over a copy of the points in leaf order: a leaf's points
+// are then contiguous in memory instead of scattered over the input.
+// `original` maps a position in that order back to the caller's index.
 struct KdTree3::Index {
+  std::vector<Eigen::Vector3f> ordered;
+  std::vector<uint32_t> original;
   Cloud cloud;
   Tree tree;
-  explicit Index(const std::vector<Eigen::Vector3f>* points)
-      : cloud{points}, tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(kLeafSize)) {}
+  explicit Index(const std::vector<Eigen::Vector3f>& points)
+      : cloud{&points}, tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(kLeafSize)) {
+    // The build permuted tree.vAcc; renumber the points in that order.
+    original = tree.vAcc;
+    ordered.resize(original.size());
+    for (size_t i = 0; i < original.size(); ++i) {
+      ordered[i] = points[original[i]];
+      tree.vAcc[i] = static_cast<uint32_t>(i);
+    }
+    cloud.points = &ordered;
+  }
+
+  void search(const Eigen::Vector3f& query, int k, uint64_t* keys) const {
+    ExactKnn result(k, keys, original.data());
+    tree.findNeighbors(result, query.data(), nanoflann::SearchParams());
+    // Points at a distance that is not a number are never offered.
+    std::fill(keys + result.size(), keys + k, kNoNeighbour);
+  }
 };
 
 KdTree3::KdTree3() = default;
 KdTree3::KdTree3(const std::vector<Eigen::Vector3f>& points) { build(points); }
 KdTree3::~KdTree3() = default;
-// The index refers to the points_ member: after a move, to the new owner's.
-KdTree3::KdTree3(KdTree3&& other) noexcept
-    : points_(std::move(other.points_)), index_(std::move(other.index_)) {
-  if (index_) index_->cloud.points = &points_;
-}
-KdTree3& KdTree3::operator=(KdTree3&& other) noexcept {
-  points_ = std::move(other.points_);
-  index_ = std::move(other.index_);
-  if (index_) index_->cloud.points = &points_;
-  return *this;
-}
+KdTree3::KdTree3(KdTree3&& other) noexcept = default;
+KdTree3& KdTree3::operator=(KdTree3&& other) noexcept = default;
 
 void KdTree3::build(const std::vector<Eigen::Vector3f>& points) {
   if (points.size() > static_cast<size_t>(std::numeric_limits<int32_t>::max())) {
@@ -112,21 +153,14 @@ void KdTree3::build(const std::vector<Eigen::Vector3f>& points) {
   }
   index_.reset();
   points_ = points;
-  if (!points_.empty()) index_ = std::make_unique<Index>(&points_);
+  if (!points_.empty()) index_ = std::make_unique<Index>(points_);
 }
 
 int KdTree3::nearest(const Eigen::Vector3f& query, float* squared_distance) const {
-  // Two slots for k = 1: GCC cannot see that the insertion never shifts then
-  // (-Warray-bounds).
-  int best[2] = {-1, -1};
-  float best_d2[2] = {std::numeric_limits<float>::infinity(),
-                      std::numeric_limits<float>::infinity()};
-  if (index_) {
-    ExactKnn result(points_, query, 1, best, best_d2);
-    index_->tree.findNeighbors(result, query.data(), nanoflann::SearchParams());
-  }
-  if (squared_distance) *squared_distance = best_d2[0];
-  return best[0];
+  uint64_t key = kNoNeighbour;
+  if (index_) index_->search(query, 1, &key);
+  if (squared_distance) *squared_distance = key_distance(key);
+  return key_index(key);
 }
 
 void KdTree3::knn(const Eigen::Vector3f& query, int k, std::vector<int>* indices,
@@ -137,21 +171,22 @@ void KdTree3::knn(const Eigen::Vector3f& query, int k, std::vector<int>* indices
     if (squared_distances) squared_distances->clear();
     return;
   }
-  indices->resize(static_cast<size_t>(k));
-  // Without a distance output (normal estimation) small k needs no heap.
+  // Small k (normal estimation) needs no heap.
   constexpr int kStack = 64;
-  float stack[kStack];
-  std::vector<float> heap;
-  float* d2 = stack;
+  uint64_t stack[kStack];
+  std::vector<uint64_t> heap;
+  uint64_t* keys = stack;
+  if (k > kStack) {
+    heap.resize(static_cast<size_t>(k));
+    keys = heap.data();
+  }
+  index_->search(query, k, keys);
+  indices->resize(static_cast<size_t>(k));
+  for (int i = 0; i < k; ++i) (*indices)[i] = key_index(keys[i]);
   if (squared_distances) {
     squared_distances->resize(static_cast<size_t>(k));
-    d2 = squared_distances->data();
-  } else if (k > kStack) {
-    heap.resize(static_cast<size_t>(k));
-    d2 = heap.data();
+    for (int i = 0; i < k; ++i) (*squared_distances)[i] = key_distance(keys[i]);
   }
-  ExactKnn result(points_, query, k, indices->data(), d2);
-  index_->tree.findNeighbors(result, query.data(), nanoflann::SearchParams());
 }
 
 }  // namespace long3r

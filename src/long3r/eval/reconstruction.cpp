@@ -8,10 +8,12 @@
 
 #include "long3r/eval/eval.hpp"
 #include "long3r/eval/kdtree3.hpp"
+#include "long3r/eval/nearest_carry.hpp"
 #include "long3r/eval/parallel.hpp"
 
 namespace long3r {
 
+using detail::NearestCarry;
 using detail::parallel_for;
 
 double median_of(std::vector<double> v) {
@@ -172,16 +174,17 @@ IcpResult icp_point_to_point(const std::vector<Eigen::Vector3f>& source,
   r.transform = initial;
   std::vector<int> match(source.size());
   std::vector<float> d2(source.size());
+  std::vector<NearestCarry> carry(source.size());
 
   // Correspondences of the current transform: fitness and inlier RMSE as Open3D.
   auto evaluate = [&](const Sim3& s, double* fitness, double* rmse) {
     const auto moved = transformed(source, s);
     parallel_for(moved.size(), o.threads, [&](size_t b, size_t e) {
+      std::vector<int> idx;
+      std::vector<float> dd;
       for (size_t i = b; i < e; ++i) {
-        float dd;
-        const int j = tree.nearest(moved[i], &dd);
-        match[i] = dd <= max_d2 ? j : -1;
-        d2[i] = dd;
+        const int j = carry[i].nearest(tree, moved[i], &d2[i], &idx, &dd);
+        match[i] = d2[i] <= max_d2 ? j : -1;
       }
     });
     size_t n = 0;

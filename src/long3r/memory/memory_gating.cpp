@@ -9,12 +9,15 @@
 namespace long3r {
 namespace {
 
+// The input follows the weights' dtype, as model::LayerNorm does (a
+// bfloat16 activation under CPU autocast meets float32 weights).
 at::Tensor apply_layer_norm(const at::Tensor& x, const LayerNormParams& p) {
   const c10::optional<at::Tensor> weight =
       p.weight.defined() ? c10::optional<at::Tensor>(p.weight) : c10::nullopt;
   const c10::optional<at::Tensor> bias =
       p.bias.defined() ? c10::optional<at::Tensor>(p.bias) : c10::nullopt;
-  return at::layer_norm(x, {x.size(-1)}, weight, bias, p.eps);
+  const bool cast = p.weight.defined() && x.scalar_type() != p.weight.scalar_type();
+  return at::layer_norm(cast ? x.to(p.weight.scalar_type()) : x, {x.size(-1)}, weight, bias, p.eps);
 }
 
 }  // namespace

@@ -15,7 +15,12 @@ at::Tensor l2_normalize(const at::Tensor& x) {
   return x / x.norm(2, {-1}, /*keepdim=*/true).clamp_min(1e-12);
 }
 
+int64_t count_of(const at::Tensor& count) { return count.defined() ? count.item<int64_t>() : 0; }
+
 }  // namespace
+
+int64_t Spann3rReadStats::n_zeroed() const { return count_of(zeroed_count); }
+int64_t Spann3rReadStats::n_empty_rows() const { return count_of(empty_row_count); }
 
 double spann3r_similarity(const at::Tensor& key, const at::Tensor& window) {
   TORCH_CHECK(key.dim() == 3, "spann3r_similarity: key must be [B,P,C]");
@@ -84,8 +89,8 @@ at::Tensor Spann3rMemory::read(const at::Tensor& query, bool residual, bool keep
   stats.memory_tokens = keys_.size(1);
   if (keep_attention) stats.attention = r.weights;
   if (r.empty_rows.defined()) {
-    stats.n_zeroed = (r.weights < config_.attn_thresh).sum().item<int64_t>();
-    stats.n_empty_rows = r.empty_rows.sum().item<int64_t>();
+    stats.zeroed_count = (r.weights < config_.attn_thresh).sum();
+    stats.empty_row_count = r.empty_rows.sum();
   }
   at::Tensor out = r.readout;
   if (residual) out = out + query;

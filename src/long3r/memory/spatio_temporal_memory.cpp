@@ -156,10 +156,12 @@ at::Tensor select_long_term_tokens(const at::Tensor& positions, const at::Tensor
       // occupied box is small enough, one int64 per voxel and a 1-D unique
       // give the same ids as unique_dim over the rows, several times faster.
       const at::Tensor lo = std::get<0>(voxel.min(0));
-      const at::Tensor extent = std::get<0>(voxel.max(0)) - lo + 1;
-      const int64_t ey = extent[1].item<int64_t>(), ez = extent[2].item<int64_t>();
+      // The extent decides the packing: one read to the host for all three.
+      const at::Tensor extent = (std::get<0>(voxel.max(0)) - lo + 1).to(at::kCPU);
+      const int64_t ex = extent[0].item<int64_t>(), ey = extent[1].item<int64_t>(),
+                    ez = extent[2].item<int64_t>();
       at::Tensor unique_voxels, voxel_id;
-      if (extent[0].item<double>() * static_cast<double>(ey) * static_cast<double>(ez) < 4.0e18) {
+      if (static_cast<double>(ex) * static_cast<double>(ey) * static_cast<double>(ez) < 4.0e18) {
         const at::Tensor v = voxel - lo;
         const at::Tensor packed = (v.select(1, 0) * ey + v.select(1, 1)) * ez + v.select(1, 2);
         std::tie(unique_voxels, voxel_id, std::ignore) =
@@ -512,19 +514,21 @@ at::Tensor SpatioTemporalMemory::gather_payload(const at::Tensor& index) const {
     const at::Tensor& lt = streams_[static_cast<size_t>(b)].long_term.payload;
     const int64_t nl = lt.size(0);
     const at::Tensor idx = index[b].to(lt.device(), at::kLong);
-    if (idx.numel() > 0) {
-      TORCH_CHECK(idx.min().item<int64_t>() >= 0 && idx.max().item<int64_t>() < ns + nl,
-                  "gather_payload: index out of range");
-    }
+    // index_select refuses an index out of range (on the device, without
+    // reading the index back to the host), so no index is clamped into range.
     if (nl == 0) {
       rows.push_back(short_term_.payload[b].index_select(0, idx));
     } else if (ns == 0) {
       rows.push_back(lt.index_select(0, idx));
     } else {
-      // Both parts read with clamped indices; each row keeps the one it belongs to.
-      const at::Tensor from_short = short_term_.payload[b].index_select(0, idx.clamp_max(ns - 1));
-      const at::Tensor from_long = lt.index_select(0, (idx - ns).clamp(0, nl - 1));
-      rows.push_back(at::where((idx < ns).unsqueeze(1), from_short, from_long));
+      // Each part reads its own rows and row 0 for the other part's; each
+      // output row keeps the part it belongs to.
+      const at::Tensor in_short = idx < ns;
+      const at::Tensor from_short =
+          short_term_.payload[b].index_select(0, at::where(in_short, idx, at::zeros_like(idx)));
+      const at::Tensor from_long =
+          lt.index_select(0, at::where(in_short, at::zeros_like(idx), idx - ns));
+      rows.push_back(at::where(in_short.unsqueeze(1), from_short, from_long));
     }
   }
   if (rows.size() == 1) return rows[0].unsqueeze(0);

@@ -7,10 +7,12 @@
 // named_buffers() name them, recursively), and every parameter and buffer must
 // be present.
 //
-// dtype policy: integer tensors must match exactly. A floating tensor loads
-// into a floating parameter of any precision (F16/BF16 files into float32
-// models, or a float32 file into a half-precision model); the value is
-// converted by copy_. Integer <-> floating is an error.
+// dtype policy: a tensor is loaded as the file declares it, never converted.
+// An integer tensor must have its buffer's dtype. A floating tensor of the
+// parameter's dtype is copied in; one of another floating dtype (a bfloat16
+// or float16 checkpoint) replaces the parameter's data, which then has the
+// file's dtype (the model converts once, to the precision it runs in:
+// ModelShell). Integer <-> floating is an error.
 //
 // A tensor reachable under two names (one submodule registered twice, as the
 // DPT head's `scratch.layerN_rn` / `scratch.layer_rn.{N-1}`) needs both names
@@ -110,14 +112,12 @@ void load_module_strict(torch::nn::Module& module, const std::map<std::string, a
                          ", module " + describe(t.tensor));
       ok = false;
     }
-    const bool src_float = at::isFloatingType(src.scalar_type());
-    const bool dst_float = at::isFloatingType(t.tensor.scalar_type());
-    const bool dtype_ok = src.scalar_type() == t.tensor.scalar_type() || (src_float && dst_float);
-    if (!dtype_ok) {
+    const bool both_floating = src.is_floating_point() && t.tensor.is_floating_point();
+    if (src.scalar_type() != t.tensor.scalar_type() && !both_floating) {
       problems.push_back("dtype mismatch: " + strip_prefix + t.name + ": file " +
                          c10::toString(src.scalar_type()) + ", module " +
                          c10::toString(t.tensor.scalar_type()) +
-                         " (only floating types convert into each other)");
+                         " (integer and floating tensors do not convert)");
       ok = false;
     }
     if (ok) t.source = &src;
@@ -157,7 +157,14 @@ void load_module_strict(torch::nn::Module& module, const std::map<std::string, a
   }
 
   torch::NoGradGuard no_grad;
-  for (Target& t : targets) t.tensor.copy_(*t.source);
+  for (Target& t : targets) {
+    if (t.source->scalar_type() == t.tensor.scalar_type()) {
+      t.tensor.copy_(*t.source);
+    } else {
+      t.tensor.set_data(t.source->to(t.tensor.device(), t.source->scalar_type(),
+                                     /*non_blocking=*/false, /*copy=*/true));
+    }
+  }
 }
 
 }  // namespace long3r

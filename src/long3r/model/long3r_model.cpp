@@ -123,7 +123,9 @@ std::optional<StreamOutput> Long3rModel::push(const at::Tensor& image) {
     }
     // B = 1 has no padding; the unmasked attention path is then exact.
     if (s.shape.batch > 1) relevant.valid = gate.relevant_valid;
-    out.stats.relevant_tokens = gate.relevant_count.max().item<int64_t>();
+    // The largest relevant set of the batch: the width of the padded index
+    // (no second read of the count from the device).
+    out.stats.relevant_tokens = gate.relevant_index.size(1);
   } else {
     out.stats.relevant_tokens = 0;
   }

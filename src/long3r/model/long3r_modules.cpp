@@ -9,14 +9,6 @@
 namespace long3r {
 namespace model {
 
-namespace {
-
-torch::nn::LayerNorm layer_norm(int64_t dim, double eps) {
-  return torch::nn::LayerNorm(torch::nn::LayerNormOptions({dim}).eps(eps));
-}
-
-}  // namespace
-
 MemoryCrossAttentionImpl::MemoryCrossAttentionImpl(int64_t dim, int64_t mem_dim, int64_t heads)
     : num_heads(heads) {
   projq = register_module("projq", torch::nn::Linear(dim, dim));

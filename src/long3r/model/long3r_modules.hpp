@@ -54,8 +54,8 @@ class MemoryBlockImpl : public torch::nn::Module {
   // forward() on memory already passed through project_memory().
   at::Tensor forward_projected(const at::Tensor& x, const RopeTable& xrope,
                                const at::Tensor& projected, const at::Tensor& valid);
-  torch::nn::LayerNorm norm1{nullptr}, norm2{nullptr}, norm3{nullptr};
-  torch::nn::LayerNorm norm_mem_k{nullptr}, norm_mem_v{nullptr};
+  LayerNorm norm1{nullptr}, norm2{nullptr}, norm3{nullptr};
+  LayerNorm norm_mem_k{nullptr}, norm_mem_v{nullptr};
   Attention attn{nullptr};
   MemoryCrossAttention cross_attn{nullptr};
   Mlp mlp{nullptr};

@@ -33,7 +33,19 @@ void ModelShell::set_module(std::shared_ptr<torch::nn::Module> module) {
 void ModelShell::load_weights(const TensorMap& tensors, const std::string& source_name,
                               const std::string& strip_prefix) {
   load_module_strict(*module_, tensors, source_name, strip_prefix);
-  weights_changed();
+  // Floating tensors load as stored (a bfloat16 checkpoint leaves bfloat16
+  // weights, unconverted): the model then runs in the checkpoint's precision,
+  // dtype(), with what to() keeps float32 on this device. A float32
+  // checkpoint needs nothing more.
+  bool all_float32 = true;
+  for (const auto& p : module_->parameters()) {
+    all_float32 = all_float32 && (!p.is_floating_point() || p.scalar_type() == at::kFloat);
+  }
+  if (all_float32) {
+    weights_changed();
+  } else {
+    to(device(), dtype());
+  }
 }
 
 void ModelShell::save(const std::string& path) const {

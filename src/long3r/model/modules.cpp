@@ -11,14 +11,12 @@
 #include <stdexcept>
 #include <string>
 
+#include "long3r/model/autocast.hpp"
+
 namespace long3r {
 namespace model {
 
 namespace {
-
-torch::nn::LayerNorm layer_norm(int64_t dim, double eps) {
-  return torch::nn::LayerNorm(torch::nn::LayerNormOptions({dim}).eps(eps));
-}
 
 torch::nn::Conv2d conv(int64_t in, int64_t out, int64_t k, int64_t stride = 1, int64_t pad = 0,
                        bool bias = true) {
@@ -498,8 +496,17 @@ HeadOutput Dust3rNetImpl::head(int which, const DecoderOutputs& dec, int64_t H, 
                                const Trace& trace) {
   TORCH_CHECK(which == 1 || which == 2, "head: 1 or 2");
   DptHead& h = which == 1 ? downstream_head1 : downstream_head2;
+  // Under autocast (mixed-precision training) the head runs in float32 with
+  // autocast off, as the official Spann3R runs its downstream heads
+  // (autocast(enabled=False) on tokens made float); libtorch 1.13 also has no
+  // bfloat16 CPU kernel for the head's transposed convolutions.
+  const AutocastOff autocast_off;
+  DecoderOutputs tokens = dec;
+  if (autocast_off.was_on()) {
+    for (at::Tensor& t : tokens) t = t.to(at::kFloat);
+  }
   // The postprocess (exp / square of the depth, the confidence) in float32.
-  HeadOutput out = postprocess(h->dpt(dec, H, W, trace).to(at::kFloat), config_);
+  HeadOutput out = postprocess(h->dpt(tokens, H, W, trace).to(at::kFloat), config_);
   // transpose_to_landscape: with PatchEmbedDust3R the tokens of a portrait
   // image are in image order, the head runs at (H, W) and only its outputs are
   // transposed.
@@ -577,7 +584,7 @@ at::Tensor Spann3rNetImpl::cur_value(const at::Tensor& pts3d, const at::Tensor& 
 }
 
 GatingNorms Spann3rNetImpl::gating_norms() const {
-  auto params = [](const torch::nn::LayerNorm& n) {
+  auto params = [](const LayerNorm& n) {
     return LayerNormParams{n->weight, n->bias, n->options.eps()};
   };
   return {params(norm_q), params(norm_k), params(norm_v)};

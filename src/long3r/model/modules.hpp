@@ -32,6 +32,25 @@
 namespace long3r {
 namespace model {
 
+// LayerNorm whose input follows its weights' dtype. Under CPU
+// autocast (mixed-precision training) a bfloat16 activation meets float32
+// weights, which libtorch 1.13's CPU layer norm refuses: the norm then runs in
+// float32, as CUDA autocast runs layer norms. Where both agree (every
+// inference path) the input is passed as it is.
+class LayerNormImpl : public torch::nn::LayerNormImpl {
+ public:
+  using torch::nn::LayerNormImpl::LayerNormImpl;
+  at::Tensor forward(const at::Tensor& x) {
+    return torch::nn::LayerNormImpl::forward(
+        weight.defined() && x.scalar_type() != weight.scalar_type() ? x.to(weight.scalar_type())
+                                                                    : x);
+  }
+};
+TORCH_MODULE(LayerNorm);
+inline LayerNorm layer_norm(int64_t dim, double eps) {
+  return LayerNorm(torch::nn::LayerNormOptions({dim}).eps(eps));
+}
+
 // ---------------------------------------------------------------------------
 // 2D rotary position embedding (CroCo RoPE2D): the first half of each head's
 // channels rotates with the token's row y, the second half with its column x;
@@ -116,7 +135,7 @@ class BlockImpl : public torch::nn::Module {
  public:
   BlockImpl(int64_t dim, int64_t num_heads, int64_t mlp_hidden, bool qkv_bias, double eps);
   at::Tensor forward(const at::Tensor& x, const RopeTable& rope);
-  torch::nn::LayerNorm norm1{nullptr}, norm2{nullptr};
+  LayerNorm norm1{nullptr}, norm2{nullptr};
   Attention attn{nullptr};
   Mlp mlp{nullptr};
 };
@@ -129,7 +148,7 @@ class DecoderBlockImpl : public torch::nn::Module {
   DecoderBlockImpl(int64_t dim, int64_t num_heads, int64_t mlp_hidden, double eps, bool norm_mem);
   at::Tensor forward(const at::Tensor& x, const at::Tensor& y, const RopeTable& xrope,
                      const RopeTable& yrope);
-  torch::nn::LayerNorm norm1{nullptr}, norm2{nullptr}, norm3{nullptr}, norm_y{nullptr};
+  LayerNorm norm1{nullptr}, norm2{nullptr}, norm3{nullptr}, norm_y{nullptr};
   Attention attn{nullptr};
   CrossAttention cross_attn{nullptr};
   Mlp mlp{nullptr};
@@ -261,11 +280,11 @@ class Dust3rNetImpl : public torch::nn::Module {
   at::Tensor mask_token;  // pre-training only; present in every checkpoint
   PatchEmbed patch_embed{nullptr};
   torch::nn::ModuleList enc_blocks{nullptr};
-  torch::nn::LayerNorm enc_norm{nullptr};
+  LayerNorm enc_norm{nullptr};
   torch::nn::Linear decoder_embed{nullptr};
   torch::nn::ModuleList dec_blocks{nullptr};
   torch::nn::ModuleList dec_blocks2{nullptr};
-  torch::nn::LayerNorm dec_norm{nullptr};
+  LayerNorm dec_norm{nullptr};
   DptHead downstream_head1{nullptr};
   DptHead downstream_head2{nullptr};
   std::vector<Block> enc;
@@ -297,10 +316,10 @@ class Spann3rNetImpl : public torch::nn::Module {
   Dust3rNet dust3r{nullptr};
   torch::nn::ModuleList value_encoder{nullptr};
   std::vector<Block> value_blocks;
-  torch::nn::LayerNorm value_norm{nullptr};
+  LayerNorm value_norm{nullptr};
   torch::nn::Linear value_out{nullptr};
   PatchEmbed pos_patch_embed{nullptr};  // null with use_feat
-  torch::nn::LayerNorm norm_q{nullptr}, norm_k{nullptr}, norm_v{nullptr};
+  LayerNorm norm_q{nullptr}, norm_k{nullptr}, norm_v{nullptr};
   torch::nn::Sequential attn_head_1{nullptr}, attn_head_2{nullptr};
 
  private:

@@ -7,6 +7,8 @@
 #include <chrono>
 #include <cmath>
 #include <stdexcept>
+#include <tuple>
+#include <utility>
 
 namespace long3r {
 namespace {
@@ -25,21 +27,39 @@ ReconstructionConfig effective(ReconstructionConfig c) {
   return c;
 }
 
-// [1, H, W, C] or [H, W, C] float tensor -> cv::Mat of type `type` (a copy).
-cv::Mat to_mat(const at::Tensor& t, int rows, int cols, int type, const char* what) {
-  at::Tensor x = t.dim() == 4 || (t.dim() == 3 && CV_MAT_CN(type) == 1) ? t[0] : t;
-  x = x.to(at::kCPU, at::kFloat).contiguous();
-  if (x.size(0) != rows || x.size(1) != cols) {
-    const bool transposed = x.size(0) == cols && x.size(1) == rows;
-    throw std::runtime_error(
-        std::string("model output ") + what + " is " + std::to_string(x.size(0)) + "x" +
-        std::to_string(x.size(1)) + ", expected " + std::to_string(rows) + "x" +
-        std::to_string(cols) +
-        (transposed ? " (transposed: portrait input to a landscape-only model; use a landscape "
-                      "model input size, width >= height)"
-                    : ""));
+// A frame's outputs, pointmap [1, H, W, 3] (or [H, W, 3]) and confidence
+// [1, H, W] (or [H, W]), on any device: packed there as one [H, W, 4] float32
+// tensor, copied to the host in one transfer, and split into a CV_32FC3 and a
+// CV_32FC1 cv::Mat (the values bit for bit).
+std::pair<cv::Mat, cv::Mat> to_mats(const at::Tensor& pts3d, const at::Tensor& conf, int rows,
+                                    int cols) {
+  const at::Tensor p = pts3d.dim() == 4 ? pts3d[0] : pts3d;
+  const at::Tensor c = conf.dim() == 3 ? conf[0] : conf;
+  for (const auto& [t, what] : {std::pair{&p, "pts3d"}, std::pair{&c, "conf"}}) {
+    if (t->size(0) != rows || t->size(1) != cols) {
+      const bool transposed = t->size(0) == cols && t->size(1) == rows;
+      throw std::runtime_error(
+          std::string("model output ") + what + " is " + std::to_string(t->size(0)) + "x" +
+          std::to_string(t->size(1)) + ", expected " + std::to_string(rows) + "x" +
+          std::to_string(cols) +
+          (transposed ? " (transposed: portrait input to a landscape-only model; use a landscape "
+                        "model input size, width >= height)"
+                      : ""));
+    }
   }
-  return cv::Mat(rows, cols, type, x.data_ptr<float>()).clone();
+  const at::Tensor packed =
+      at::cat({p.to(at::kFloat), c.to(at::kFloat).unsqueeze(-1)}, -1).to(at::kCPU).contiguous();
+  const float* src = packed.data_ptr<float>();
+  cv::Mat points(rows, cols, CV_32FC3), confidence(rows, cols, CV_32FC1);
+  float* pts_out = points.ptr<float>();
+  float* conf_out = confidence.ptr<float>();
+  for (int64_t i = 0, n = static_cast<int64_t>(rows) * cols; i < n; ++i) {
+    pts_out[3 * i] = src[4 * i];
+    pts_out[3 * i + 1] = src[4 * i + 1];
+    pts_out[3 * i + 2] = src[4 * i + 2];
+    conf_out[i] = src[4 * i + 3];
+  }
+  return {points, confidence};
 }
 
 }  // namespace
@@ -175,10 +195,9 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
   r.frame_index = p.index;
   r.stamp = p.stamp;
   r.from_coarse_head = out.from_coarse_head;
-  r.points_W = to_mat(out.pts3d, h, w, CV_32FC3, "pts3d");
+  std::tie(r.points_W, r.conf) = to_mats(out.pts3d, out.conf, h, w);
   if (scale_ != 1.0) r.points_W.convertTo(r.points_W, CV_32FC3, scale_);
   r.scale = scale_;
-  r.conf = to_mat(out.conf, h, w, CV_32FC1, "conf");
   r.rgb = p.image.rgb;
   r.timings.preprocess_ms = p.preprocess_ms;
   r.timings.model_ms = model_ms;

@@ -42,7 +42,9 @@ void validate_train_config(const TrainConfig& c) {
     if (s.min_lr_ratio < 0.0 || s.min_lr_ratio > 1.0) fail(w + "min_lr_ratio must be in [0, 1]");
   }
   if (c.image_size < 16 || c.image_size % 16 != 0) fail("image_size must be a multiple of 16");
-  if (c.amp != "bf16" && c.amp != "off") fail("amp must be \"bf16\" or \"off\"");
+  if (c.amp != "auto" && c.amp != "bf16" && c.amp != "off") {
+    fail("amp must be \"auto\", \"bf16\" or \"off\"");
+  }
   if (!(c.loss.alpha > 0.0)) fail("loss.alpha must be > 0");
   if (c.loss.scale_weight < 0.0) fail("loss.scale_weight must be >= 0");
   if (c.weight_decay < 0.0) fail("optimizer.weight_decay must be >= 0");

@@ -3,7 +3,6 @@
 #include <ATen/ATen.h>
 #include <ATen/CPUGeneratorImpl.h>
 #include <ATen/Parallel.h>
-#include <ATen/autocast_mode.h>
 #include <ATen/core/Generator.h>
 #include <torch/cuda.h>
 #include <torch/nn/module.h>
@@ -20,6 +19,7 @@
 #include <limits>
 #include <mutex>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <stdexcept>
@@ -27,6 +27,8 @@
 #include "long3r/dataset/image_file.hpp"
 #include "long3r/eval/eval.hpp"
 #include "long3r/io/atomic_file.hpp"
+#include "long3r/model/autocast.hpp"
+#include "long3r/model/inference.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/train/train.hpp"
 
@@ -103,33 +105,6 @@ std::vector<std::string> split_csv_line(const std::string& line) {
   while (std::getline(ss, cell, ',')) cells.push_back(cell);
   return cells;
 }
-
-// Autocast for the forward pass on CUDA (bf16 needs no loss scaling, which
-// libtorch's C++ API lacks); restores the previous state on exit.
-class AutocastGuard {
- public:
-  explicit AutocastGuard(bool enable) : enable_(enable) {
-    if (!enable_) return;
-    prev_enabled_ = at::autocast::is_enabled();
-    prev_dtype_ = at::autocast::get_autocast_gpu_dtype();
-    at::autocast::set_enabled(true);
-    at::autocast::set_autocast_gpu_dtype(at::kBFloat16);
-    at::autocast::increment_nesting();
-  }
-  ~AutocastGuard() {
-    if (!enable_) return;
-    if (at::autocast::decrement_nesting() == 0) at::autocast::clear_cache();
-    at::autocast::set_enabled(prev_enabled_);
-    at::autocast::set_autocast_gpu_dtype(prev_dtype_);
-  }
-  AutocastGuard(const AutocastGuard&) = delete;
-  AutocastGuard& operator=(const AutocastGuard&) = delete;
-
- private:
-  bool enable_;
-  bool prev_enabled_ = false;
-  at::ScalarType prev_dtype_ = at::kHalf;
-};
 
 at::Device parse_device(const std::string& name) {
   if (name == "cuda" || name.rfind("cuda:", 0) == 0) {
@@ -232,6 +207,15 @@ Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
     : config_(config), options_(options), device_(parse_device(options.device)) {
   validate_train_config(config_);
   if (options_.out_dir.empty()) throw std::invalid_argument("Trainer: out_dir is empty");
+  mixed_precision_ = config_.amp == "bf16" || (config_.amp == "auto" && device_.is_cuda());
+  if (mixed_precision_ && device_.is_cpu() && !cpu_has_native_bfloat16() &&
+      !config_.allow_emulated_precision) {
+    throw ConfigError(
+        "training config: amp \"bf16\" on the CPU: this CPU has no native bfloat16 arithmetic "
+        "(AVX512-BF16 or AMX-BF16), so bfloat16 would run emulated, slower than float32; set amp "
+        "to \"auto\" or \"off\" (float32 on the CPU), or allow_emulated_precision to true to "
+        "measure it anyway");
+  }
   if (!options_.model_override.empty()) config_.model = options_.model_override;
   fs::create_directories(fs::path(options_.out_dir) / "checkpoint");
   at::manual_seed(options_.seed);
@@ -321,7 +305,9 @@ LogRow Trainer::step() {
   for (at::Tensor& p : optim_->params) p.mutable_grad() = at::Tensor();
   std::vector<StreamOutput> outputs, coarse;
   {
-    AutocastGuard autocast(device_.is_cuda() && config_.amp == "bf16");
+    // bfloat16 needs no loss scaling (which libtorch's C++ API lacks).
+    std::optional<AutocastOn> autocast;
+    if (mixed_precision_) autocast.emplace(device_.type(), at::kBFloat16);
     outputs = model_->forward_sequence(batch.frames, config_.loss.coarse ? &coarse : nullptr);
   }
   const LossTerms loss = sequence_loss(outputs, coarse, batch.pts, batch.valid, config_.loss);
@@ -467,7 +453,7 @@ void Trainer::run() {
         "long3r_train: model %s (%.2f M parameters), %lld steps in %zu stages, device %s%s\n",
         config_.model.c_str(), static_cast<double>(params) / 1e6,
         static_cast<long long>(config_.total_steps()), config_.stages.size(), device_.str().c_str(),
-        device_.is_cuda() && config_.amp == "bf16" ? " (bf16 autocast)" : " (fp32)");
+        mixed_precision_ ? " (bf16 autocast, fp32 weights)" : " (fp32)");
     if (step_ > 0) std::printf("resumed at step %lld\n", static_cast<long long>(step_));
     std::fflush(stdout);
   }

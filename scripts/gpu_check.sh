@@ -1,0 +1,179 @@
+#!/usr/bin/env bash
+# One command for a machine with an NVIDIA GPU and a Python torch built with
+# CUDA (no ROS, no OpenCV C++, no apt needed):
+#   bash scripts/gpu_check.sh [--out REPORT] [--frames N] [--torch-dir DIR]
+#                             [--build-dir DIR] [--jobs N] [--cpu-dry-run]
+# 1. builds the torch-only part (-DLONG3R_WITH_ROS=OFF, OpenCV/PCL left out)
+#    against that torch's libtorch (python3 -c 'import torch;
+#    print(torch.utils.cmake_prefix_path)'; --torch-dir overrides);
+# 2. runs every golden case of ../shared/golden on CUDA in float32 with TF32
+#    off (long3r_golden: PASS at the 1e-4 relative tolerance, deviation
+#    printed), and in bfloat16 and float16 (deviation printed, not judged);
+# 3. runs the CUDA unit tests (ctest -R Cuda, where googletest is installed);
+# 4. times the paper-size LONG3R (long3r_bench --config long3r_paper, random
+#    weights, 224 x 224, N frames) in float32, bfloat16 and float16;
+# and writes everything to one report (default build-gpu-check/report.txt).
+# Meant to finish within 8 minutes on a machine with a recent GPU and 8+ cores.
+#
+# Without a usable CUDA GPU it says why and exits 3. --cpu-dry-run runs the
+# same steps on the CPU with tiny sizes instead (long3r_tiny at 64 x 64,
+# bfloat16 emulated where the CPU lacks it; float16 is refused on the CPU and
+# reported so), to check the script and the build where no GPU is at hand;
+# with a Python torch that ships no CMake files (Debian's python3-torch) it
+# falls back to the system libtorch.
+# PYTHON selects the interpreter (default python3); nlohmann/json.hpp is
+# looked for in /usr/include, the torch install and $LONG3R_NLOHMANN_JSON_DIR.
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+start=$(date +%s)
+
+out="" frames=20 torch_dir="" build="$root/build-gpu-check" jobs=$(nproc) dry=0
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --out) out=$2; shift 2 ;;
+    --frames) frames=$2; shift 2 ;;
+    --torch-dir) torch_dir=$2; shift 2 ;;
+    --build-dir) build=$2; shift 2 ;;
+    --jobs) jobs=$2; shift 2 ;;
+    --cpu-dry-run) dry=1; shift ;;
+    -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d' | sed 's/^# \{0,1\}//'; exit 0 ;;
+    *) echo "gpu_check.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
+  esac
+done
+mkdir -p "$build"
+out=${out:-$build/report.txt}
+report=$(mktemp)
+trap 'rm -f "$report"' EXIT
+say() { echo "$@" | tee -a "$report"; }
+finish() {  # exit code
+  say ""
+  say "wall time $(( $(date +%s) - start )) s"
+  cp "$report" "$out"
+  echo "report: $out"
+  exit "$1"
+}
+
+say "== long3r gpu_check $(git -C "$root" rev-parse --short HEAD 2>/dev/null || echo '?') $(date -u +%Y-%m-%dT%H:%M:%SZ)"
+[ "$dry" = 1 ] && say "MODE: --cpu-dry-run (CPU, tiny sizes: checks the script and the build, measures nothing about a GPU)"
+
+# ---- torch and the GPU -------------------------------------------------------
+py=${PYTHON:-python3}
+if ! info=$("$py" - <<'EOF' 2>&1
+import os, torch
+print("torch", torch.__version__)
+print("cuda_build", torch.version.cuda or "none")
+print("cuda_available", torch.cuda.is_available())
+print("gpu", torch.cuda.get_device_name(0) if torch.cuda.is_available() else "none")
+print("cxx11_abi", torch.compiled_with_cxx11_abi())
+print("cmake_prefix", torch.utils.cmake_prefix_path)
+print("include", os.path.join(os.path.dirname(torch.__file__), "include"))
+EOF
+); then
+  say "no usable Python torch ($py): $info"
+  finish 3
+fi
+field() { echo "$info" | sed -n "s/^$1 //p"; }
+say "python torch $(field torch), CUDA build $(field cuda_build), cuda available $(field cuda_available), GPU $(field gpu), C++11 ABI $(field cxx11_abi)"
+if [ "$dry" = 0 ] && [ "$(field cuda_available)" != True ]; then
+  why="torch.cuda.is_available() is False"
+  [ "$(field cuda_build)" = none ] && why="this torch is built without CUDA (torch.version.cuda is None)"
+  command -v nvidia-smi >/dev/null 2>&1 || why="$why; no nvidia-smi (no NVIDIA driver)"
+  say "NO CUDA GPU: $why. Nothing measured. (--cpu-dry-run exercises the steps on the CPU.)"
+  finish 3
+fi
+device=cuda
+[ "$dry" = 1 ] && device=cpu
+
+if [ -z "$torch_dir" ]; then
+  torch_dir="$(field cmake_prefix)/Torch"
+  if [ ! -f "$torch_dir/TorchConfig.cmake" ]; then
+    if [ "$dry" = 1 ]; then
+      say "this Python torch ships no CMake files ($torch_dir); dry run: the system libtorch instead"
+      torch_dir=""
+    else
+      say "no TorchConfig.cmake in $torch_dir: give --torch-dir (a libtorch's share/cmake/Torch)"
+      finish 1
+    fi
+  fi
+fi
+
+json_dir=${LONG3R_NLOHMANN_JSON_DIR:-}
+for d in /usr/include /usr/local/include "$(field include)"; do
+  [ -z "$json_dir" ] && [ -f "$d/nlohmann/json.hpp" ] && json_dir=$d
+done
+if [ -z "$json_dir" ]; then
+  say "nlohmann/json.hpp not found (/usr/include, the torch install): put the single header in a" \
+      "folder as nlohmann/json.hpp and set LONG3R_NLOHMANN_JSON_DIR to that folder"
+  finish 1
+fi
+
+# ---- build ----------------------------------------------------------------
+tests=OFF
+if [ "$(field cxx11_abi)" = True ] && { [ -f /usr/include/gtest/gtest.h ] || [ -f /usr/local/include/gtest/gtest.h ]; }; then
+  tests=ON
+fi
+say "== build ($build, tests $tests, libtorch ${torch_dir:-system})"
+cmake_args=(-S "$root" -B "$build" -DLONG3R_WITH_ROS=OFF -DLONG3R_BUILD_TESTS=$tests
+            -DCMAKE_BUILD_TYPE=Release -DCMAKE_DISABLE_FIND_PACKAGE_OpenCV=ON
+            -DLONG3R_NLOHMANN_JSON_DIR="$json_dir")
+[ -n "$torch_dir" ] && cmake_args+=(-DTorch_DIR="$torch_dir")
+targets=(app_long3r_golden app_long3r_bench)
+[ "$tests" = ON ] && targets+=(long3r_model_tests)
+if ! cmake "${cmake_args[@]}" >"$build/configure.log" 2>&1 ||
+   ! cmake --build "$build" -j "$jobs" --target "${targets[@]}" >"$build/build.log" 2>&1; then
+  say "BUILD FAILED (logs: $build/configure.log, $build/build.log):"
+  tail -20 "$build/build.log" "$build/configure.log" 2>/dev/null | tee -a "$report"
+  finish 1
+fi
+say "built in $(( $(date +%s) - start )) s"
+bin="$build"  # plain CMake puts the executables at the top of the build folder
+
+# ---- golden cases -----------------------------------------------------------
+say ""
+say "== golden cases on $device (TF32 off), max relative deviation of the outputs vs the official float32 run"
+status=0
+for case_dir in "$root"/../shared/golden/*/; do
+  [ -f "$case_dir/io.safetensors" ] || continue
+  name=$(basename "$case_dir")
+  for prec in float32 bfloat16 float16; do
+    extra=(--device "$device")
+    if [ "$prec" != float32 ]; then
+      extra+=(--precision "$prec" --tol 1)  # printed, not judged
+      [ "$device" = cpu ] && extra+=(--allow-emulated-precision)
+    fi
+    line=$(OMP_NUM_THREADS=${OMP_NUM_THREADS:-1} "$bin/long3r_golden" "${extra[@]}" "$case_dir" 2>&1 | tail -1) || true
+    case "$line" in
+      *PASS*) r=$(echo "$line" | sed -n 's/.*max relative difference \([^,]*\),.*/\1/p') ;;
+      *) r="FAILED: $line"; [ "$prec" = float32 ] && status=1 ;;
+    esac
+    say "$(printf '  %-26s %-9s %s' "$name" "$prec" "$r")"
+  done
+done
+
+# ---- unit tests ---------------------------------------------------------------
+if [ "$tests" = ON ]; then
+  say ""
+  say "== unit tests on the device (ctest -R Cuda)"
+  (cd "$build" && ctest -R 'Cuda\.' --output-on-failure) >"$build/ctest.log" 2>&1 || status=1
+  grep -E "tests passed|Skipped|Failed|\*\*\*" "$build/ctest.log" | tee -a "$report" || true
+  grep -E "max relative deviation" "$build/ctest.log" | tee -a "$report" || true
+fi
+
+# ---- speed ------------------------------------------------------------------
+config=long3r_paper size=224
+[ "$dry" = 1 ] && config=long3r_tiny size=64
+say ""
+say "== long3r_bench --config $config --size $size --frames $frames --device $device"
+for prec in float32 bfloat16 float16; do
+  extra=(--precision "$prec")
+  [ "$device" = cpu ] && [ "$prec" = bfloat16 ] && extra+=(--allow-emulated-precision)
+  if log=$("$bin/long3r_bench" --config "$config" --size "$size" --frames "$frames" \
+             --device "$device" "${extra[@]}" 2>&1); then
+    mean=$(echo "$log" | sed -n 's/^frames .*mean latency \(.*\) ms (\(.*\) FPS).*/\1 ms (\2 FPS)/p')
+    rss=$(echo "$log" | sed -n 's/^peak RSS //p')
+    say "$(printf '  %-9s mean latency %s, peak RSS %s' "$prec" "$mean" "$rss")"
+  else
+    say "$(printf '  %-9s not run: %s' "$prec" "$(echo "$log" | tail -1)")"
+  fi
+done
+finish "$status"
