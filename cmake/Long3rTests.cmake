@@ -100,11 +100,24 @@ if(LONG3R_WITH_ROS)
     COMMAND ${PROJECT_SOURCE_DIR}/test/ros/make_replay_data.sh
             $<TARGET_FILE_DIR:app_long3r_synth> ${LONG3R_REPLAY_DATA})
   set_tests_properties(ros_replay_data PROPERTIES FIXTURES_SETUP ros_replay_data)
-  foreach(t replay_normal replay_bad replay_pause replay_slow live_input smoke)
+  foreach(t replay_normal replay_bad replay_pause replay_slow replay_compressed live_input smoke
+          robot_odometry robot_depth robot_undistorted robot_distorted)
     set_tests_properties(_ctest_${PROJECT_NAME}_rostest_test_ros_${t}.test PROPERTIES
       FIXTURES_REQUIRED ros_replay_data
-      ENVIRONMENT "LONG3R_REPLAY_DATA=${LONG3R_REPLAY_DATA}")
+      ENVIRONMENT "LONG3R_REPLAY_DATA=${LONG3R_REPLAY_DATA};LONG3R_BIN=$<TARGET_FILE_DIR:app_long3r_eval>")
   endforeach()
+  # The distorted camera's map is as accurate as the undistorted one's (within 5 %).
+  foreach(t robot_undistorted robot_distorted)
+    set_tests_properties(_ctest_${PROJECT_NAME}_rostest_test_ros_${t}.test PROPERTIES
+      FIXTURES_SETUP ros_robot_lens)
+  endforeach()
+  add_test(NAME ros_robot_distortion_accuracy
+    COMMAND /usr/bin/python3 ${PROJECT_SOURCE_DIR}/test/ros/compare_metrics.py
+            ${LONG3R_REPLAY_DATA}/robot_undistorted_eval/metrics.json
+            ${LONG3R_REPLAY_DATA}/robot_distorted_eval/metrics.json
+            --key reconstruction.accuracy_mean_m --max-rel 0.05)
+  set_tests_properties(ros_robot_distortion_accuracy PROPERTIES
+    FIXTURES_REQUIRED "ros_robot_lens;ros_replay_data")
   file(GLOB LONG3R_ROS_GTEST_SRCS CONFIGURE_DEPENDS test/ros/test_*.cpp)
   foreach(src ${LONG3R_ROS_GTEST_SRCS})
     get_filename_component(name ${src} NAME_WE)

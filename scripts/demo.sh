@@ -3,17 +3,22 @@
 # generates a synthetic indoor sequence with ground truth, replays it as a bag
 # through the long3r_ros nodelet, and writes the map and the trajectory to
 # OUT_DIR (default build/demo), then scores them against the ground truth.
-#   bash scripts/demo.sh [OUT_DIR] [--frames N] [--model FILE]
+# --robot: a wheeled robot's bag instead (tf_static base_link -> camera, wheel
+# odometry odom -> base_link, registered depth), replayed as on a robot:
+# map -> odom published, z-up map, metric scale from the odometry.
+#   bash scripts/demo.sh [OUT_DIR] [--frames N] [--model FILE] [--robot]
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 
 out="$LONG3R_ROOT/build/demo"
 frames=60
 model=""
+robot=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --frames) frames=$2; shift 2 ;;
     --model) model=$2; shift 2 ;;
+    --robot) robot=1; shift ;;
     -*) echo "unknown option $1" >&2; exit 2 ;;
     *) out=$1; shift ;;
   esac
@@ -27,9 +32,20 @@ bin="$LONG3R_WS/devel/lib/long3r_ros"
 mkdir -p "$out"
 echo "== generating a $frames-frame synthetic sequence"
 rm -rf "$out/sequence"
-"$bin/long3r_synth" --out "$out/sequence" --frames "$frames" --seed 7 --quiet
-/usr/bin/python3 "$LONG3R_ROOT/scripts/tum_to_bag.py" "$out/sequence" "$out/sequence.bag" \
-  --time-offset 1000 >/dev/null
+gt_traj="$out/sequence/groundtruth.txt"
+robot_args=()
+if [ "$robot" = 1 ]; then
+  "$bin/long3r_synth" --out "$out/sequence" --frames "$frames" --seed 7 --trajectory robot --quiet
+  /usr/bin/python3 "$LONG3R_ROOT/scripts/tum_to_bag.py" "$out/sequence" "$out/sequence.bag" \
+    --robot --depth-topic /camera/depth/image_raw --time-offset 1000 >/dev/null
+  # The node's trajectory is then base_link's, in metres.
+  gt_traj="$out/sequence/base_groundtruth.txt"
+  robot_args=(odom_frame:=odom base_frame:=base_link scale_source:=odometry)
+else
+  "$bin/long3r_synth" --out "$out/sequence" --frames "$frames" --seed 7 --quiet
+  /usr/bin/python3 "$LONG3R_ROOT/scripts/tum_to_bag.py" "$out/sequence" "$out/sequence.bag" \
+    --time-offset 1000 >/dev/null
+fi
 
 if [ -z "$model" ]; then
   if [ -f "$LONG3R_ROOT/models/default.safetensors" ]; then
@@ -50,11 +66,11 @@ fi
 
 echo "== replaying through the nodelet (model: $model)"
 roslaunch long3r_ros demo.launch bag:="$out/sequence.bag" model_path:="$model" \
-  out_dir:="$out" 2>&1 | tee "$out/roslaunch.log" | grep -E "WARN|ERROR|FATAL|demo:|save_map" || true
+  out_dir:="$out" "${robot_args[@]}" 2>&1 | tee "$out/roslaunch.log" | grep -E "WARN|ERROR|FATAL|demo:|save_map" || true
 [ -s "$out/map.ply" ] && [ -f "$out/trajectory.txt" ] || { echo "demo failed: see $out/roslaunch.log" >&2; exit 1; }
 
 echo "== scoring against the ground truth"
 # The bag's stamps start at 1000 s (tum_to_bag.py --time-offset above).
-"$bin/long3r_eval" --gt "$out/sequence" --est-traj "$out/trajectory.txt" --est-map "$out/map.ply" \
+"$bin/long3r_eval" --gt "$out/sequence" --gt-traj "$gt_traj" --est-traj "$out/trajectory.txt" --est-map "$out/map.ply" \
   --offset -1000 --out "$out/eval" || echo "(evaluation needs at least 3 estimated poses)"
 echo "== done: $out/map.ply, $out/trajectory.txt, $out/eval/"

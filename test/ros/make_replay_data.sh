@@ -2,7 +2,10 @@
 # Generates the rostest inputs: a short synthetic sequence as a bag, bags of
 # bad input (make_bad_bag.py), of a pause and of a slow camera
 # (make_timing_bag.py), a longer sequence for the live publisher
-# (live_input_check.py), and a small random-weight model.
+# (live_input_check.py), the same sequence as compressed images, robot-like
+# bags (tum_to_bag.py --robot: TF tree, wheel odometry, registered depth) of one
+# scene through an undistorted and a distorted lens, and a small random-weight
+# model.
 # Usage: make_replay_data.sh BIN_DIR OUT_DIR
 set -euo pipefail
 bin=$1
@@ -20,6 +23,18 @@ rm -rf "$out/live"
   --pause-after 3 --pause-s 4 >/dev/null
 /usr/bin/python3 "$root/test/ros/make_timing_bag.py" "$out/normal.bag" "$out/slow.bag" \
   --period 2 >/dev/null
+/usr/bin/python3 "$root/scripts/tum_to_bag.py" "$out/seq" "$out/compressed.bag" --time-offset 1000 \
+  --compressed jpeg >/dev/null
+# One robot path through one room, rendered through a pinhole and through a
+# plumb_bob lens (the distorted run is rectified by the node).
+robot=(--trajectory robot --frames 40 --width 160 --height 120 --seed 7 --quiet)
+rm -rf "$out/robot" "$out/robot_distorted"
+"$bin/long3r_synth" --out "$out/robot" "${robot[@]}"
+"$bin/long3r_synth" --out "$out/robot_distorted" "${robot[@]}" --distortion -0.25 0.08 0.001 -0.001 0
+for s in robot robot_distorted; do
+  /usr/bin/python3 "$root/scripts/tum_to_bag.py" "$out/$s" "$out/$s.bag" --robot \
+    --depth-topic /camera/depth/image_raw --time-offset 1000 >/dev/null
+done
 "$bin/long3r_make_random_model" --variant spann3r --size tiny --img-size 224 --seed 1 \
   --out "$out/model.safetensors" >/dev/null
 echo "replay data in $out"

@@ -9,9 +9,14 @@ and odom_frame set:
     symmetric positive-definite pose covariance;
   * ~depth and ~camera_info through depth_image_proc's point_cloud_xyz give the
     same points as ~frame_cloud, to float precision;
-  * the saved map's floor is horizontal in map (normal within 5 degrees of +z);
-  * with a metric scale source, the saved map's Sim(3) scale against the
-    ground truth in metres (long3r_eval) is within --max-scale-error of 1.
+  * the saved map's floor is horizontal in map (normal within 5 degrees of +z),
+    unless --no-floor;
+  * --expect-metric: the scale source's estimate is applied (~pointmap says
+    metric); --expect-unscaled: it is not (an inconsistent estimate is never
+    adopted, the map stays in model units);
+  * with --eval, the saved map is scored against the ground truth (long3r_eval,
+    metrics.json under OUT/robot_MODE_eval) and, with --max-scale-error > 0,
+    its Sim(3) scale must be within that of 1.
 """
 import argparse
 import json
@@ -135,6 +140,17 @@ class RobotCheck(unittest.TestCase):
         pms = rec.get('pointmaps')
         self.assertGreaterEqual(len(pms), ARGS.min_frames, 'too few posed frames')
 
+        # The scale source's verdict, as the last ~pointmap states it.
+        last = pms[-1]
+        rospy.loginfo('last ~pointmap: scale %.4f +- %.4f, metric %s',
+                      last.scale, last.scale_stddev, last.metric)
+        if ARGS.expect_metric:
+            self.assertTrue(last.metric, 'no metric scale was applied')
+            self.assertNotEqual(last.scale, 1.0)
+        if ARGS.expect_unscaled:
+            self.assertFalse(last.metric, 'an inconsistent scale estimate was applied')
+            self.assertEqual(last.scale, 1.0)
+
         # One parent per frame, throughout.
         parents = rec.get('parents')
         rospy.loginfo('TF tree: %s', {c: sorted(p) for c, p in parents.items()})
@@ -176,20 +192,25 @@ class RobotCheck(unittest.TestCase):
         n = floor_normal(pts)
         tilt = math.degrees(math.acos(min(1.0, abs(n[2]))))
         rospy.loginfo('floor normal %s: %.2f degrees from +z', n, tilt)
-        self.assertLess(tilt, 5.0)
-        if ARGS.max_scale_error > 0:
+        if not ARGS.no_floor:
+            self.assertLess(tilt, 5.0)
+        if ARGS.eval:
             out = os.path.join(ARGS.out, 'robot_%s_eval' % ARGS.mode)
-            subprocess.run([ARGS.eval, '--gt', ARGS.seq, '--gt-traj', ARGS.gt_traj,
-                            '--est-traj', traj_path, '--est-map', map_path, '--icp-scale',
-                            '--no-normals', '--gt-frame-step', '4', '--gt-pixel-step', '4',
-                            '--offset', str(-ARGS.time_offset), '--out', out],
-                           check=True, stdout=sys.stdout, stderr=sys.stderr)
+            run = subprocess.run([ARGS.eval, '--gt', ARGS.seq, '--gt-traj', ARGS.gt_traj,
+                                  '--est-traj', traj_path, '--est-map', map_path, '--icp-scale',
+                                  '--no-normals', '--gt-frame-step', '4', '--gt-pixel-step', '4',
+                                  '--offset', str(-ARGS.time_offset), '--out', out],
+                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            rospy.loginfo('long3r_eval:\n%s', run.stdout)
+            self.assertEqual(run.returncode, 0, 'long3r_eval failed')
             with open(os.path.join(out, 'metrics.json')) as f:
                 metrics = json.load(f)
             scale = metrics['reconstruction']['sim3']['scale']
-            rospy.loginfo('map Sim(3) scale against the ground truth: %.4f', scale)
-            self.assertLess(abs(scale - 1.0), ARGS.max_scale_error,
-                            'the map is not metric: Sim(3) scale %.4f' % scale)
+            rospy.loginfo('map Sim(3) scale against the ground truth: %.4f, Acc mean %.4f m',
+                          scale, metrics['reconstruction']['accuracy_mean_m'])
+            if ARGS.max_scale_error > 0:
+                self.assertLess(abs(scale - 1.0), ARGS.max_scale_error,
+                                'the map is not metric: Sim(3) scale %.4f' % scale)
 
 
 if __name__ == '__main__':
@@ -200,11 +221,15 @@ if __name__ == '__main__':
     parser.add_argument('--out', default='/tmp')
     parser.add_argument('--seq', default='')
     parser.add_argument('--gt-traj', default='')
-    parser.add_argument('--eval', default='long3r_eval')
+    parser.add_argument('--eval', default='', help='long3r_eval to score the map with')
     parser.add_argument('--time-offset', type=float, default=1000.0)
     parser.add_argument('--base-frame', default='base_link')
     parser.add_argument('--odom-frame', default='odom')
-    parser.add_argument('--max-scale-error', type=float, default=0.05)
+    parser.add_argument('--max-scale-error', type=float, default=0.05,
+                        help='with --eval; 0: report the scale without a bound')
+    parser.add_argument('--no-floor', action='store_true')
+    parser.add_argument('--expect-metric', action='store_true')
+    parser.add_argument('--expect-unscaled', action='store_true')
     ARGS, rest = parser.parse_known_args(rospy.myargv()[1:])
     rospy.init_node('robot_check')
     rostest.rosrun('long3r_ros', 'robot_check', RobotCheck, [sys.argv[0]] + rest)
