@@ -14,7 +14,7 @@ import time
 import xmlrpc.client
 
 import numpy as np
-import rosnode
+import rosgraph
 import rospy
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -30,7 +30,7 @@ def rss_mib(pid):
 
 
 def node_pid(name):
-    api = rosnode.get_api_uri(rospy.get_master(), name)
+    api = rosgraph.Master('/soak').lookupNode(name)
     code, _, pid = xmlrpc.client.ServerProxy(api).getPid('/soak')
     if code != 1:
         raise RuntimeError('cannot get the pid of ' + name)
