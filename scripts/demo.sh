@@ -5,7 +5,9 @@
 # OUT_DIR (default build/demo), then scores them against the ground truth.
 # --robot: a wheeled robot's bag instead (tf_static base_link -> camera, wheel
 # odometry odom -> base_link, registered depth), replayed as on a robot:
-# map -> odom published, z-up map, metric scale from the odometry.
+# map -> odom published, z-up map, frames placed by the odometry and scaled
+# to metres by the depth (the shipped model's own poses are too coarse for an
+# odometry scale; README, "Metric scale and pose source").
 #   bash scripts/demo.sh [OUT_DIR] [--frames N] [--model FILE] [--robot]
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
@@ -40,7 +42,7 @@ if [ "$robot" = 1 ]; then
     --robot --depth-topic /camera/depth/image_raw --time-offset 1000 >/dev/null
   # The node's trajectory is then base_link's, in metres.
   gt_traj="$out/sequence/base_groundtruth.txt"
-  robot_args=(odom_frame:=odom base_frame:=base_link scale_source:=odometry)
+  robot_args=(odom_frame:=odom base_frame:=base_link pose_source:=odometry scale_source:=depth)
 else
   "$bin/long3r_synth" --out "$out/sequence" --frames "$frames" --seed 7 --quiet
   /usr/bin/python3 "$LONG3R_ROOT/scripts/tum_to_bag.py" "$out/sequence" "$out/sequence.bag" \
