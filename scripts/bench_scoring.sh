@@ -3,9 +3,13 @@
 # normal consistency: every nearest-neighbour search of `long3r_eval
 # --est-map`) at two revisions of this repository, on the same generated
 # clouds, in one run. Also checks that both print the same metrics.
-#   bash scripts/bench_scoring.sh [--baseline REV] [--points N] [--repeats R]
+#   bash scripts/bench_scoring.sh [--baseline REV] [--points N] [--repeats R] [--callgrind]
 # --baseline: the revision to compare with (default f65af4e, the last one
 # with the hand-written k-d tree); the working tree is the other side.
+# --callgrind: instead of timing, count the instructions each side executes
+# (valgrind --tool=callgrind, one run per side and case: the same count on a
+# busy machine as on an idle one; about 50x slower than a plain run, so use
+# it with --points 50000 or so).
 # Work folder: $LONG3R_BENCH_SCORING_DIR, default /tmp/long3r_bench_scoring.
 # Runs alternate (baseline, current, baseline, ...) so both meet the same
 # load; the best and median wall and CPU times of each side are printed.
@@ -15,11 +19,13 @@ source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 baseline=f65af4e
 points=200000
 repeats=5
+callgrind=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --baseline) baseline=$2; shift 2 ;;
     --points) points=$2; shift 2 ;;
     --repeats) repeats=$2; shift 2 ;;
+    --callgrind) callgrind=1; shift ;;
     *) echo "unknown option $1 (see the header of $0)" >&2; exit 2 ;;
   esac
 done
@@ -89,6 +95,39 @@ stats() {  # seconds... -> "best median"
   printf '%s\n' "$@" | sort -g | awk '{a[NR]=$1} END {printf "%.2f %.2f", a[1], a[int((NR+1)/2)]}'
 }
 
+compare_metrics() {  # case -> "identical" or "DIFFER in ..."
+  /usr/bin/python3 - "$work/out_baseline_$1/metrics.json" "$work/out_current_$1/metrics.json" <<'EOF'
+import json, sys
+a, b = (json.load(open(p))["reconstruction"] for p in sys.argv[1:])
+a.pop("prediction"); b.pop("prediction")
+if a == b:
+    print("identical")
+else:
+    diff = [k for k in a if a[k] != b.get(k)]
+    print("DIFFER in " + ", ".join(diff))
+EOF
+}
+
+if [ "$callgrind" = 1 ]; then
+  count() {  # side case -> instructions executed (callgrind's Ir)
+    valgrind --tool=callgrind --callgrind-out-file=/dev/null \
+      "$work/build_$1/long3r_eval" --gt-cloud "$work/gt.ply" --est-map "$work/pred_$2.ply" \
+      --map-align none --out "$work/out_${1}_$2" 2>&1 >/dev/null |
+      sed -n 's/.*refs: *//p' | tr -d ,
+  }
+  printf '%-11s %7s | %16s %16s %6s | %s\n' case points "baseline Ir" "current Ir" ratio metrics
+  for case in room compact duplicates; do
+    ib=$(count baseline "$case")
+    ic=$(count current "$case")
+    n=$(head -c 200 "$work/pred_$case.ply" | sed -n 's/^element vertex //p')
+    printf '%-11s %7s | %16s %16s %6.3f | %s\n' "$case" "$n" "$ib" "$ic" \
+      "$(echo "$ic / $ib" | bc -l)" "$(compare_metrics "$case")"
+  done
+  echo "Ir: instructions executed by the whole long3r_eval run (valgrind callgrind);"
+  echo "ratio: current / baseline"
+  exit 0
+fi
+
 # The wall time swings with other load on a shared machine; the CPU time is
 # the work done, and the ratio to trust there.
 printf '%-11s %7s | %-23s %-23s %5s | %-23s %-23s %5s | %s\n' case points \
@@ -104,17 +143,7 @@ for case in room compact duplicates; do
   read -r wcb wcm <<<"$(stats "${wc[@]}")"
   read -r cbb cbm <<<"$(stats "${cb[@]}")"
   read -r ccb ccm <<<"$(stats "${cc[@]}")"
-  same=$(/usr/bin/python3 - "$work/out_baseline_$case/metrics.json" "$work/out_current_$case/metrics.json" <<'EOF'
-import json, sys
-a, b = (json.load(open(p))["reconstruction"] for p in sys.argv[1:])
-a.pop("prediction"); b.pop("prediction")
-if a == b:
-    print("identical")
-else:
-    diff = [k for k in a if a[k] != b.get(k)]
-    print("DIFFER in " + ", ".join(diff))
-EOF
-)
+  same=$(compare_metrics "$case")
   n=$(head -c 200 "$work/pred_$case.ply" | sed -n 's/^element vertex //p')
   printf '%-11s %7s | %-23s %-23s %5.2f | %-23s %-23s %5.2f | %s\n' "$case" "$n" \
     "$wbb / $wbm" "$wcb / $wcm" "$(echo "$wcm / $wbm" | bc -l)" \
