@@ -133,8 +133,11 @@ class Long3rNodelet : public nodelet::Nodelet {
   std::unique_ptr<diagnostic_updater::TopicDiagnostic> output_diagnostic_;
 
   // camera_info and depth messages by stamp, to pair each image with its own.
-  message_filters::Cache<sensor_msgs::CameraInfo> camera_info_cache_{50};
-  message_filters::Cache<sensor_msgs::Image> depth_cache_{30};
+  // Sized in subscribe() to reach back over the whole image queue, plus this
+  // (what arrives while the worker runs one frame).
+  static constexpr unsigned kCacheMargin = 30;
+  message_filters::Cache<sensor_msgs::CameraInfo> camera_info_cache_{kCacheMargin};
+  message_filters::Cache<sensor_msgs::Image> depth_cache_{kCacheMargin};
 
   // The reconstruction and everything tied to its stream, guarded together:
   // the worker pushes frames, the services reset and save.

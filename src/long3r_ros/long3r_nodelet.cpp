@@ -188,11 +188,16 @@ void Long3rNodelet::advertise() {
 void Long3rNodelet::subscribe() {
   ros::NodeHandle& nh = getNodeHandle();
   ros::NodeHandle& pnh = getPrivateNodeHandle();
+  // The worker pairs each queued image with the camera_info and depth of its
+  // stamp, so the caches reach back as far as the image queue does.
+  const auto reach = static_cast<unsigned>(config_.queue_size) + kCacheMargin;
+  camera_info_cache_.setCacheSize(reach);
+  depth_cache_.setCacheSize(reach);
   if (config_.use_camera_info) {
     camera_info_sub_ = nh.subscribe("camera_info", 10, &Long3rNodelet::cameraInfoCallback, this);
   }
   if (scale_config_.source == long3r::ScaleSource::kDepth) {
-    depth_sub_ = nh.subscribe("depth", 5, &Long3rNodelet::depthCallback, this);
+    depth_sub_ = nh.subscribe("depth", kSubscriberQueue, &Long3rNodelet::depthCallback, this);
     NODELET_INFO("metric scale from the depth images on %s", depth_sub_.getTopic().c_str());
   }
   it_ = std::make_unique<image_transport::ImageTransport>(nh);
