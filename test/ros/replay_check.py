@@ -14,6 +14,11 @@ the pause, and the frames after it continue the same stream (frame indices,
 path, map all kept).
 mode slow: a camera slower than flush_after_s (make_timing_bag.py --period):
 every frame gets its result, each before the next frame arrives.
+mode lost: no frame can be posed (pnp_reprojection_error_px of a millionth of a pixel)
+and lost_reset_frames is 3: every frame still gets its result (~camera_info),
+only the first frame of each stream is posed, and after 3 unposed frames the
+node warns, names the cause and starts a new stream (at least one restart);
+the diagnostics say tracking is lost while it is, and the node keeps running.
 """
 import argparse
 import os
@@ -25,6 +30,8 @@ import unittest
 import rospy
 import rostest
 import tf2_ros
+from diagnostic_msgs.msg import DiagnosticArray
+from rosgraph_msgs.msg import Log
 from nav_msgs.msg import Path
 from nodelet.srv import NodeletList
 from sensor_msgs.msg import CameraInfo, PointCloud2
@@ -46,12 +53,24 @@ class Recorder:
         self.maps = []
         self.paths = []
         self.infos = []
+        self.logs = []
+        self.diagnostics = []
         rospy.Subscriber('/long3r/pointmap', Pointmap, self._pointmap, queue_size=100)
         rospy.Subscriber('/long3r/frame_cloud', PointCloud2, self._add('frame_clouds'), queue_size=100)
         rospy.Subscriber('/long3r/map', PointCloud2, self._add('maps'), queue_size=100)
         rospy.Subscriber('/long3r/path', Path, self._add('paths'), queue_size=100)
         # ~camera_info comes with every result, posed or not.
         rospy.Subscriber('/long3r/camera_info', CameraInfo, self._add('infos'), queue_size=100)
+        rospy.Subscriber('/rosout', Log, self._log, queue_size=1000)
+        rospy.Subscriber('/diagnostics', DiagnosticArray, self._diag, queue_size=100)
+
+    def _log(self, msg):
+        with self.lock:
+            self.logs.append(msg.msg)
+
+    def _diag(self, msg):
+        with self.lock:
+            self.diagnostics.extend(s.message for s in msg.status)
 
     def _pointmap(self, msg):
         with self.lock:
@@ -107,6 +126,8 @@ class ReplayCheck(unittest.TestCase):
 
         # Across a pause in the bag the replay is only over once every frame came.
         wanted = ARGS.frames if ARGS.mode in ('pause', 'slow') else 1
+        if ARGS.mode == 'lost':
+            wanted = ARGS.frames - 2  # a reset drops the frame the model holds
 
         def quiet():
             n = self.rec.count(what)
@@ -117,7 +138,7 @@ class ReplayCheck(unittest.TestCase):
 
     def test_replay(self):
         rospy.wait_for_service('/long3r/reset', timeout=60)
-        self._wait_until_quiet(240, 'infos' if ARGS.mode == 'bad' else 'pointmaps')
+        self._wait_until_quiet(240, 'infos' if ARGS.mode in ('bad', 'lost') else 'pointmaps')
         pms = self.rec.get('pointmaps')
         stamps = [p.header.stamp.to_sec() for p in pms]
         rospy.loginfo('received %d pointmaps: %s', len(pms), ['%.2f' % s for s in stamps])
@@ -125,6 +146,8 @@ class ReplayCheck(unittest.TestCase):
             self._check_normal(pms)
         elif ARGS.mode == 'bad':
             self._check_bad([m.header.stamp.to_sec() for m in self.rec.get('infos')])
+        elif ARGS.mode == 'lost':
+            self._check_lost(pms)
         else:
             self._check_continuity(pms)
 
@@ -186,6 +209,21 @@ class ReplayCheck(unittest.TestCase):
         nodelets = rospy.ServiceProxy('/manager/list', NodeletList)().nodelets
         self.assertIn('/long3r', nodelets)
 
+    def _check_lost(self, pms):
+        infos = self.rec.get('infos')
+        # Every frame gets its result but the one the model holds at a reset.
+        self.assertGreaterEqual(len(infos), ARGS.frames - 2, 'frames without a result')
+        self.assertGreaterEqual(len(pms), 2, 'no new stream after the lost frames')
+        self.assertEqual([p.frame_index for p in pms], [0] * len(pms),
+                         'only the first frame of a stream can be posed here')
+        restart = 'tracking lost for 3 consecutive frames (lost_reset_frames): starting a new stream'
+        self.assertTrue(wait_for(lambda: any(restart in m for m in self.rec.get('logs')), 10),
+                        'no warning naming the restart')
+        self.assertTrue(any(m.startswith('tracking lost for') for m in self.rec.get('diagnostics')),
+                        'the diagnostics never said tracking was lost')
+        nodelets = rospy.ServiceProxy('/manager/list', NodeletList)().nodelets
+        self.assertIn('/long3r', nodelets)
+
     def _check_continuity(self, pms):
         n = len(pms)
         self.assertEqual(n, ARGS.frames, 'one pointmap per input frame')
@@ -224,7 +262,7 @@ class ReplayCheck(unittest.TestCase):
 
 if __name__ == '__main__':
     parser = argparse.ArgumentParser()
-    parser.add_argument('--mode', choices=['normal', 'bad', 'pause', 'slow'], default='normal')
+    parser.add_argument('--mode', choices=['normal', 'bad', 'pause', 'slow', 'lost'], default='normal')
     parser.add_argument('--pause-after', type=int, default=3)
     parser.add_argument('--frames', type=int, default=8)
     parser.add_argument('--t0', type=float, default=1000.0)
