@@ -633,15 +633,7 @@ void Long3rNodelet::updateScale(long3r::FrameResult& r, const std_msgs::Header& 
       "metric scale %.4f +- %.4f m per model unit from %d samples (%s, %d rejected): "
       "map and path rescaled",
       e.scale, e.stddev, e.samples, long3r::config::enum_name(scale_config_.source), e.rejected);
-  const double factor = *scale / r.scale;
-  r.points_W.convertTo(r.points_W, CV_32FC3, factor);
-  if (!r.points_C.empty()) r.points_C.convertTo(r.points_C, CV_32FC3, factor);
-  r.pose.T_W_C.translation() *= factor;
-  r.model_T_W_C.translation() *= factor;
-  if (r.pose.covariance) r.pose.covariance->topLeftCorner<3, 3>() *= factor * factor;
-  if (r.pose.covariance) r.pose.covariance->topRightCorner<3, 3>() *= factor;
-  if (r.pose.covariance) r.pose.covariance->bottomLeftCorner<3, 3>() *= factor;
-  r.scale = *scale;
+  long3r::Reconstruction::rescale(r, *scale);
   last_body_.reset();  // the previous pose was in the old scale
 }
 

@@ -202,6 +202,38 @@ TEST(Reconstruction, SetScaleRescalesTheStream) {
   EXPECT_DOUBLE_EQ(rec.scale(), 1.0);
 }
 
+// rescale() brings one result to a scale as set_scale() brings the stream.
+TEST(Reconstruction, RescaleBringsOneResultToAScale) {
+  const GtSequence g = make_sequence(3);
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), small_config());
+  rec.set_calibration(g.seq.config.intrinsics);
+  rec.push(g.bgr[0], "bgr8", 0.0);
+  rec.push(g.bgr[1], "bgr8", 0.1);  // frame 0: identity pose, no covariance needed
+  const std::optional<FrameResult> r = rec.push(g.bgr[2], "bgr8", 0.2);
+  ASSERT_TRUE(r && r->pose.ok() && r->pose.covariance);
+  ASSERT_EQ(r->frame_index, 1);
+  FrameResult s = *r;
+  Reconstruction::rescale(s, 2.0);
+  EXPECT_DOUBLE_EQ(s.scale, 2.0);
+  EXPECT_LT(cv::norm(s.points_W, 2.0 * r->points_W, cv::NORM_INF), 1e-5);
+  EXPECT_LT(cv::norm(s.points_C, 2.0 * r->points_C, cv::NORM_INF), 1e-5);
+  EXPECT_TRUE(s.pose.T_W_C.translation().isApprox(2.0 * r->pose.T_W_C.translation()));
+  EXPECT_TRUE(s.pose.T_W_C.linear().isApprox(r->pose.T_W_C.linear()));
+  EXPECT_TRUE(s.model_T_W_C.translation().isApprox(2.0 * r->model_T_W_C.translation()));
+  const Eigen::Matrix<double, 6, 6>& a = *r->pose.covariance;
+  const Eigen::Matrix<double, 6, 6>& b = *s.pose.covariance;
+  // Translation block x factor^2, the cross blocks x factor, rotation as it was.
+  const Eigen::Matrix3d tt = b.topLeftCorner(3, 3), tr = b.topRightCorner(3, 3);
+  const Eigen::Matrix3d rt = b.bottomLeftCorner(3, 3), rr = b.bottomRightCorner(3, 3);
+  EXPECT_TRUE(tt.isApprox(4.0 * a.topLeftCorner(3, 3)));
+  EXPECT_TRUE(tr.isApprox(2.0 * a.topRightCorner(3, 3)));
+  EXPECT_TRUE(rt.isApprox(2.0 * a.bottomLeftCorner(3, 3)));
+  EXPECT_TRUE(rr == a.bottomRightCorner(3, 3));
+  Reconstruction::rescale(s, 1.0);  // and back
+  EXPECT_LT(cv::norm(s.points_W, r->points_W, cv::NORM_INF), 1e-5);
+  EXPECT_DOUBLE_EQ(s.scale, 1.0);
+}
+
 // A pose given to push() places the frame's own geometry (pose from odometry).
 TEST(Reconstruction, GivenPosePlacesTheFrame) {
   const GtSequence g = make_sequence(6);

@@ -95,6 +95,10 @@ class Reconstruction {
   // consistent reconstruction. Throws std::invalid_argument unless > 0.
   void set_scale(double scale);
   double scale() const { return scale_; }
+  // Brings one result to `scale` as set_scale() brings the stream: its
+  // points, poses (given and model) and covariance; r.scale becomes scale.
+  // For the result that made the scale known, returned before set_scale().
+  static void rescale(FrameResult& r, double scale);
 
   // Whether posed frames are fused into the map (default on); frames are
   // still posed and returned when off.

@@ -125,6 +125,26 @@ void Reconstruction::set_scale(double scale) {
   scale_ = scale;
 }
 
+void Reconstruction::rescale(FrameResult& r, double scale) {
+  const double factor = scale / r.scale;
+  if (factor == 1.0) return;
+  // Into new buffers: a copied FrameResult shares its images with the original.
+  for (cv::Mat* points : {&r.points_W, &r.points_C}) {
+    cv::Mat scaled;
+    if (!points->empty()) points->convertTo(scaled, CV_32FC3, factor);
+    *points = scaled;
+  }
+  r.pose.T_W_C.translation() *= factor;
+  r.model_T_W_C.translation() *= factor;
+  if (r.pose.covariance) {  // translation rows and columns of [t, r]
+    Eigen::Matrix<double, 6, 6>& c = *r.pose.covariance;
+    c.topLeftCorner<3, 3>() *= factor * factor;
+    c.topRightCorner<3, 3>() *= factor;
+    c.bottomLeftCorner<3, 3>() *= factor;
+  }
+  r.scale = scale;
+}
+
 std::optional<FrameResult> Reconstruction::push(const cv::Mat& image, const std::string& encoding,
                                                 double stamp_s,
                                                 const std::optional<Eigen::Isometry3d>& T_W_C) {
