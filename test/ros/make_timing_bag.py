@@ -1,6 +1,6 @@
 #!/usr/bin/python3
-"""Rewrites the times of a generated bag (images, camera_info and /tf of one
-frame share a stamp) to test the node against pauses and slow cameras:
+"""Rewrites the times of a generated bag (tum_to_bag.py, --robot too) to test
+the node against pauses and slow cameras:
 
   --pause-after K --pause-s S   a gap of S seconds after frame K (record time
                                  and stamps alike: `rosbag play` waits too)
@@ -34,12 +34,16 @@ def main():
         new_time[s] = t
 
     def retime(t):
-        return rospy.Time.from_sec(new_time[min(new_time, key=lambda s: abs(s - t))])
+        if args.period > 0:  # every message goes with the frame nearest in time
+            return rospy.Time.from_sec(new_time[min(new_time, key=lambda s: abs(s - t))])
+        # A pause shifts everything after frame K (odometry at its own rate too).
+        late = 0 <= args.pause_after < len(stamps) and t > stamps[args.pause_after] + 1e-6
+        return rospy.Time.from_sec(t + (args.pause_s if late else 0.0))
 
     counts = collections.Counter()
     with rosbag.Bag(args.dst, 'w') as bag:
         for topic, msg, t in messages:
-            if topic == '/tf':
+            if topic in ('/tf', '/tf_static'):
                 for tr in msg.transforms:
                     tr.header.stamp = retime(tr.header.stamp.to_sec())
                 when = msg.transforms[0].header.stamp
