@@ -156,6 +156,34 @@ def load_frames(folder):
     return frames
 
 
+def to_bfloat16(model, frames):
+    """bfloat16 for the official model on the CPU with torch 1.13. CPU
+    autocast cannot run it: autocast leaves layer_norm out on the CPU, and the
+    first LayerNorm meets a bfloat16 activation with float32 weights ("expected
+    scalar type BFloat16 but found Float"). So the weights are converted
+    instead, as this package does, except the DPT heads, which the official
+    code runs in float32 itself (it passes them tok.float()), and which hold
+    conv_transpose2d, which has no bfloat16 CPU kernel. Each layer's input is
+    cast to its weights' dtype by a forward pre-hook (the official code itself
+    is not changed); the frames go in as bfloat16."""
+    import torch
+    model.to(torch.bfloat16)
+    for name, m in model.named_modules():
+        if "downstream_head" in name.split(".")[-1]:
+            m.float()
+
+    def follow_weights(mod, args):
+        dtype = next(mod.parameters(recurse=False)).dtype
+        return tuple(a.to(dtype) if torch.is_tensor(a) and a.is_floating_point() else a
+                     for a in args)
+
+    for m in model.modules():
+        if next(m.parameters(recurse=False), None) is not None:
+            m.register_forward_pre_hook(follow_weights)
+    for f in frames:
+        f["img"] = f["img"].to(torch.bfloat16)
+
+
 def time_steps(opts):
     import torch
     Spann3R = import_official(opts.checkout)
@@ -177,14 +205,11 @@ def time_steps(opts):
         return encode(*args, **kwargs)
 
     model.encode_frames = timed_encode
+    if opts.precision == "bfloat16":
+        to_bfloat16(model, frames)
     with torch.no_grad():
-        if opts.precision == "bfloat16":
-            with torch.autocast("cpu", dtype=torch.bfloat16):
-                t0 = time.perf_counter()
-                model(frames)
-        else:
-            t0 = time.perf_counter()
-            model(frames)
+        t0 = time.perf_counter()
+        model(frames)
         end = time.perf_counter()
     del t0
     steps = [b - a for a, b in zip(starts, starts[1:] + [end])]

@@ -15,7 +15,13 @@
 #  3. N generated 224 x 224 frames (PNG) go through Spann3R.forward of the
 #     official code and through long3r_reconstruct, alternately per precision;
 #  4. prints the median step time of each (the first step, which also encodes
-#     frame 0, is left out), their ratio (ours / official) and the peak RSS.
+#     frame 0, is left out), their ratio (ours / official in the same
+#     precision), ours against the official's best float32 (the reference the
+#     issue's targets use when float32 is among the precisions run) and the
+#     peak RSS;
+#  5. runs the paper-size LONG3R (long3r_bench --config long3r_paper, random
+#     weights, 5 frames) in each precision and prints its median step against
+#     our ViT-L Spann3R step.
 # The official side runs with each OpenBLAS build installed (Debian's
 # libopenblas0-openmp and libopenblas0-pthread, chosen per process through
 # LD_LIBRARY_PATH; the pthread build at 1 and at T OpenBLAS threads, the
@@ -106,9 +112,11 @@ median() {  # numbers... -> median
 peak_kb() { awk '{print $1}' "$1"; }
 
 results=()
+paper_rows=()
+best_f32=""
 for prec in $precisions; do
   if [ "$prec" = bfloat16 ] && [ "$native_bf16" = 0 ] && [ "$allow_emulated" = 0 ]; then
-    results+=("$prec|not measurable: this CPU has no native bfloat16 (AVX512-BF16 / AMX), both sides would run emulated kernels||||")
+    results+=("$prec|not measurable: this CPU has no native bfloat16 (AVX512-BF16 / AMX), both sides would run emulated kernels|||||")
     continue
   fi
   # Official, with each OpenBLAS build, at 1 and at T OpenBLAS threads.
@@ -151,13 +159,31 @@ for prec in $precisions; do
   mo=$(median "${ours[@]}")
   echo "   median step $mo s"
   ratio=$(echo "$mo / $best_off" | bc -l)
-  results+=("$prec|$(printf '%.2f' "$best_off") s (OpenBLAS $best_blas)|$(printf '%.2f' "$mo") s (OpenBLAS ${ours_tag:-system})|$(printf '%.2f' "$ratio")|$((best_rss / 1024)) / $(($(peak_kb "$work/rss_ours.txt") / 1024)) MiB")
+  [ "$prec" = float32 ] && best_f32=$best_off
+  ratio_f32="-"
+  [ -n "$best_f32" ] && ratio_f32=$(printf '%.2f' "$(echo "$mo / $best_f32" | bc -l)")
+  # 5. The paper-size LONG3R, same precision (frames 2-5; frame 1 has no memory yet).
+  echo "== long3r_bench --config long3r_paper $prec"
+  "$bin/long3r_bench" --config long3r_paper --frames 5 --threads "$threads" --precision "$prec" \
+    "${extra[@]:2}" > "$work/paper_$prec.txt"
+  mapfile -t paper < <(awk '$1 ~ /^[2-5]$/ && NF == 11 {print $2 / 1000}' "$work/paper_$prec.txt")
+  mp=$(median "${paper[@]}")
+  echo "   median step $mp s"
+  paper_rows+=("$prec|$(printf '%.2f' "$mp") s|$(printf '%.2f' "$mo") s|$(printf '%.2f' "$(echo "$mp / $mo" | bc -l)")|$(awk '/^peak RSS/ {print $3}' "$work/paper_$prec.txt") MiB")
+  results+=("$prec|$(printf '%.2f' "$best_off") s (OpenBLAS $best_blas)|$(printf '%.2f' "$mo") s (OpenBLAS ${ours_tag:-system})|$(printf '%.2f' "$ratio")|$ratio_f32|$((best_rss / 1024)) / $(($(peak_kb "$work/rss_ours.txt") / 1024)) MiB")
 done
 
 echo
 echo "Spann3R ViT-L 224x224, $frames frames ($((frames - 2)) steps timed), $threads threads, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //')"
-printf '%-9s | %-28s | %-28s | %-14s | %s\n' precision "official median step" "ours median step" "ratio ours/off" "peak RSS off / ours"
+printf '%-9s | %-28s | %-28s | %-14s | %-18s | %s\n' precision "official median step" "ours median step" "ratio ours/off" "ours/off float32" "peak RSS off / ours"
 for r in "${results[@]}"; do
-  IFS='|' read -r p o u ra rss <<<"$r"
-  printf '%-9s | %-28s | %-28s | %-14s | %s\n' "$p" "$o" "$u" "$ra" "$rss"
+  IFS='|' read -r p o u ra rf rss <<<"$r"
+  printf '%-9s | %-28s | %-28s | %-14s | %-18s | %s\n' "$p" "$o" "$u" "$ra" "$rf" "$rss"
+done
+echo
+echo "paper-size LONG3R (long3r_bench --config long3r_paper, random weights) against our ViT-L Spann3R step"
+printf '%-9s | %-18s | %-18s | %-14s | %s\n' precision "LONG3R paper step" "Spann3R ViT-L step" "ratio" "LONG3R peak RSS"
+for r in "${paper_rows[@]}"; do
+  IFS='|' read -r p lp sp ra rss <<<"$r"
+  printf '%-9s | %-18s | %-18s | %-14s | %s\n' "$p" "$lp" "$sp" "$ra" "$rss"
 done

@@ -29,7 +29,7 @@ PACKAGES=(
   python3-genmsg python3-gencpp python3-genpy python3-catkin-pkg python3-empy python3-nose
   image-transport-tools rviz libnodeletlib-tools rosbash rosout ros-core
   # core libraries
-  libtorch-dev libopenblas0-pthread libopencv-dev libpcl-dev libeigen3-dev
+  libtorch-dev libopenblas0-openmp libopenblas0-pthread libopencv-dev libpcl-dev libeigen3-dev
   nlohmann-json3-dev libnanoflann-dev googletest libgtest-dev libgmock-dev
   # python side (checkpoint converter)
   python3-torch python3-numpy
@@ -76,10 +76,15 @@ else
   $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
 fi
 
-# Debian's default reference BLAS makes torch's CPU matmuls ~40x slower; make
-# sure the OpenBLAS pthread variant is the active alternative.
-for alt in libblas.so.3-x86_64-linux-gnu liblapack.so.3-x86_64-linux-gnu; do
-  cand=$(update-alternatives --list "$alt" 2>/dev/null | grep -m1 openblas-pthread || true)
+# Debian's default reference BLAS makes torch's CPU matmuls ~40x slower, and
+# its default OpenBLAS (the pthread build) keeps a thread pool of its own that
+# busy-waits against torch's OpenMP pool, so the engine could only give it one
+# thread (one core for every float32 GEMM). The OpenMP build shares torch's
+# pool: make it the active alternative, and ThreadConfig gives it torch's
+# thread count (docs/performance.md, "Threads"). The pthread build stays
+# installed for scripts/bench_vs_official.sh, which times both.
+for alt in libblas.so.3-x86_64-linux-gnu liblapack.so.3-x86_64-linux-gnu libopenblas.so.0-x86_64-linux-gnu; do
+  cand=$(update-alternatives --list "$alt" 2>/dev/null | grep -m1 openblas-openmp || true)
   if [ -n "$cand" ] && [ "$(readlink -f /etc/alternatives/$alt 2>/dev/null)" != "$(readlink -f "$cand")" ]; then
     $SUDO update-alternatives --set "$alt" "$cand" >/dev/null
   fi

@@ -9,6 +9,7 @@
 #include <ATen/ATen.h>
 #include <sys/resource.h>
 #include <time.h>
+#include <torch/csrc/autograd/profiler_legacy.h>
 #include <torch/nn/module.h>
 
 #include <algorithm>
@@ -17,6 +18,8 @@
 #include <cstdlib>
 #include <cstring>
 #include <iostream>
+#include <map>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -48,6 +51,97 @@ double process_cpu_ms() {
   return static_cast<double>(ts.tv_sec) * 1e3 + static_cast<double>(ts.tv_nsec) * 1e-6;
 }
 
+// --profile-frames: where a step's time goes, from torch's own per-operator
+// records (the calling thread's; an operator's time includes the work of the
+// OpenMP threads it runs on). Self time = an operator's time minus that of the
+// operators it called, so the rows add up to the profiled steps' time.
+namespace prof = torch::autograd::profiler;
+
+struct OpTime {
+  double self_ms = 0;
+  double flops = 0;  // torch's count, for the operators it counts (products, convolutions)
+  int64_t calls = 0;
+};
+
+std::map<std::string, OpTime> self_times(prof::thread_event_lists& lists) {
+  std::map<std::string, OpTime> ops;
+  for (auto& events : lists) {
+    struct Open {
+      prof::LegacyEvent* push;
+      double children_us;
+    };
+    std::vector<Open> open;
+    for (auto& e : events) {
+      if (e.kind() == prof::EventKind::PushRange) {
+        open.push_back({&e, 0.0});
+      } else if (e.kind() == prof::EventKind::PopRange && !open.empty()) {
+        const Open o = open.back();
+        open.pop_back();
+        const double us = o.push->cpuElapsedUs(e);
+        OpTime& op = ops[o.push->name()];
+        op.self_ms += (us - o.children_us) / 1e3;
+        op.flops += static_cast<double>(o.push->flops());
+        ++op.calls;
+        if (!open.empty()) open.back().children_us += us;
+      }
+    }
+  }
+  return ops;
+}
+
+// Classes of operators, for the per-class lines of the profile.
+const char* op_class(const std::string& name) {
+  auto has = [&name](const char* s) { return name.find(s) != std::string::npos; };
+  if (has("addmm") || has("::mm") || has("bmm") || has("matmul") || has("linear") || has("baddbmm"))
+    return "matrix products (linear, matmul)";
+  if (has("conv")) return "convolutions";
+  if (has("softmax")) return "softmax";
+  if (has("layer_norm")) return "layer norms";
+  if (has("copy") || has("::to") || has("contiguous") || has("clone") || has("cat") || has("stack"))
+    return "copies and conversions";
+  if (has("upsample")) return "upsampling";
+  return "other (elementwise, indexing, memory bookkeeping)";
+}
+
+void print_profile(prof::thread_event_lists& lists, int64_t steps) {
+  const std::map<std::string, OpTime> ops = self_times(lists);
+  std::vector<std::pair<std::string, OpTime>> rows(ops.begin(), ops.end());
+  std::sort(rows.begin(), rows.end(),
+            [](const auto& a, const auto& b) { return a.second.self_ms > b.second.self_ms; });
+  double total = 0;
+  std::map<std::string, OpTime> classes;
+  for (const auto& r : rows) {
+    total += r.second.self_ms;
+    OpTime& c = classes[op_class(r.first)];
+    c.self_ms += r.second.self_ms;
+    c.flops += r.second.flops;
+  }
+  const double n = static_cast<double>(std::max<int64_t>(1, steps));
+  std::printf("profile of %lld step(s): %.1f ms per step in operators\n",
+              static_cast<long long>(steps), total / n);
+  // GFLOP/s of a class: the FLOPs torch counts for its operators over the
+  // class's self time (a convolution's FLOPs are counted on aten::conv2d,
+  // its time on the kernel below it: both land in the class).
+  std::printf("%-52s %12s %7s %12s %9s\n", "operator class", "ms per step", "share", "GFLOP/step",
+              "GFLOP/s");
+  std::vector<std::pair<std::string, OpTime>> by_class(classes.begin(), classes.end());
+  std::sort(by_class.begin(), by_class.end(),
+            [](const auto& a, const auto& b) { return a.second.self_ms > b.second.self_ms; });
+  for (const auto& c : by_class) {
+    std::printf("%-52s %12.1f %6.1f%% %12.1f %9.0f\n", c.first.c_str(), c.second.self_ms / n,
+                100.0 * c.second.self_ms / std::max(total, 1e-9), c.second.flops / n / 1e9,
+                c.second.flops / 1e9 / std::max(c.second.self_ms / 1e3, 1e-9));
+  }
+  std::printf("%-52s %12s %7s %10s\n", "operator (top 20 by self time)", "ms per step", "share",
+              "calls");
+  for (std::size_t i = 0; i < std::min<std::size_t>(rows.size(), 20); ++i) {
+    const auto& r = rows[i];
+    std::printf("%-52s %12.1f %6.1f%% %10.0f\n", r.first.c_str(), r.second.self_ms / n,
+                100.0 * r.second.self_ms / std::max(total, 1e-9),
+                static_cast<double>(r.second.calls) / n);
+  }
+}
+
 double min_window(const std::vector<double>& v, std::size_t end, std::size_t n) {
   const std::size_t begin = end > n ? end - n : 0;
   if (end <= begin) return 0.0;
@@ -68,9 +162,10 @@ double median_window(const std::vector<double>& v, std::size_t end, std::size_t 
 int main(int argc, char** argv) {
   std::string config_name;
   int64_t frames = 100, size = 224;
-  int threads = 2, openblas_threads = long3r::ThreadConfig().openblas_threads;
+  long3r::ThreadConfig threads;
   uint64_t seed = 0;
   bool projection_cache = true;
+  int64_t profile_frames = 0;
   long3r::CliOptions cli(
       "long3r_bench",
       "Streams N synthetic S x S frames (plus one, for the one-frame latency) through a random "
@@ -84,23 +179,22 @@ int main(int argc, char** argv) {
       .required();
   cli.option("--frames", "N", &frames, "frames streamed").min(2);
   cli.option("--size", "S", &size, "frame size S x S").min(1);
-  cli.option("--threads", "T", &threads, "torch threads");
-  cli.option("--openblas-threads", "T", &openblas_threads,
-             "OpenBLAS threads (see long3r/threads.hpp); 0 = environment");
+  long3r::add_thread_options(cli, &threads);
   cli.option("--seed", "N", &seed, "initialisation seed");
   cli.flag("--no-projection-cache", &projection_cache,
            "recompute the memory blocks' key/value projections of the relevant tokens at every "
            "step (the reference path)",
            false);
+  cli.option("--profile-frames", "N", &profile_frames,
+             "profile the last N steps: time per operator class and the top operators (self "
+             "time)")
+      .min(0);
   long3r::InferenceConfig inference;
   long3r::add_inference_options(cli, &inference);
   if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
   try {
     const long3r::InferenceTarget target = long3r::resolve_inference_target(inference);
-    long3r::ThreadConfig tc;
-    tc.torch_threads = threads;
-    tc.openblas_threads = openblas_threads;
-    const int used = long3r::apply_thread_config(tc);
+    const long3r::ThreadState used = long3r::apply_thread_config(threads);
     at::manual_seed(seed);
     const long3r::ModelConfig config = long3r::named_model_config(config_name);
     const auto t_build = std::chrono::steady_clock::now();
@@ -111,11 +205,11 @@ int main(int argc, char** argv) {
     for (const auto& p : model.module().parameters()) params += p.numel();
     const int64_t P = (size / config.dust3r.patch_size) * (size / config.dust3r.patch_size);
     std::printf(
-        "config %s: %.1f M parameters, %lldx%lld frames (P = %lld tokens), %d threads, "
+        "config %s: %.1f M parameters, %lldx%lld frames (P = %lld tokens), %s, "
         "K = %lld, L = %lld, bound K*P + L = %lld tokens, memory projection cache %s, %s "
         "(built in %.1f s)\n",
         config_name.c_str(), params / 1e6, static_cast<long long>(size),
-        static_cast<long long>(size), static_cast<long long>(P), used,
+        static_cast<long long>(size), static_cast<long long>(P), long3r::describe(used).c_str(),
         static_cast<long long>(config.long3r.short_term_frames),
         static_cast<long long>(config.long3r.long_term_capacity),
         static_cast<long long>(config.long3r.short_term_frames * P +
@@ -134,8 +228,18 @@ int main(int argc, char** argv) {
                 "mem_short", "mem_long", "relevant");
     // N + 1 pushes: the step for frame k runs when frame k + 1 arrives, so
     // this gives N outputs from the refined head.
+    std::unique_ptr<prof::TLSLegacyProfilerGuard> profiler;
+    prof::thread_event_lists profile;
     for (int64_t t = 0; t <= frames; ++t) {
       const at::Tensor img = synthetic_frame(t, size, size);
+      if (profile_frames > 0 && t == frames + 1 - profile_frames) {
+        profiler = std::make_unique<prof::TLSLegacyProfilerGuard>(
+            torch::profiler::impl::ProfilerConfig(torch::profiler::impl::ProfilerState::CPU,
+                                                  /*report_input_shapes=*/true,
+                                                  /*profile_memory=*/false, /*with_stack=*/false,
+                                                  /*with_flops=*/true),
+            [&profile](prof::thread_event_lists lists) { profile = std::move(lists); });
+      }
       const auto t0 = std::chrono::steady_clock::now();
       const double c0 = process_cpu_ms();
       auto out = model.push(img);
@@ -165,6 +269,10 @@ int main(int argc, char** argv) {
                     static_cast<long long>(out->stats.relevant_tokens));
         std::fflush(stdout);
       }
+    }
+    if (profiler) {
+      profiler.reset();  // hands the events over
+      print_profile(profile, std::min(profile_frames, frames + 1));
     }
     model.flush();
     if (latency.size() >= 50) {

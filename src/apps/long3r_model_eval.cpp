@@ -50,8 +50,7 @@ int main(int argc, char** argv) {
   uint64_t seed_begin = 2000000, seed = 0;
   int pixel_step = 2;
   bool normals = true, estimate_intrinsics = false;
-  int threads = static_cast<int>(std::thread::hardware_concurrency());
-  int openblas_threads = long3r::ThreadConfig().openblas_threads;
+  long3r::ThreadConfig threads;
   long3r::CliOptions cli("long3r_model_eval",
                          "Give exactly one of --model, --untrained, --baseline.");
   cli.option("--model", "FILE", &model_path, "LONG3R safetensors checkpoint");
@@ -79,10 +78,7 @@ int main(int argc, char** argv) {
   cli.option("--picture", "FILE.png", &picture,
              "top views of the first sequence (prediction vs GT)");
   cli.option("--json", "FILE", &json_path, "write the per-sequence and mean metrics");
-  cli.option("--threads", "N", &threads, "torch threads").min(1).shown_default("all cores");
-  cli.option("--openblas-threads", "N", &openblas_threads,
-             "OpenBLAS threads (0 = OPENBLAS_NUM_THREADS; see long3r/model/threads.hpp)")
-      .min(0);
+  long3r::add_thread_options(cli, &threads);
   long3r::InferenceConfig inference;
   long3r::add_inference_options(cli, &inference);
   cli.option("--seed", "N", &seed, "initialisation seed of --untrained");
@@ -90,10 +86,7 @@ int main(int argc, char** argv) {
   const int sources = !model_path.empty() + !untrained.empty() + !baseline.empty();
   if (sources != 1) return cli.usage_error("give exactly one of --model, --untrained, --baseline");
   try {
-    long3r::ThreadConfig tc;
-    tc.torch_threads = threads;
-    tc.openblas_threads = openblas_threads;
-    long3r::apply_thread_config(tc);
+    const long3r::ThreadState thread_state = long3r::apply_thread_config(threads);
     const long3r::InferenceTarget target = long3r::resolve_inference_target(inference);
 
     std::unique_ptr<long3r::Long3rModel> model;
@@ -140,7 +133,7 @@ int main(int argc, char** argv) {
     dc.synth.val_seed_begin = seed_begin;
     dc.synth.train_scenes = 0;
     dc.synth.trajectory_frames = (frames - 1) * stride + 1;
-    long3r::SequenceSampler sampler(dc, static_cast<int>(img_size), 0, threads);
+    long3r::SequenceSampler sampler(dc, static_cast<int>(img_size), 0, thread_state.torch_threads);
 
     std::printf("%s: %lld sequences x %lld frames (stride %lld) at %lld x %lld, seeds %llu..\n",
                 what.c_str(), static_cast<long long>(sequences), static_cast<long long>(frames),

@@ -55,7 +55,8 @@ struct Source {
 
 int main(int argc, char** argv) {
   std::string model_path, out_dir, input;
-  int stride = 1, img = 224, threads = 0, openblas_threads = ThreadConfig().openblas_threads;
+  int stride = 1, img = 224;
+  ThreadConfig threads;
   long max_frames = -1;
   ReconstructionConfig cfg;
   std::optional<PinholeIntrinsics> calib;
@@ -73,9 +74,7 @@ int main(int argc, char** argv) {
       .shown_default("1: every pixel");
   cli.option("--voxel-size", "M", &cfg.map.voxel_size_m, "map voxel size");
   cli.option("--img-size", "N", &img, "model input size N x N");
-  cli.option("--threads", "N", &threads, "torch threads (0 = all)");
-  cli.option("--openblas-threads", "N", &openblas_threads,
-             "OpenBLAS threads (0 = OPENBLAS_NUM_THREADS)");
+  add_thread_options(cli, &threads);
   InferenceConfig inference;
   add_inference_options(cli, &inference);
   cli.custom(
@@ -129,10 +128,7 @@ int main(int argc, char** argv) {
                    "meaningless. ***\n\n",
                    model_path.c_str());
     }
-    ThreadConfig tc;
-    tc.torch_threads = threads;
-    tc.openblas_threads = openblas_threads;
-    const int nthreads = apply_thread_config(tc);
+    const ThreadState thread_state = apply_thread_config(threads);
     cfg.preprocess.width = cfg.preprocess.height = img;
     Reconstruction rec(make_streaming_model(model_path, inference), cfg);
     rec.set_calibration(calib);
@@ -222,10 +218,10 @@ int main(int argc, char** argv) {
     std::printf(
         "summary: %ld frames used (%ld unreadable skipped), %zu results, %zu with a good pose, "
         "map %zu points\n"
-        "         mean %.2f FPS, median %.2f FPS, peak RSS %.1f MiB, %d threads, %s %s\n"
+        "         mean %.2f FPS, median %.2f FPS, peak RSS %.1f MiB, %s, %s %s\n"
         "         outputs in %s\n",
         used, skipped, frame_ms.size(), traj.size(), rec.map().size(), mean_fps,
-        median_ms > 0 ? 1000.0 / median_ms : 0.0, peak_rss / 1024.0, nthreads,
+        median_ms > 0 ? 1000.0 / median_ms : 0.0, peak_rss / 1024.0, describe(thread_state).c_str(),
         inference.device.c_str(), config::enum_name(inference.precision), out_dir.c_str());
     if (random)
       std::printf("WARNING: the model has RANDOM weights; the results are meaningless.\n");

@@ -53,7 +53,7 @@ int main(int argc, char** argv) {
   try {
     long3r::ThreadConfig tc;
     tc.torch_threads = threads;
-    tc.openblas_threads = threads;
+    tc.openblas_threads = threads;  // the recipe's wall times were measured so
     long3r::apply_thread_config(tc);
     const long3r::TrainConfig config = long3r::parse_train_config(read_file(config_path));
     long3r::Trainer trainer(config, opt);

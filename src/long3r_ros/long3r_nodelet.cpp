@@ -281,8 +281,8 @@ void Long3rNodelet::tfTimerCallback(const ros::TimerEvent&) {
 // ---------------------------------------------------------------- worker
 
 void Long3rNodelet::workerLoop() {
-  const int threads = long3r::apply_thread_config(thread_config_);
-  NODELET_INFO("worker thread running with %d torch thread(s)", threads);
+  const long3r::ThreadState threads = long3r::apply_thread_config(thread_config_);
+  NODELET_INFO("worker thread running with %s", long3r::describe(threads).c_str());
   auto last_frame = std::chrono::steady_clock::now();
   while (running_) {
     std::optional<InputFrame> frame = queue_->pop(std::chrono::milliseconds(50));

@@ -60,7 +60,7 @@ long3r::config::FieldsOf<S, StreamMonitorConfig> ros_fields(S& c, V& v) {
 template <class S, class V>
 long3r::config::FieldsOf<S, long3r::ThreadConfig> ros_fields(S& c, V& v) {
   v("torch_threads", c.torch_threads, "(all cores)");
-  v("openblas_threads", c.openblas_threads, "(from environment)");
+  v("openblas_threads", c.openblas_threads);
 }
 
 template <class S, class V>
@@ -242,8 +242,10 @@ long3r::ThreadConfig readThreadConfig(const ros::NodeHandle& pnh) {
   const long3r::ThreadConfig c = read_all<long3r::ThreadConfig>(pnh);
   require(c.torch_threads >= 0 && c.torch_threads <= 256, pnh, "torch_threads",
           "must be in [0, 256] (0 = all cores)");
-  require(c.openblas_threads >= 0 && c.openblas_threads <= 256, pnh, "openblas_threads",
-          "must be in [0, 256] (0 = leave as the environment set it)");
+  require(
+      c.openblas_threads >= long3r::ThreadConfig::kOpenblasThreadsAuto && c.openblas_threads <= 256,
+      pnh, "openblas_threads",
+      "must be -1 (by the OpenBLAS build), 0 (leave as the environment set it) or in [1, 256]");
   return c;
 }
 

@@ -13,6 +13,7 @@
 
 #include "long3r/io/config_json.hpp"
 #include "long3r/io/safetensors_header.hpp"
+#include "long3r/memory/memory_gating.hpp"
 #include "long3r/model/inference.hpp"
 #include "long3r/model/long3r_model.hpp"
 #include "long3r/model/model_shell.hpp"
@@ -187,6 +188,33 @@ void expect_convolutions_float32(torch::nn::Module& module) {
 
 // Bounds: the measured deviation (printed) plus a margin; reduced precision
 // is not bit-exact, float32 stays so (the golden cases).
+// The one layer norm: bfloat16 on the CPU is computed in float32 from the
+// bfloat16 values and rounded once (libtorch 1.13's bfloat16 kernel is ~15x
+// slower); under autocast (bfloat16 activations, float32 weights) it returns
+// float32; float32 stays libtorch's own layer norm, bit for bit.
+TEST(Bfloat16, LayerNormComputesInFloat32) {
+  at::manual_seed(5);
+  const at::Tensor x = at::randn({2, 196, 64}).mul(3).add(1).to(at::kBFloat16);
+  const at::Tensor w = at::randn({64}).to(at::kBFloat16), b = at::randn({64}).to(at::kBFloat16);
+  const at::Tensor out = long3r::apply_layer_norm(x, {w, b, 1e-6});
+  EXPECT_EQ(out.scalar_type(), at::kBFloat16);
+  const at::Tensor ref =
+      at::layer_norm(x.to(at::kFloat), {64}, w.to(at::kFloat), b.to(at::kFloat), 1e-6)
+          .to(at::kBFloat16);
+  EXPECT_TRUE(at::equal(out, ref));
+  // No affine part.
+  EXPECT_TRUE(at::equal(long3r::apply_layer_norm(x, {at::Tensor(), at::Tensor(), 1e-6}),
+                        at::layer_norm(x.to(at::kFloat), {64}, {}, {}, 1e-6).to(at::kBFloat16)));
+  // Autocast: float32 weights, float32 out.
+  const at::Tensor wf = w.to(at::kFloat), bf = b.to(at::kFloat);
+  const at::Tensor mixed = long3r::apply_layer_norm(x, {wf, bf, 1e-6});
+  EXPECT_EQ(mixed.scalar_type(), at::kFloat);
+  EXPECT_TRUE(at::equal(mixed, at::layer_norm(x.to(at::kFloat), {64}, wf, bf, 1e-6)));
+  const at::Tensor xf = x.to(at::kFloat);
+  EXPECT_TRUE(at::equal(long3r::apply_layer_norm(xf, {wf, bf, 1e-6}),
+                        at::layer_norm(xf, {64}, wf, bf, 1e-6)));
+}
+
 TEST(Bfloat16, Spann3rStreamStaysCloseToFloat32) {
   const std::string path = kGolden + "spann3r_seq_land96x64/weights.safetensors";
   auto f32 = long3r::Spann3rModel::from_file(path);

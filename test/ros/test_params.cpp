@@ -48,6 +48,7 @@ TEST_F(ParamsTest, DefaultsWhenUnset) {
   EXPECT_EQ(c.queue_size, 1);
   EXPECT_TRUE(c.publish_tf);
   EXPECT_EQ(readThreadConfig(pnh_).torch_threads, 0);
+  EXPECT_EQ(readThreadConfig(pnh_).openblas_threads, long3r::ThreadConfig::kOpenblasThreadsAuto);
 }
 
 TEST_F(ParamsTest, ReadsValidValues) {
@@ -97,6 +98,15 @@ TEST_F(ParamsTest, RejectsBadContinuitySettings) {
   pnh_.setParam("lost_reset_frames", 0);
   pnh_.setParam("max_image_pixels", 10);
   expectError("max_image_pixels");
+}
+
+TEST_F(ParamsTest, OpenblasThreadsAutoEnvironmentOrCount) {
+  for (int n : {-1, 0, 3}) {
+    pnh_.setParam("openblas_threads", n);
+    EXPECT_EQ(readThreadConfig(pnh_).openblas_threads, n);
+  }
+  pnh_.setParam("openblas_threads", -2);
+  expectError("openblas_threads");
 }
 
 TEST_F(ParamsTest, RejectsZeroQueue) {

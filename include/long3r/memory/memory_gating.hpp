@@ -26,6 +26,19 @@ struct LayerNormParams {
   double eps = 1e-5;  // nn.LayerNorm's default, which Spann3R's norm_q/k/v use
 };
 
+// nn.LayerNorm over the last dimension, in any precision; the one layer norm
+// of every model (model::LayerNorm calls it). The output has x's dtype except
+// under autocast (below).
+// - x follows the weights' dtype when they differ: under CPU autocast
+//   (mixed-precision training) a bfloat16 activation meets float32 weights,
+//   which libtorch 1.13's CPU layer norm refuses; the norm then runs, and
+//   returns, float32, as CUDA autocast runs layer norms.
+// - bfloat16 on the CPU is computed in float32 and rounded back: libtorch
+//   1.13's bfloat16 CPU layer norm is about 15x slower than that (2.1 ms
+//   against 0.13 ms for 196 x 1024 on 2 cores, docs/performance.md), and
+//   float32 statistics are what accuracy asks for anyway.
+at::Tensor apply_layer_norm(const at::Tensor& x, const LayerNormParams& p);
+
 // norm_q, norm_k, norm_v of the model (width C_m).
 struct GatingNorms {
   LayerNormParams q;

@@ -1,22 +1,56 @@
 // CPU thread settings for inference.
 //
 // libtorch on Debian starts with one intra-op thread, and OpenBLAS (used by
-// torch's CPU matmuls) reads its own thread count, not torch's. Call this once
-// in the thread that runs the model.
+// torch's float32 CPU matmuls) reads its own thread count, not torch's. Call
+// apply_thread_config once in the thread that runs the model.
 #pragma once
+
+#include <string>
 
 namespace long3r {
 
-struct ThreadConfig {
-  int torch_threads = 0;  // intra-op threads; 0 = all hardware threads
-  // 0 = leave OpenBLAS as the environment set it. 1 by default because
-  // torch's OpenMP pool and OpenBLAS's own pthread pool both busy-wait
-  // between calls: with both at the core count they fight over the cores, and
-  // a 2-core machine measured 2 to 2.5x slower per frame (docs/performance.md).
-  int openblas_threads = 1;
+class CliOptions;
+
+// How the OpenBLAS that torch loaded runs its threads (openblas_get_parallel).
+enum class BlasThreading {
+  kNotOpenblas,  // another BLAS, or none loaded
+  kSequential,   // OpenBLAS built without threads
+  kPthread,      // its own pool of pthreads (Debian's libopenblas0-pthread)
+  kOpenmp,       // OpenMP, the pool torch uses too (Debian's libopenblas0-openmp)
 };
 
-// Applies the config; returns the intra-op thread count now in effect.
-int apply_thread_config(const ThreadConfig& config);
+BlasThreading loaded_blas_threading();
+const char* blas_threading_name(BlasThreading threading);
+
+struct ThreadConfig {
+  // Sentinel of openblas_threads: chosen from the OpenBLAS build (below).
+  static constexpr int kOpenblasThreadsAuto = -1;
+
+  int torch_threads = 0;  // intra-op threads; 0 = all hardware threads
+  // OpenBLAS threads. kOpenblasThreadsAuto (the default): the OpenMP build
+  // shares torch's OpenMP pool, so it gets torch's thread count and float32
+  // GEMMs use every core; the pthread build has its own pool, which
+  // busy-waits against torch's between calls (a 2-core machine measured 2 to
+  // 2.5x slower per frame with both at the core count, docs/performance.md),
+  // so it gets 1. 0 leaves OPENBLAS_NUM_THREADS in charge; N > 0 sets N.
+  int openblas_threads = kOpenblasThreadsAuto;
+};
+
+// What apply_thread_config put in effect.
+struct ThreadState {
+  int torch_threads = 0;
+  int openblas_threads = 0;  // 0: not set (no OpenBLAS, or left to the environment)
+  BlasThreading blas = BlasThreading::kNotOpenblas;
+};
+
+// Applies the config in the calling thread and returns what is now in effect.
+ThreadState apply_thread_config(const ThreadConfig& config);
+
+// --threads N (0 = all cores) and --openblas-threads auto|N, the same in
+// every program that runs the model.
+void add_thread_options(CliOptions& cli, ThreadConfig* config);
+
+// "2 torch threads, OpenBLAS (OpenMP build) 2 threads", for start-up logs.
+std::string describe(const ThreadState& state);
 
 }  // namespace long3r

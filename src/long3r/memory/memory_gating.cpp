@@ -7,20 +7,22 @@
 #include <limits>
 
 namespace long3r {
-namespace {
 
-// The input follows the weights' dtype, as model::LayerNorm does (a
-// bfloat16 activation under CPU autocast meets float32 weights).
 at::Tensor apply_layer_norm(const at::Tensor& x, const LayerNormParams& p) {
-  const c10::optional<at::Tensor> weight =
-      p.weight.defined() ? c10::optional<at::Tensor>(p.weight) : c10::nullopt;
-  const c10::optional<at::Tensor> bias =
-      p.bias.defined() ? c10::optional<at::Tensor>(p.bias) : c10::nullopt;
+  const bool in_float32 = x.is_cpu() && x.scalar_type() == at::kBFloat16 &&
+                          (!p.weight.defined() || p.weight.scalar_type() == at::kBFloat16);
+  auto param = [in_float32](const at::Tensor& t) -> c10::optional<at::Tensor> {
+    if (!t.defined()) return c10::nullopt;
+    return in_float32 ? t.to(at::kFloat) : t;
+  };
+  if (in_float32) {
+    return at::layer_norm(x.to(at::kFloat), {x.size(-1)}, param(p.weight), param(p.bias), p.eps)
+        .to(x.scalar_type());
+  }
   const bool cast = p.weight.defined() && x.scalar_type() != p.weight.scalar_type();
-  return at::layer_norm(cast ? x.to(p.weight.scalar_type()) : x, {x.size(-1)}, weight, bias, p.eps);
+  return at::layer_norm(cast ? x.to(p.weight.scalar_type()) : x, {x.size(-1)}, param(p.weight),
+                        param(p.bias), p.eps);
 }
-
-}  // namespace
 
 GatedRead gated_read(const at::Tensor& queries, const at::Tensor& keys, const at::Tensor& values,
                      const GatingNorms& norms, std::optional<double> threshold,

@@ -32,18 +32,14 @@
 namespace long3r {
 namespace model {
 
-// LayerNorm whose input follows its weights' dtype. Under CPU
-// autocast (mixed-precision training) a bfloat16 activation meets float32
-// weights, which libtorch 1.13's CPU layer norm refuses: the norm then runs in
-// float32, as CUDA autocast runs layer norms. Where both agree (every
-// inference path) the input is passed as it is.
+// nn.LayerNorm (its parameter names) computed by apply_layer_norm, which says
+// how it treats the precisions (autocast, bfloat16 on the CPU).
 class LayerNormImpl : public torch::nn::LayerNormImpl {
  public:
   using torch::nn::LayerNormImpl::LayerNormImpl;
   at::Tensor forward(const at::Tensor& x) {
-    return torch::nn::LayerNormImpl::forward(
-        weight.defined() && x.scalar_type() != weight.scalar_type() ? x.to(weight.scalar_type())
-                                                                    : x);
+    TORCH_CHECK(options.normalized_shape().size() == 1, "LayerNorm: one normalised dimension");
+    return apply_layer_norm(x, {weight, bias, options.eps()});
   }
 };
 TORCH_MODULE(LayerNorm);

@@ -4,26 +4,103 @@
 #include <dlfcn.h>
 
 #include <algorithm>
+#include <string>
 #include <thread>
+#include <vector>
+
+#include "long3r/io/cli_options.hpp"
 
 namespace long3r {
 
 namespace {
 // OpenBLAS is loaded by torch at run time (or not at all, with another BLAS),
-// so look its setter up instead of linking against it.
-void set_openblas_threads(int n) {
-  using SetFn = void (*)(int);
-  auto fn = reinterpret_cast<SetFn>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"));
-  if (fn != nullptr) fn(n);
+// so look its functions up instead of linking against it.
+template <class Fn>
+Fn openblas_fn(const char* name) {
+  return reinterpret_cast<Fn>(dlsym(RTLD_DEFAULT, name));
 }
 }  // namespace
 
-int apply_thread_config(const ThreadConfig& config) {
+BlasThreading loaded_blas_threading() {
+  const auto get_parallel = openblas_fn<int (*)()>("openblas_get_parallel");
+  if (get_parallel == nullptr) return BlasThreading::kNotOpenblas;
+  switch (get_parallel()) {
+    case 0:
+      return BlasThreading::kSequential;
+    case 1:
+      return BlasThreading::kPthread;
+    case 2:
+      return BlasThreading::kOpenmp;
+    default:
+      return BlasThreading::kNotOpenblas;
+  }
+}
+
+const char* blas_threading_name(BlasThreading threading) {
+  switch (threading) {
+    case BlasThreading::kSequential:
+      return "OpenBLAS (sequential build)";
+    case BlasThreading::kPthread:
+      return "OpenBLAS (pthread build)";
+    case BlasThreading::kOpenmp:
+      return "OpenBLAS (OpenMP build)";
+    case BlasThreading::kNotOpenblas:
+      break;
+  }
+  return "no OpenBLAS";
+}
+
+ThreadState apply_thread_config(const ThreadConfig& config) {
   int n = config.torch_threads;
   if (n <= 0) n = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   at::set_num_threads(n);
-  if (config.openblas_threads > 0) set_openblas_threads(config.openblas_threads);
-  return at::get_num_threads();
+  ThreadState state;
+  state.torch_threads = at::get_num_threads();
+  state.blas = loaded_blas_threading();
+  int blas_threads = config.openblas_threads;
+  if (blas_threads == ThreadConfig::kOpenblasThreadsAuto) {
+    blas_threads = state.blas == BlasThreading::kOpenmp ? state.torch_threads : 1;
+  }
+  const auto set_threads = openblas_fn<void (*)(int)>("openblas_set_num_threads");
+  if (blas_threads > 0 && set_threads != nullptr && state.blas != BlasThreading::kSequential) {
+    set_threads(blas_threads);
+    state.openblas_threads = blas_threads;
+  }
+  return state;
+}
+
+void add_thread_options(CliOptions& cli, ThreadConfig* config) {
+  cli.option("--threads", "N", &config->torch_threads, "torch intra-op threads (0 = all cores)")
+      .min(0);
+  cli.custom(
+         "--openblas-threads", {"N"},
+         [config](const std::vector<std::string>& v) {
+           if (v[0] == "auto") {
+             config->openblas_threads = ThreadConfig::kOpenblasThreadsAuto;
+             return;
+           }
+           const int n = parse_cli_value<int>("--openblas-threads", v[0]);
+           if (n < 0) {
+             throw UsageError("--openblas-threads: must be auto, 0 or a positive count (got " +
+                              v[0] + ")");
+           }
+           config->openblas_threads = n;
+         },
+         "OpenBLAS threads: auto (torch's count with the OpenMP build of OpenBLAS, 1 with the "
+         "pthread build), 0 (OPENBLAS_NUM_THREADS) or N")
+      .shown_default(config->openblas_threads == ThreadConfig::kOpenblasThreadsAuto
+                         ? "auto"
+                         : std::to_string(config->openblas_threads));
+}
+
+std::string describe(const ThreadState& state) {
+  std::string s =
+      std::to_string(state.torch_threads) + " torch thread(s), " + blas_threading_name(state.blas);
+  if (state.blas == BlasThreading::kPthread || state.blas == BlasThreading::kOpenmp) {
+    s += state.openblas_threads > 0 ? " " + std::to_string(state.openblas_threads) + " thread(s)"
+                                    : " threads from the environment";
+  }
+  return s;
 }
 
 }  // namespace long3r
