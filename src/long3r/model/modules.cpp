@@ -342,10 +342,13 @@ at::Tensor DptAdapterImpl::forward(const std::vector<at::Tensor>& decout, int64_
 
 HeadOutput postprocess(const at::Tensor& raw, const Dust3rConfig& c) {
   const at::Tensor fmap = raw.permute({0, 2, 3, 1});  // [B, H, W, channels]
-  const at::Tensor xyz = fmap.narrow(-1, 0, 3);
+  // Contiguous first: the norm over a last dimension of stride H * W is a
+  // slow strided reduction (9 ms against 0.4 ms at 224 x 224 on 2 cores,
+  // the same bits), about a tenth of the shipped model's step.
+  const at::Tensor xyz = fmap.narrow(-1, 0, 3).contiguous();
   HeadOutput out;
   if (c.depth_mode == DepthMode::kLinear) {
-    out.pts3d = xyz.contiguous();
+    out.pts3d = xyz;
   } else {
     const at::Tensor d = at::linalg_vector_norm(xyz, 2, {-1}, /*keepdim=*/true);
     const at::Tensor dir = xyz / d.clamp_min(1e-8);
