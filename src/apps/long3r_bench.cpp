@@ -103,11 +103,16 @@ const char* op_class(const std::string& name) {
   return "other (elementwise, indexing, memory bookkeeping)";
 }
 
-void print_profile(prof::thread_event_lists& lists, int64_t steps) {
-  const std::map<std::string, OpTime> ops = self_times(lists);
-  std::vector<std::pair<std::string, OpTime>> rows(ops.begin(), ops.end());
+// Rows of a by-name table, the largest self time first.
+std::vector<std::pair<std::string, OpTime>> by_self_time(const std::map<std::string, OpTime>& m) {
+  std::vector<std::pair<std::string, OpTime>> rows(m.begin(), m.end());
   std::sort(rows.begin(), rows.end(),
             [](const auto& a, const auto& b) { return a.second.self_ms > b.second.self_ms; });
+  return rows;
+}
+
+void print_profile(prof::thread_event_lists& lists, int64_t steps) {
+  const std::vector<std::pair<std::string, OpTime>> rows = by_self_time(self_times(lists));
   double total = 0;
   std::map<std::string, OpTime> classes;
   for (const auto& r : rows) {
@@ -124,10 +129,7 @@ void print_profile(prof::thread_event_lists& lists, int64_t steps) {
   // its time on the kernel below it: both land in the class).
   std::printf("%-52s %12s %7s %12s %9s\n", "operator class", "ms per step", "share", "GFLOP/step",
               "GFLOP/s");
-  std::vector<std::pair<std::string, OpTime>> by_class(classes.begin(), classes.end());
-  std::sort(by_class.begin(), by_class.end(),
-            [](const auto& a, const auto& b) { return a.second.self_ms > b.second.self_ms; });
-  for (const auto& c : by_class) {
+  for (const auto& c : by_self_time(classes)) {
     std::printf("%-52s %12.1f %6.1f%% %12.1f %9.0f\n", c.first.c_str(), c.second.self_ms / n,
                 100.0 * c.second.self_ms / std::max(total, 1e-9), c.second.flops / n / 1e9,
                 c.second.flops / 1e9 / std::max(c.second.self_ms / 1e3, 1e-9));

@@ -8,25 +8,13 @@
 #include <vector>
 
 #include "long3r/io/cli_options.hpp"
+#include "support/test_support.hpp"
 
 namespace {
 
 using long3r::CliOptions;
 using long3r::UsageError;
-
-// argv from a list of words, the program name first.
-struct Argv {
-  explicit Argv(std::vector<std::string> words) : words_(std::move(words)) {
-    words_.insert(words_.begin(), "prog");
-    for (const std::string& w : words_) ptrs_.push_back(w.c_str());
-  }
-  int argc() const { return static_cast<int>(ptrs_.size()); }
-  const char* const* argv() const { return ptrs_.data(); }
-
- private:
-  std::vector<std::string> words_;
-  std::vector<const char*> ptrs_;
-};
+using long3r::test::Argv;
 
 // A table with one option of every kind.
 struct Tool {

@@ -12,6 +12,7 @@
 
 #include "long3r/io/cli_options.hpp"
 #include "long3r/model/threads.hpp"
+#include "support/test_support.hpp"
 
 namespace {
 
@@ -100,24 +101,11 @@ TEST(Threads, ExplicitAndEnvironmentCounts) {
   long3r::apply_thread_config(c);
 }
 
-struct Argv {
-  explicit Argv(std::vector<std::string> words) : words_(std::move(words)) {
-    words_.insert(words_.begin(), "prog");
-    for (const std::string& w : words_) ptrs_.push_back(w.c_str());
-  }
-  int argc() const { return static_cast<int>(ptrs_.size()); }
-  const char* const* argv() const { return ptrs_.data(); }
-
- private:
-  std::vector<std::string> words_;
-  std::vector<const char*> ptrs_;
-};
-
 ThreadConfig parsed(std::vector<std::string> words) {
   ThreadConfig c;
   long3r::CliOptions cli("prog");
   long3r::add_thread_options(cli, &c);
-  const Argv a(std::move(words));
+  const long3r::test::Argv a(std::move(words));
   cli.parse(a.argc(), a.argv());
   return c;
 }

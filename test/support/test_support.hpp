@@ -1,5 +1,5 @@
 // Fixtures shared by the unit tests of both gtest binaries: scratch folders,
-// whole-file reads and writes, the tiny model configurations and tensor
+// whole-file reads and writes, command lines (Argv), the tiny model configurations and tensor
 // comparisons. libtorch and the standard library only (long3r_model_tests
 // links it without OpenCV); the OpenCV side is in cv_test_support.hpp.
 #pragma once
@@ -7,6 +7,7 @@
 #include <ATen/core/Tensor.h>
 
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "long3r/model/model_config.hpp"
@@ -51,5 +52,19 @@ void copy_parameters(torch::nn::Module& from, torch::nn::Module& to);
 // max |x - ref| / max |ref| in double; also a gtest failure (and infinity)
 // when the shapes differ; 0 / infinity when ref is all zeros.
 double rel_diff(const at::Tensor& x, const at::Tensor& ref);
+
+// argv from a list of words, the program name first.
+struct Argv {
+  explicit Argv(std::vector<std::string> words) : words_(std::move(words)) {
+    words_.insert(words_.begin(), "prog");
+    for (const std::string& w : words_) ptrs_.push_back(w.c_str());
+  }
+  int argc() const { return static_cast<int>(ptrs_.size()); }
+  const char* const* argv() const { return ptrs_.data(); }
+
+ private:
+  std::vector<std::string> words_;
+  std::vector<const char*> ptrs_;
+};
 
 }  // namespace long3r::test
