@@ -34,9 +34,8 @@ struct LayerNormParams {
 //   which libtorch 1.13's CPU layer norm refuses; the norm then runs, and
 //   returns, float32, as CUDA autocast runs layer norms.
 // - bfloat16 on the CPU is computed in float32 and rounded back: libtorch
-//   1.13's bfloat16 CPU layer norm is about 15x slower than that (2.1 ms
-//   against 0.13 ms for 196 x 1024 on 2 cores, docs/performance.md), and
-//   float32 statistics are what accuracy asks for anyway.
+//   1.13's bfloat16 CPU layer norm is about 11x slower than that and less
+//   accurate (scripts/bench_cpu_kernels.py, docs/performance.md).
 at::Tensor apply_layer_norm(const at::Tensor& x, const LayerNormParams& p);
 
 // norm_q, norm_k, norm_v of the model (width C_m).

@@ -343,8 +343,9 @@ at::Tensor DptAdapterImpl::forward(const std::vector<at::Tensor>& decout, int64_
 HeadOutput postprocess(const at::Tensor& raw, const Dust3rConfig& c) {
   const at::Tensor fmap = raw.permute({0, 2, 3, 1});  // [B, H, W, channels]
   // Contiguous first: the norm over a last dimension of stride H * W is a
-  // slow strided reduction (9 ms against 0.4 ms at 224 x 224 on 2 cores,
-  // the same bits), about a tenth of the shipped model's step.
+  // slow strided reduction, with the same bits either way
+  // (scripts/bench_cpu_kernels.py; 9 ms of the shipped model's step in
+  // long3r_bench --profile-frames, docs/model_card.md).
   const at::Tensor xyz = fmap.narrow(-1, 0, 3).contiguous();
   HeadOutput out;
   if (c.depth_mode == DepthMode::kLinear) {
