@@ -55,8 +55,11 @@ int main(int argc, char** argv) {
   cli.option("--model", "FILE", &model_path, "LONG3R safetensors checkpoint");
   cli.option("--untrained", "CONFIG", &untrained,
              "randomly initialised model of a named config / JSON file");
-  cli.option("--baseline", "", &baseline, "every pixel at the same depth, no camera motion")
-      .choices({"constant-depth"});
+  cli.option("--baseline", "", &baseline,
+             "constant-depth: every pixel at frame 0's median GT depth, no camera motion; "
+             "true-depth-no-motion: each frame's GT pointmap in its own camera, no motion; "
+             "frame0-geometry: frame 0's GT pointmap for every frame")
+      .choices({"constant-depth", "true-depth-no-motion", "frame0-geometry"});
   cli.option("--long-term-capacity", "L", &lt_capacity,
              "override the model's L (0: no long-term memory)")
       .shown_default("");
@@ -125,7 +128,7 @@ int main(int argc, char** argv) {
               long3r::config::enum_name(mc.long3r.long_term_policy) + " long-term memory, " +
               long3r::describe(target) + ")";
     } else {
-      what = "baseline constant-depth";
+      what = "baseline " + baseline;
     }
 
     long3r::DataConfig dc;
@@ -138,15 +141,22 @@ int main(int argc, char** argv) {
                 what.c_str(), static_cast<long long>(sequences), static_cast<long long>(frames),
                 static_cast<long long>(stride), static_cast<long long>(img_size),
                 static_cast<long long>(img_size), static_cast<unsigned long long>(seed_begin));
-    std::printf("%8s %8s %8s %8s %8s %8s %8s %8s %8s %7s %7s\n", "seed", "Acc", "Acc_med", "Comp",
-                "Comp_med", "NC", "NC_med", "ATE_m", "RPE_m", "posed", "fps");
+    // loss / loss_reg: the training loss's regression term of the prediction,
+    // and what is left of it once every frame is registered (probe_loss).
+    std::printf("%8s %8s %8s %8s %8s %8s %8s %8s %8s %7s %7s %8s %8s\n", "seed", "Acc", "Acc_med",
+                "Comp", "Comp_med", "NC", "NC_med", "ATE_m", "RPE_m", "posed", "fps", "loss",
+                "loss_reg");
     nlohmann::ordered_json per_seq = nlohmann::ordered_json::array();
-    std::vector<std::vector<double>> cols(11);
+    std::vector<std::vector<double>> cols(13);
     for (int64_t s = 0; s < sequences; ++s) {
       const long3r::SequenceSample sample = sampler.validation_sequence(s, frames, stride);
       long3r::SequencePrediction pred;
       if (model) {
         pred = long3r::predict_sequence(*model, sample);
+      } else if (baseline == "true-depth-no-motion") {
+        pred = long3r::true_depth_no_motion_prediction(sample);
+      } else if (baseline == "frame0-geometry") {
+        pred = long3r::first_frame_prediction(sample);
       } else {
         // The plane at the median GT depth of frame 0 (generous: it knows the scale).
         const at::Tensor z = sample.pts[0].select(-1, 2).masked_select(sample.valid[0]);
@@ -161,6 +171,7 @@ int main(int argc, char** argv) {
       const long3r::PredictionMetrics m = long3r::evaluate_prediction(pred, sample, po);
       const double fps =
           pred.seconds > 0 ? static_cast<double>(frames) / pred.seconds : std::nan("");
+      const long3r::LossProbe lp = long3r::probe_loss(pred, sample);
       const std::vector<double> row = {m.acc_mean,
                                        m.acc_median,
                                        m.comp_mean,
@@ -171,12 +182,15 @@ int main(int argc, char** argv) {
                                        m.rpe_trans_rmse,
                                        m.rpe_rot_rmse_deg,
                                        static_cast<double>(m.posed),
-                                       fps};
+                                       fps,
+                                       lp.regression,
+                                       lp.registered};
       for (std::size_t c = 0; c < row.size(); ++c) cols[c].push_back(row[c]);
-      std::printf("%8llu %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %7lld %7.2f\n",
+      std::printf("%8llu %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %7lld %7.2f %8.4f %8.4f\n",
                   static_cast<unsigned long long>(seed_begin + static_cast<uint64_t>(s)),
                   m.acc_mean, m.acc_median, m.comp_mean, m.comp_median, m.nc_mean, m.nc_median,
-                  m.ate_rmse, m.rpe_trans_rmse, static_cast<long long>(m.posed), fps);
+                  m.ate_rmse, m.rpe_trans_rmse, static_cast<long long>(m.posed), fps,
+                  lp.regression, lp.registered);
       std::fflush(stdout);
       nlohmann::ordered_json o;
       o["seed"] = static_cast<int64_t>(seed_begin + static_cast<uint64_t>(s));
@@ -193,18 +207,21 @@ int main(int argc, char** argv) {
       o["rpe_trans_rmse_m"] = num(m.rpe_trans_rmse);
       o["rpe_rot_rmse_deg"] = num(m.rpe_rot_rmse_deg);
       o["fps"] = num(fps);
+      o["loss_regression"] = num(lp.regression);
+      o["loss_registered"] = num(lp.registered);
       per_seq.push_back(o);
     }
     const char* names[] = {"acc_mean_m",       "acc_median_m", "comp_mean_m", "comp_median_m",
                            "nc_mean",          "nc_median",    "ate_rmse_m",  "rpe_trans_rmse_m",
-                           "rpe_rot_rmse_deg", "posed",        "fps"};
+                           "rpe_rot_rmse_deg", "posed",        "fps",         "loss_regression",
+                           "loss_registered"};
     nlohmann::ordered_json mean;
     for (std::size_t c = 0; c < cols.size(); ++c) mean[names[c]] = num(mean_finite(cols[c]));
-    std::printf("%8s %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %7.1f %7.2f\n", "mean",
-                mean_finite(cols[0]), mean_finite(cols[1]), mean_finite(cols[2]),
+    std::printf("%8s %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %7.1f %7.2f %8.4f %8.4f\n",
+                "mean", mean_finite(cols[0]), mean_finite(cols[1]), mean_finite(cols[2]),
                 mean_finite(cols[3]), mean_finite(cols[4]), mean_finite(cols[5]),
                 mean_finite(cols[6]), mean_finite(cols[7]), mean_finite(cols[9]),
-                mean_finite(cols[10]));
+                mean_finite(cols[10]), mean_finite(cols[11]), mean_finite(cols[12]));
     if (!json_path.empty()) {
       nlohmann::ordered_json root;
       root["what"] = what;

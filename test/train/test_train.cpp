@@ -681,3 +681,42 @@ TEST(ModelEval, ConstantDepthBaselineHasNoMotionAndTheGtSpreadAsAte) {
   short_p.conf.pop_back();
   EXPECT_THROW(long3r::evaluate_prediction(short_p, s, o), std::invalid_argument);
 }
+
+TEST(ModelEval, LossProbeSplitsRegistrationFromShape) {
+  const long3r::SequenceSample s = held_out_sequence(6);
+  // The GT itself, at any scale: no loss at all (the loss normalises scale).
+  long3r::SequencePrediction exact;
+  for (int64_t i = 0; i < 6; ++i) {
+    exact.pts.push_back((s.pts[i] * 3.0f).contiguous());
+    exact.conf.push_back(at::ones({96, 96}));
+  }
+  const long3r::LossProbe e = long3r::probe_loss(exact, s);
+  EXPECT_LT(e.regression, 1e-5);
+  EXPECT_LT(e.registered, 1e-5);
+
+  // Perfect depth in each frame's own camera, no motion: frame 0 is exact,
+  // the other frames cost what their registration is worth, and a per-frame
+  // rigid fit removes all of it.
+  const long3r::SequencePrediction still = long3r::true_depth_no_motion_prediction(s);
+  ASSERT_EQ(still.pts.size(), 6u);
+  EXPECT_LT((still.pts[0] - s.pts[0]).abs().max().item<float>(), 1e-5f);
+  // A point of frame 5 is the GT point seen from camera 5.
+  const Eigen::Isometry3d T_C5_C0 = s.T_C0_C[5].inverse();
+  const at::Tensor g = s.pts[5][40][50];
+  const Eigen::Vector3d x_C0(g[0].item<float>(), g[1].item<float>(), g[2].item<float>());
+  const Eigen::Vector3d x_C5 = T_C5_C0 * x_C0;
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(still.pts[5][40][50][c].item<float>(), x_C5[c], 1e-4);
+  const long3r::LossProbe n = long3r::probe_loss(still, s);
+  EXPECT_GT(n.regression, 1e-3);
+  EXPECT_LT(n.registered, 1e-4);
+
+  // Frame 0's geometry for every frame is wrong in shape as well as place.
+  const long3r::LossProbe f = long3r::probe_loss(long3r::first_frame_prediction(s), s);
+  EXPECT_GT(f.regression, n.regression);
+  EXPECT_GT(f.registered, 1e-3);
+  EXPECT_LE(f.registered, f.regression);
+
+  long3r::SequencePrediction short_p = still;
+  short_p.pts.pop_back();
+  EXPECT_THROW(long3r::probe_loss(short_p, s), std::invalid_argument);
+}

@@ -252,6 +252,28 @@ SequencePrediction predict_sequence(Long3rModel& model, const SequenceSample& sa
 // The constant-depth baseline: every pixel of every frame at depth `depth_m`
 // in its own camera, all cameras at camera 0 (no motion), confidence 1.
 SequencePrediction constant_depth_prediction(const SequenceSample& sample, double depth_m);
+// Oracles of the loss probe (docs/model_card.md, "Why the model does not
+// register"), both from the ground truth, confidence 1:
+//  - true depth, no motion: every frame's exact pointmap in its own camera,
+//    all cameras at camera 0 (a perfect depth predictor that never registers);
+//  - frame-0 geometry: frame 0's exact pointmap for every frame (ignores the
+//    images after the first).
+SequencePrediction true_depth_no_motion_prediction(const SequenceSample& sample);
+SequencePrediction first_frame_prediction(const SequenceSample& sample);
+
+// What a prediction costs in the training loss, and how much of that is
+// registration: `regression` is sequence_loss's mean || x_hat / z_hat - x / z ||
+// over the N outputs (coarse supervision off, no confidence); `registered` is
+// the same after each frame's normalised prediction is moved by its own best
+// similarity transform (Umeyama Sim(3) on the valid pixels: pose and scale)
+// onto the normalised GT, so what remains is shape error; regression -
+// registered is the share that placing every frame correctly in camera 0's
+// frame (registration, and a scale consistent over the sequence) would remove.
+struct LossProbe {
+  double regression = 0;
+  double registered = 0;
+};
+LossProbe probe_loss(const SequencePrediction& prediction, const SequenceSample& sample);
 
 struct PredictionMetricsOptions {
   int pixel_step = 2;   // subsampling of the clouds

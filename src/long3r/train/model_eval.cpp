@@ -70,6 +70,81 @@ SequencePrediction constant_depth_prediction(const SequenceSample& sample, doubl
   return p;
 }
 
+SequencePrediction true_depth_no_motion_prediction(const SequenceSample& sample) {
+  SequencePrediction p;
+  for (std::size_t i = 0; i < sample.images.size(); ++i) {
+    // x_C = T_C0_C^-1 * x_C0, on the [H, W, 3] pointmap (rows are points).
+    const Eigen::Isometry3d T_C_C0 = sample.T_C0_C[i].inverse();
+    const Eigen::Matrix3f R = T_C_C0.linear().cast<float>();
+    const Eigen::Vector3f t = T_C_C0.translation().cast<float>();
+    const at::Tensor Rt = at::from_blob(const_cast<float*>(R.data()), {3, 3}, at::kFloat)
+                              .clone();  // column-major data: this is R^T
+    const at::Tensor tt = at::from_blob(const_cast<float*>(t.data()), {3}, at::kFloat).clone();
+    const at::Tensor valid = sample.valid[static_cast<int64_t>(i)].unsqueeze(-1);
+    const at::Tensor own = at::matmul(sample.pts[static_cast<int64_t>(i)], Rt) + tt;
+    p.pts.push_back(at::where(valid, own, at::zeros_like(own)).contiguous());
+    p.conf.push_back(at::ones({own.size(0), own.size(1)}, at::kFloat));
+  }
+  return p;
+}
+
+SequencePrediction first_frame_prediction(const SequenceSample& sample) {
+  SequencePrediction p;
+  for (std::size_t i = 0; i < sample.images.size(); ++i) {
+    p.pts.push_back(sample.pts[0].clone());
+    p.conf.push_back(at::ones({sample.pts.size(1), sample.pts.size(2)}, at::kFloat));
+  }
+  return p;
+}
+
+LossProbe probe_loss(const SequencePrediction& prediction, const SequenceSample& sample) {
+  const std::size_t n = prediction.pts.size();
+  if (n < 2 || n != sample.images.size()) {
+    throw std::invalid_argument("probe_loss: need a prediction of N >= 2 frames for the sequence");
+  }
+  std::vector<StreamOutput> outputs(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    outputs[i].frame_index = static_cast<int64_t>(i);
+    outputs[i].pts3d = prediction.pts[i].to(at::kFloat).unsqueeze(0);
+  }
+  LossConfig lc;
+  lc.coarse = false;
+  LossProbe r;
+  r.regression = sequence_loss(outputs, {}, sample.pts.unsqueeze(0), sample.valid.unsqueeze(0), lc)
+                     .regression;
+
+  // Normalised like the loss: each cloud by its own average distance over the sequence.
+  const at::Tensor pred = at::stack(prediction.pts, 0).to(at::kFloat).unsqueeze(0);
+  const at::Tensor valid = sample.valid.unsqueeze(0);
+  const at::Tensor pred_n = (pred / average_distance(pred, valid).item<double>())[0].contiguous();
+  const at::Tensor gt_n = (sample.pts / average_distance(sample.pts.unsqueeze(0), valid)
+                                            .item<double>()).contiguous();
+  double sum = 0.0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const at::Tensor m = sample.valid[static_cast<int64_t>(i)].reshape({-1}).contiguous();
+    const at::Tensor pi = pred_n[static_cast<int64_t>(i)].reshape({-1, 3}).contiguous();
+    const at::Tensor gi = gt_n[static_cast<int64_t>(i)].reshape({-1, 3}).contiguous();
+    const bool* mp = m.data_ptr<bool>();
+    const float* pp = pi.data_ptr<float>();
+    const float* gp = gi.data_ptr<float>();
+    std::vector<Eigen::Vector3f> src, dst;
+    for (int64_t k = 0; k < m.numel(); ++k) {
+      if (!mp[k]) continue;
+      src.emplace_back(pp[3 * k], pp[3 * k + 1], pp[3 * k + 2]);
+      dst.emplace_back(gp[3 * k], gp[3 * k + 1], gp[3 * k + 2]);
+    }
+    if (src.size() < 3) continue;  // as the loss: a frame without valid pixels adds 0
+    const Sim3 T = align_correspondences(src, dst, true);
+    double err = 0.0;
+    for (std::size_t k = 0; k < src.size(); ++k) {
+      err += (T * src[k].cast<double>() - dst[k].cast<double>()).norm();
+    }
+    sum += err / static_cast<double>(src.size());
+  }
+  r.registered = sum / static_cast<double>(n);
+  return r;
+}
+
 PredictionMetrics evaluate_prediction(const SequencePrediction& prediction,
                                       const SequenceSample& sample,
                                       const PredictionMetricsOptions& options) {

@@ -1,0 +1,79 @@
+#!/usr/bin/env bash
+# The loss probe of docs/model_card.md ("Why the model does not register"):
+# what the training loss charges for registration at each camera baseline.
+# On held-out generated sequences (seeds 2000000..) of FRAMES frames at
+# several strides of the 2 cm path, it scores a model and three oracles built
+# from the ground truth (perfect depth without motion, frame 0's geometry for
+# every frame, the constant-depth plane) by the loss's regression term
+# (`loss`) and by what is left of it once each frame is registered by its own
+# best rigid transform (`loss_reg`, shape error only). Writes one JSON per
+# row and stride into OUT_DIR and prints a table.
+#   bash scripts/loss_probe.sh [OUT_DIR] [--model FILE] [--frames N]
+#        [--strides "1 2 4 8 16"] [--sequences S] [--img-size N] [--threads N]
+#        [--bin DIR]
+# --bin: use the long3r_model_eval found in DIR (e.g. the catkin build's
+# build/.ws/devel/lib/long3r_ros) instead of building build/core.
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
+
+out="$LONG3R_ROOT/build/loss_probe"
+model="$LONG3R_ROOT/models/default.safetensors"
+frames=5
+strides="1 2 4 8 16"
+sequences=4
+img_size=224
+threads=$(nproc)
+bin=""
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --model) model=$2; shift 2 ;;
+    --frames) frames=$2; shift 2 ;;
+    --strides) strides=$2; shift 2 ;;
+    --sequences) sequences=$2; shift 2 ;;
+    --img-size) img_size=$2; shift 2 ;;
+    --threads) threads=$2; shift 2 ;;
+    --bin) bin=$2; shift 2 ;;
+    -*) echo "unknown option $1" >&2; exit 2 ;;
+    *) out=$1; shift ;;
+  esac
+done
+if [ -z "$bin" ]; then
+  bin="$LONG3R_ROOT/build/core"
+  cmake -S "$LONG3R_ROOT" -B "$bin" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
+  cmake --build "$bin" -j "$LONG3R_JOBS" --target app_long3r_model_eval >/dev/null
+fi
+mkdir -p "$out"
+
+rows=(model true_depth_no_motion frame0_geometry constant_depth)
+for stride in $strides; do
+  for name in "${rows[@]}"; do
+    case "$name" in
+      model) src=(--model "$model") ;;
+      constant_depth) src=(--baseline constant-depth) ;;
+      *) src=(--baseline "${name//_/-}") ;;
+    esac
+    "$bin/long3r_model_eval" "${src[@]}" --frames "$frames" --sequences "$sequences" \
+      --stride "$stride" --img-size "$img_size" --pixel-step 4 --no-normals \
+      --threads "$threads" --json "$out/${name}_s${stride}.json" >/dev/null
+  done
+done
+
+/usr/bin/python3 - "$out" "$frames" "$model" $strides <<'EOF'
+import json, os, sys
+out, frames, model = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+strides = [int(s) for s in sys.argv[4:]]
+rows = ['model', 'true_depth_no_motion', 'frame0_geometry', 'constant_depth']
+print('loss probe: %d-frame held-out sequences; model %s' % (frames, model))
+print('%-7s %-8s %-22s %8s %8s %9s %8s %8s' %
+      ('stride', 'cm/frame', 'prediction', 'loss', 'loss_reg', 'reg_share', 'Acc_m', 'ATE_m'))
+for s in strides:
+    for r in rows:
+        with open(os.path.join(out, '%s_s%d.json' % (r, s))) as f:
+            m = json.load(f)['mean']
+        loss, reg = m['loss_regression'], m['loss_registered']
+        share = (loss - reg) / loss if loss > 0 else float('nan')
+        ate = m['ate_rmse_m']
+        print('%-7d %-8d %-22s %8.4f %8.4f %8.1f%% %8.4f %8s' %
+              (s, 2 * s, r, loss, reg, 100 * share, m['acc_mean_m'],
+               '%.4f' % ate if ate is not None else 'n/a'))
+EOF
