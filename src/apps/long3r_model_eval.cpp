@@ -189,8 +189,8 @@ int main(int argc, char** argv) {
       std::printf("%8llu %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %7lld %7.2f %8.4f %8.4f\n",
                   static_cast<unsigned long long>(seed_begin + static_cast<uint64_t>(s)),
                   m.acc_mean, m.acc_median, m.comp_mean, m.comp_median, m.nc_mean, m.nc_median,
-                  m.ate_rmse, m.rpe_trans_rmse, static_cast<long long>(m.posed), fps,
-                  lp.regression, lp.registered);
+                  m.ate_rmse, m.rpe_trans_rmse, static_cast<long long>(m.posed), fps, lp.regression,
+                  lp.registered);
       std::fflush(stdout);
       nlohmann::ordered_json o;
       o["seed"] = static_cast<int64_t>(seed_begin + static_cast<uint64_t>(s));

@@ -110,15 +110,15 @@ LossProbe probe_loss(const SequencePrediction& prediction, const SequenceSample&
   LossConfig lc;
   lc.coarse = false;
   LossProbe r;
-  r.regression = sequence_loss(outputs, {}, sample.pts.unsqueeze(0), sample.valid.unsqueeze(0), lc)
-                     .regression;
+  r.regression =
+      sequence_loss(outputs, {}, sample.pts.unsqueeze(0), sample.valid.unsqueeze(0), lc).regression;
 
   // Normalised like the loss: each cloud by its own average distance over the sequence.
   const at::Tensor pred = at::stack(prediction.pts, 0).to(at::kFloat).unsqueeze(0);
   const at::Tensor valid = sample.valid.unsqueeze(0);
   const at::Tensor pred_n = (pred / average_distance(pred, valid).item<double>())[0].contiguous();
-  const at::Tensor gt_n = (sample.pts / average_distance(sample.pts.unsqueeze(0), valid)
-                                            .item<double>()).contiguous();
+  const at::Tensor gt_n =
+      (sample.pts / average_distance(sample.pts.unsqueeze(0), valid).item<double>()).contiguous();
   double sum = 0.0;
   for (std::size_t i = 0; i < n; ++i) {
     const at::Tensor m = sample.valid[static_cast<int64_t>(i)].reshape({-1}).contiguous();
