@@ -716,6 +716,14 @@ TEST(ModelEval, LossProbeSplitsRegistrationFromShape) {
   EXPECT_GT(f.registered, 1e-3);
   EXPECT_LE(f.registered, f.regression);
 
+  // A frame collapsed onto a line has no placement: NaN, not an exception.
+  long3r::SequencePrediction collapsed = still;
+  collapsed.pts[2] = at::zeros({96, 96, 3});
+  collapsed.pts[2].select(-1, 2).fill_(1.0f);
+  const long3r::LossProbe c = long3r::probe_loss(collapsed, s);
+  EXPECT_TRUE(std::isfinite(c.regression));
+  EXPECT_TRUE(std::isnan(c.registered));
+
   long3r::SequencePrediction short_p = still;
   short_p.pts.pop_back();
   EXPECT_THROW(long3r::probe_loss(short_p, s), std::invalid_argument);

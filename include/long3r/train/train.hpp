@@ -269,6 +269,8 @@ SequencePrediction first_frame_prediction(const SequenceSample& sample);
 // onto the normalised GT, so what remains is shape error; regression -
 // registered is the share that placing every frame correctly in camera 0's
 // frame (registration, and a scale consistent over the sequence) would remove.
+// `registered` is NaN when a frame cannot be placed: non-finite predicted
+// points, or a frame collapsed onto a line.
 struct LossProbe {
   double regression = 0;
   double registered = 0;

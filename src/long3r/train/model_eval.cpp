@@ -130,11 +130,19 @@ LossProbe probe_loss(const SequencePrediction& prediction, const SequenceSample&
     std::vector<Eigen::Vector3f> src, dst;
     for (int64_t k = 0; k < m.numel(); ++k) {
       if (!mp[k]) continue;
-      src.emplace_back(pp[3 * k], pp[3 * k + 1], pp[3 * k + 2]);
+      const Eigen::Vector3f x(pp[3 * k], pp[3 * k + 1], pp[3 * k + 2]);
+      if (!x.allFinite()) return {r.regression, nan()};  // so is the loss then
+      src.push_back(x);
       dst.emplace_back(gp[3 * k], gp[3 * k + 1], gp[3 * k + 2]);
     }
     if (src.size() < 3) continue;  // as the loss: a frame without valid pixels adds 0
-    const Sim3 T = align_correspondences(src, dst, true);
+    Sim3 T;
+    try {
+      T = align_correspondences(src, dst, true);
+    } catch (const std::invalid_argument&) {
+      // A collapsed frame (all points on a line) has no best placement.
+      return {r.regression, nan()};
+    }
     double err = 0.0;
     for (std::size_t k = 0; k < src.size(); ++k) {
       err += (T * src[k].cast<double>() - dst[k].cast<double>()).norm();
