@@ -7,8 +7,8 @@
 # nothing can tell it where camera 0 is), and three oracles built
 # from the ground truth (perfect depth without motion, frame 0's geometry for
 # every frame, the constant-depth plane) by the loss's regression term
-# (`loss`) and by what is left of it once each frame is registered by its own
-# best rigid transform (`loss_reg`, shape error only). Writes one JSON per
+# (`loss`) and by what is left of it once each frame is placed by its own
+# best similarity transform (`loss_reg`, shape error only). Writes one JSON per
 # row and stride into OUT_DIR and prints a table.
 #   bash scripts/loss_probe.sh [OUT_DIR] [--model FILE] [--frames N]
 #        [--strides "1 2 4 8 16"] [--sequences S] [--img-size N] [--threads N]
@@ -52,8 +52,7 @@ for stride in $strides; do
     case "$name" in
       model) src=(--model "$model") ;;
       model_no_memory) src=(--model "$model" --short-term-frames 0 --long-term-capacity 0) ;;
-      constant_depth) src=(--baseline constant-depth) ;;
-      *) src=(--baseline "${name//_/-}") ;;
+      *) src=(--baseline "${name//_/-}") ;;  # e.g. frame0_geometry: --baseline frame0-geometry
     esac
     "$bin/long3r_model_eval" "${src[@]}" --frames "$frames" --sequences "$sequences" \
       --stride "$stride" --img-size "$img_size" --pixel-step 4 --no-normals \

@@ -7,10 +7,8 @@ if(TARGET app_long3r_model_eval)
       --model ${PROJECT_SOURCE_DIR}/models/default.safetensors)
   set_tests_properties(shipped_model PROPERTIES
     ENVIRONMENT "OMP_NUM_THREADS=2;OPENBLAS_NUM_THREADS=1" TIMEOUT 300)
-endif()
 
-# scripts/loss_probe.sh (the model card's diagnosis) on the shipped model.
-if(TARGET app_long3r_model_eval)
+  # scripts/loss_probe.sh (the model card's diagnosis) on the shipped model.
   add_test(NAME loss_probe
     COMMAND /usr/bin/python3 ${PROJECT_SOURCE_DIR}/test/train/loss_probe_test.py
       --script ${PROJECT_SOURCE_DIR}/scripts/loss_probe.sh

@@ -696,7 +696,7 @@ TEST(ModelEval, LossProbeSplitsRegistrationFromShape) {
 
   // Perfect depth in each frame's own camera, no motion: frame 0 is exact,
   // the other frames cost what their registration is worth, and a per-frame
-  // rigid fit removes all of it.
+  // similarity fit removes all of it.
   const long3r::SequencePrediction still = long3r::true_depth_no_motion_prediction(s);
   ASSERT_EQ(still.pts.size(), 6u);
   EXPECT_LT((still.pts[0] - s.pts[0]).abs().max().item<float>(), 1e-5f);

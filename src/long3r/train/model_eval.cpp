@@ -31,6 +31,37 @@ cv::Mat mat1(const at::Tensor& t) {  // [H, W] float CPU, shares memory
 
 double nan() { return std::numeric_limits<double>::quiet_NaN(); }
 
+// Appends the (prediction, GT) points of the valid pixels of one frame
+// ([H, W, 3] pointmaps, [H, W] mask), every `step`-th row and column.
+// Pixels whose prediction is not finite are left out; returns their count.
+int64_t append_correspondences(const at::Tensor& pred, const at::Tensor& gt,
+                               const at::Tensor& valid, int step,
+                               std::vector<Eigen::Vector3f>* pred_pts,
+                               std::vector<Eigen::Vector3f>* gt_pts) {
+  const at::Tensor p = pred.to(at::kFloat).contiguous();
+  const at::Tensor g = gt.to(at::kFloat).contiguous();
+  const at::Tensor v = valid.contiguous();
+  const int64_t H = p.size(0), W = p.size(1);
+  const float* pp = p.data_ptr<float>();
+  const float* gp = g.data_ptr<float>();
+  const bool* vp = v.data_ptr<bool>();
+  int64_t non_finite = 0;
+  for (int64_t y = 0; y < H; y += step) {
+    for (int64_t x = 0; x < W; x += step) {
+      const int64_t k = y * W + x;
+      if (!vp[k]) continue;
+      const Eigen::Vector3f q(pp[3 * k], pp[3 * k + 1], pp[3 * k + 2]);
+      if (!q.allFinite()) {
+        ++non_finite;
+        continue;
+      }
+      pred_pts->push_back(q);
+      gt_pts->emplace_back(gp[3 * k], gp[3 * k + 1], gp[3 * k + 2]);
+    }
+  }
+  return non_finite;
+}
+
 }  // namespace
 
 SequencePrediction predict_sequence(Long3rModel& model, const SequenceSample& sample) {
@@ -73,16 +104,13 @@ SequencePrediction constant_depth_prediction(const SequenceSample& sample, doubl
 SequencePrediction true_depth_no_motion_prediction(const SequenceSample& sample) {
   SequencePrediction p;
   for (std::size_t i = 0; i < sample.images.size(); ++i) {
-    // x_C = T_C0_C^-1 * x_C0, on the [H, W, 3] pointmap (rows are points).
-    const Eigen::Isometry3d T_C_C0 = sample.T_C0_C[i].inverse();
-    const Eigen::Matrix3f R = T_C_C0.linear().cast<float>();
-    const Eigen::Vector3f t = T_C_C0.translation().cast<float>();
-    const at::Tensor Rt = at::from_blob(const_cast<float*>(R.data()), {3, 3}, at::kFloat)
-                              .clone();  // column-major data: this is R^T
-    const at::Tensor tt = at::from_blob(const_cast<float*>(t.data()), {3}, at::kFloat).clone();
+    const at::Tensor gt = sample.pts[static_cast<int64_t>(i)].contiguous();
+    const cv::Mat own_mat = points_in_camera(mat3(gt), sample.T_C0_C[i]);
+    const at::Tensor own =
+        at::from_blob(const_cast<float*>(own_mat.ptr<float>()), gt.sizes(), at::kFloat).clone();
+    // Invalid pixels stay at zero, as in the GT.
     const at::Tensor valid = sample.valid[static_cast<int64_t>(i)].unsqueeze(-1);
-    const at::Tensor own = at::matmul(sample.pts[static_cast<int64_t>(i)], Rt) + tt;
-    p.pts.push_back(at::where(valid, own, at::zeros_like(own)).contiguous());
+    p.pts.push_back(at::where(valid, own, at::zeros_like(own)));
     p.conf.push_back(at::ones({own.size(0), own.size(1)}, at::kFloat));
   }
   return p;
@@ -116,24 +144,15 @@ LossProbe probe_loss(const SequencePrediction& prediction, const SequenceSample&
   // Normalised like the loss: each cloud by its own average distance over the sequence.
   const at::Tensor pred = at::stack(prediction.pts, 0).to(at::kFloat).unsqueeze(0);
   const at::Tensor valid = sample.valid.unsqueeze(0);
-  const at::Tensor pred_n = (pred / average_distance(pred, valid).item<double>())[0].contiguous();
+  const at::Tensor pred_n = (pred / average_distance(pred, valid).item<double>())[0];
   const at::Tensor gt_n =
-      (sample.pts / average_distance(sample.pts.unsqueeze(0), valid).item<double>()).contiguous();
+      sample.pts / average_distance(sample.pts.unsqueeze(0), valid).item<double>();
   double sum = 0.0;
   for (std::size_t i = 0; i < n; ++i) {
-    const at::Tensor m = sample.valid[static_cast<int64_t>(i)].reshape({-1}).contiguous();
-    const at::Tensor pi = pred_n[static_cast<int64_t>(i)].reshape({-1, 3}).contiguous();
-    const at::Tensor gi = gt_n[static_cast<int64_t>(i)].reshape({-1, 3}).contiguous();
-    const bool* mp = m.data_ptr<bool>();
-    const float* pp = pi.data_ptr<float>();
-    const float* gp = gi.data_ptr<float>();
+    const int64_t f = static_cast<int64_t>(i);
     std::vector<Eigen::Vector3f> src, dst;
-    for (int64_t k = 0; k < m.numel(); ++k) {
-      if (!mp[k]) continue;
-      const Eigen::Vector3f x(pp[3 * k], pp[3 * k + 1], pp[3 * k + 2]);
-      if (!x.allFinite()) return {r.regression, nan()};  // so is the loss then
-      src.push_back(x);
-      dst.emplace_back(gp[3 * k], gp[3 * k + 1], gp[3 * k + 2]);
+    if (append_correspondences(pred_n[f], gt_n[f], sample.valid[f], 1, &src, &dst) > 0) {
+      return {r.regression, nan()};  // so is the loss then
     }
     if (src.size() < 3) continue;  // as the loss: a frame without valid pixels adds 0
     Sim3 T;
@@ -167,25 +186,12 @@ PredictionMetrics evaluate_prediction(const SequencePrediction& prediction,
   // Corresponding valid pixels: one Sim(3) for the whole sequence.
   std::vector<Eigen::Vector3f> pred_pts, gt_pts;
   for (std::size_t i = 0; i < n; ++i) {
-    const at::Tensor p = prediction.pts[i].to(at::kFloat).contiguous();
-    const at::Tensor g = sample.pts[static_cast<int64_t>(i)].contiguous();
-    const at::Tensor v = sample.valid[static_cast<int64_t>(i)].contiguous();
-    if (p.sizes() != g.sizes()) throw std::invalid_argument("evaluate_prediction: pointmap sizes");
-    const int64_t H = p.size(0), W = p.size(1);
-    const float* pp = p.data_ptr<float>();
-    const float* gp = g.data_ptr<float>();
-    const bool* vp = v.data_ptr<bool>();
-    for (int64_t y = 0; y < H; y += options.pixel_step) {
-      for (int64_t x = 0; x < W; x += options.pixel_step) {
-        const int64_t k = y * W + x;
-        if (!vp[k] || !std::isfinite(pp[3 * k]) || !std::isfinite(pp[3 * k + 1]) ||
-            !std::isfinite(pp[3 * k + 2])) {
-          continue;
-        }
-        pred_pts.emplace_back(pp[3 * k], pp[3 * k + 1], pp[3 * k + 2]);
-        gt_pts.emplace_back(gp[3 * k], gp[3 * k + 1], gp[3 * k + 2]);
-      }
+    const int64_t f = static_cast<int64_t>(i);
+    if (prediction.pts[i].sizes() != sample.pts[f].sizes()) {
+      throw std::invalid_argument("evaluate_prediction: pointmap sizes");
     }
+    append_correspondences(prediction.pts[i], sample.pts[f], sample.valid[f], options.pixel_step,
+                           &pred_pts, &gt_pts);
   }
   if (pred_pts.size() < 3) throw std::runtime_error("evaluate_prediction: too few valid points");
   const Sim3 align = align_correspondences(pred_pts, gt_pts, true);
