@@ -58,7 +58,8 @@ long3r_add_gtest_binary(long3r_model_tests FOLDERS io model memory
   LIBS long3r_model long3r_test_support)
 if(LONG3R_HAVE_CV)
   long3r_add_gtest_binary(long3r_cv_tests
-    FOLDERS pipeline dataset eval synth train LIBS long3r_train long3r_cv_test_support)
+    FOLDERS pipeline dataset eval synth train
+    LIBS long3r_train_cv long3r_synth_cv long3r_cv_test_support)
 endif()
 
 # Extra test registrations owned by each module (golden parity, fuzz corpus,

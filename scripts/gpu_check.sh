@@ -21,10 +21,13 @@
 # reported so), to check the script and the build where no GPU is at hand;
 # with a Python torch that ships no CMake files (Debian's python3-torch) it
 # falls back to the system libtorch.
-# PYTHON selects the interpreter (default python3); nlohmann/json.hpp is
-# looked for in /usr/include, the torch install and $LONG3R_NLOHMANN_JSON_DIR.
+# PYTHON selects the interpreter (default python3); the header-only
+# dependencies (nlohmann-json, Eigen) are looked for as scripts/torch_only.sh
+# says, build/gpu-deps (scripts/train_gpu.sh --pack-deps) first.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+# shellcheck source=scripts/torch_only.sh
+source "$root/scripts/torch_only.sh"
 start=$(date +%s)
 
 out="" frames=20 torch_dir="" build="$root/build-gpu-check" jobs=$(nproc) dry=0
@@ -42,89 +45,23 @@ while [ $# -gt 0 ]; do
 done
 mkdir -p "$build"
 out=${out:-$build/report.txt}
-report=$(mktemp)
-trap 'rm -f "$report"' EXIT
-say() { echo "$@" | tee -a "$report"; }
-finish() {  # exit code
-  say ""
-  say "wall time $(( $(date +%s) - start )) s"
-  cp "$report" "$out"
-  echo "report: $out"
-  exit "$1"
-}
+report_open "$out"
 
 say "== long3r gpu_check $(git -C "$root" rev-parse --short HEAD 2>/dev/null || echo '?') $(date -u +%Y-%m-%dT%H:%M:%SZ)"
 [ "$dry" = 1 ] && say "MODE: --cpu-dry-run (CPU, tiny sizes: checks the script and the build, measures nothing about a GPU)"
 
 # ---- torch and the GPU -------------------------------------------------------
-py=${PYTHON:-python3}
-if ! info=$("$py" - <<'EOF' 2>&1
-import os, torch
-print("torch", torch.__version__)
-print("cuda_build", torch.version.cuda or "none")
-print("cuda_available", torch.cuda.is_available())
-print("gpu", torch.cuda.get_device_name(0) if torch.cuda.is_available() else "none")
-print("cxx11_abi", torch.compiled_with_cxx11_abi())
-print("cmake_prefix", torch.utils.cmake_prefix_path)
-print("include", os.path.join(os.path.dirname(torch.__file__), "include"))
-EOF
-); then
-  say "no usable Python torch ($py): $info"
-  finish 3
-fi
-field() { echo "$info" | sed -n "s/^$1 //p"; }
-say "python torch $(field torch), CUDA build $(field cuda_build), cuda available $(field cuda_available), GPU $(field gpu), C++11 ABI $(field cxx11_abi)"
-if [ "$dry" = 0 ] && [ "$(field cuda_available)" != True ]; then
-  why="torch.cuda.is_available() is False"
-  [ "$(field cuda_build)" = none ] && why="this torch is built without CUDA (torch.version.cuda is None)"
-  command -v nvidia-smi >/dev/null 2>&1 || why="$why; no nvidia-smi (no NVIDIA driver)"
-  say "NO CUDA GPU: $why. Nothing measured. (--cpu-dry-run exercises the steps on the CPU.)"
-  finish 3
-fi
-device=cuda
-[ "$dry" = 1 ] && device=cpu
-
-if [ -z "$torch_dir" ]; then
-  torch_dir="$(field cmake_prefix)/Torch"
-  if [ ! -f "$torch_dir/TorchConfig.cmake" ]; then
-    if [ "$dry" = 1 ]; then
-      say "this Python torch ships no CMake files ($torch_dir); dry run: the system libtorch instead"
-      torch_dir=""
-    else
-      say "no TorchConfig.cmake in $torch_dir: give --torch-dir (a libtorch's share/cmake/Torch)"
-      finish 1
-    fi
-  fi
-fi
-
-json_dir=${LONG3R_NLOHMANN_JSON_DIR:-}
-for d in /usr/include /usr/local/include "$(field include)"; do
-  [ -z "$json_dir" ] && [ -f "$d/nlohmann/json.hpp" ] && json_dir=$d
-done
-if [ -z "$json_dir" ]; then
-  say "nlohmann/json.hpp not found (/usr/include, the torch install): put the single header in a" \
-      "folder as nlohmann/json.hpp and set LONG3R_NLOHMANN_JSON_DIR to that folder"
-  finish 1
-fi
+torch_setup "$dry" "$torch_dir" "$root/build/gpu-deps"
 
 # ---- build ----------------------------------------------------------------
 tests=OFF
-if [ "$(field cxx11_abi)" = True ] && { [ -f /usr/include/gtest/gtest.h ] || [ -f /usr/local/include/gtest/gtest.h ]; }; then
+if [ "$(torch_field cxx11_abi)" = True ] && { [ -f /usr/include/gtest/gtest.h ] || [ -f /usr/local/include/gtest/gtest.h ]; }; then
   tests=ON
 fi
 say "== build ($build, tests $tests, libtorch ${torch_dir:-system})"
-cmake_args=(-S "$root" -B "$build" -DLONG3R_WITH_ROS=OFF -DLONG3R_BUILD_TESTS=$tests
-            -DCMAKE_BUILD_TYPE=Release -DCMAKE_DISABLE_FIND_PACKAGE_OpenCV=ON
-            -DLONG3R_NLOHMANN_JSON_DIR="$json_dir")
-[ -n "$torch_dir" ] && cmake_args+=(-DTorch_DIR="$torch_dir")
 targets=(app_long3r_golden app_long3r_bench)
 [ "$tests" = ON ] && targets+=(long3r_model_tests)
-if ! cmake "${cmake_args[@]}" >"$build/configure.log" 2>&1 ||
-   ! cmake --build "$build" -j "$jobs" --target "${targets[@]}" >"$build/build.log" 2>&1; then
-  say "BUILD FAILED (logs: $build/configure.log, $build/build.log):"
-  tail -20 "$build/build.log" "$build/configure.log" 2>/dev/null | tee -a "$report"
-  finish 1
-fi
+torch_only_build "$build" "$tests" "${targets[@]}"
 say "built in $(( $(date +%s) - start )) s"
 bin="$build"  # plain CMake puts the executables at the top of the build folder
 

@@ -9,6 +9,7 @@
 
 #include "long3r/io/cli_options.hpp"
 #include "long3r/synth/synth.hpp"
+#include "long3r/synth/tum_writer.hpp"
 
 int main(int argc, char** argv) {
   using namespace long3r::synth;

@@ -1,5 +1,7 @@
 // long3r_train: trains a LONG3R model with the paper's two-stage curriculum on
-// generated scenes and/or TUM-layout folders. See docs/training.md.
+// generated scenes and/or TUM-layout folders. See docs/training.md. Built
+// without OpenCV (a machine with nothing but a libtorch), it trains on
+// generated scenes and validates by the loss and pointmap figures only.
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
@@ -11,6 +13,9 @@
 #include "long3r/io/cli_options.hpp"
 #include "long3r/model/threads.hpp"
 #include "long3r/train/train.hpp"
+#ifdef LONG3R_TRAIN_WITH_OPENCV
+#include "long3r/train/train_cv.hpp"
+#endif
 
 namespace {
 
@@ -48,6 +53,17 @@ int main(int argc, char** argv) {
   cli.option("--max-steps", "N", &opt.max_steps,
              "stop after N global steps (smoke tests; schedule unchanged)")
       .shown_default("");
+  cli.option("--render-threads", "N", &opt.render_threads,
+             "threads rendering training scenes (0: as --threads)")
+      .min(0);
+  cli.option("--prefetch", "N", &opt.prefetch_batches,
+             "batches prepared ahead on a data thread while the model trains (the same batches "
+             "in the same order; for a GPU, whose steps leave the CPU cores free)")
+      .min(0);
+  cli.option("--time-budget-s", "S", &opt.time_budget_s,
+             "stop before a step that would end past S seconds of this run, then validate and "
+             "write the outputs (0: no budget)")
+      .min(0);
   cli.flag("--quiet", &opt.quiet, "no per-step output");
   if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
   try {
@@ -56,6 +72,9 @@ int main(int argc, char** argv) {
     tc.openblas_threads = threads;  // the recipe's wall times were measured so
     long3r::apply_thread_config(tc);
     const long3r::TrainConfig config = long3r::parse_train_config(read_file(config_path));
+#ifdef LONG3R_TRAIN_WITH_OPENCV
+    opt.extensions = long3r::opencv_trainer_extensions();
+#endif
     long3r::Trainer trainer(config, opt);
     if (const auto& r = trainer.init_report()) {
       std::printf(
@@ -67,8 +86,8 @@ int main(int argc, char** argv) {
       if (r->loaded == 0) throw std::runtime_error("--init-dust3r: no tensor matched the model");
     }
     trainer.run();
-    std::printf("wrote %s/model.safetensors (step %lld)\n", opt.out_dir.c_str(),
-                static_cast<long long>(trainer.global_step()));
+    std::printf("wrote %s/model.safetensors (step %lld, stopped by %s)\n", opt.out_dir.c_str(),
+                static_cast<long long>(trainer.global_step()), trainer.stop_reason().c_str());
   } catch (const std::exception& e) {
     std::fprintf(stderr, "long3r_train: %s\n", e.what());
     return 1;

@@ -6,7 +6,9 @@
 #include <fstream>
 
 #include "long3r/dataset/tum_dataset.hpp"
+#include "long3r/synth/sensor_image.hpp"
 #include "long3r/synth/synth.hpp"
+#include "long3r/synth/tum_writer.hpp"
 #include "support/test_support.hpp"
 
 using namespace long3r;
@@ -50,11 +52,13 @@ TEST(TumDataset, RoundTripsWhatTheGeneratorWrites) {
     const synth::RenderedFrame r = synth::render_frame(seq.scene, seq.poses[i], cfg.intrinsics);
     const cv::Mat rgb = ds.load_rgb(i);
     ASSERT_EQ(rgb.type(), CV_8UC3);
-    EXPECT_EQ(cv::norm(rgb, r.bgr, cv::NORM_INF), 0.0) << "colour differs at frame " << i;
+    EXPECT_EQ(cv::norm(rgb, synth::bgr_image(r), cv::NORM_INF), 0.0)
+        << "colour differs at frame " << i;
     const cv::Mat depth = ds.load_depth(i);
     ASSERT_EQ(depth.type(), CV_32FC1);
     // 16-bit PNG at 5000 per metre: half a step of rounding.
-    EXPECT_LE(cv::norm(depth, r.depth, cv::NORM_INF), 0.5 / 5000.0 + 1e-6) << "frame " << i;
+    EXPECT_LE(cv::norm(depth, synth::depth_image(r), cv::NORM_INF), 0.5 / 5000.0 + 1e-6)
+        << "frame " << i;
   }
   const PoseTrajectory t = ds.frame_trajectory();
   EXPECT_EQ(t.size(), 6u);

@@ -13,6 +13,7 @@
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/spann3r_model.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
+#include "long3r/synth/sensor_image.hpp"
 #include "long3r/synth/synth.hpp"
 #include "support/cv_test_support.hpp"
 
@@ -39,9 +40,10 @@ GtSequence make_sequence(int frames) {
   for (int k = 0; k < frames; ++k) {
     const synth::RenderedFrame f = synth::render_frame(g.seq.scene, g.seq.poses[k], c.intrinsics);
     const Eigen::Isometry3d T = g.seq.poses[0].inverse() * g.seq.poses[k];
-    g.bgr.push_back(f.bgr);
+    g.bgr.push_back(synth::bgr_image(f));
+    const cv::Mat depth = synth::depth_image(f);
     g.pts_W0.push_back(test::pointmap_from_depth(
-        c.intrinsics, T, [&](int u, int v) { return f.depth.at<float>(v, u); }));
+        c.intrinsics, T, [&](int u, int v) { return depth.at<float>(v, u); }));
     g.T_0_k.push_back(T);
   }
   return g;

@@ -12,7 +12,9 @@
 #include <sstream>
 
 #include "long3r/dataset/tum_dataset.hpp"
+#include "long3r/synth/sensor_image.hpp"
 #include "long3r/synth/synth.hpp"
+#include "long3r/synth/tum_writer.hpp"
 #include "support/test_support.hpp"
 
 using namespace long3r;
@@ -139,8 +141,8 @@ TEST(SynthCamera, DistortedRenderUndistortsToThePinholeRender) {
   opt.supersample = 3;
   const LensDistortion lens = webcam_lens();
   const LensRays rays(k, lens, opt.supersample);
-  const cv::Mat distorted = render_frame(seq.scene, seq.poses[0], rays, opt).bgr;
-  const cv::Mat pinhole = render_frame(seq.scene, seq.poses[0], k, opt).bgr;
+  const cv::Mat distorted = bgr_image(render_frame(seq.scene, seq.poses[0], rays, opt));
+  const cv::Mat pinhole = bgr_image(render_frame(seq.scene, seq.poses[0], k, opt));
   const cv::Mat K = camera_matrix(k);
 
   // Compare where the undistortion samples well inside the distorted image.
@@ -169,7 +171,7 @@ TEST(SynthCamera, DistortedRenderUndistortsToThePinholeRender) {
   PinholeIntrinsics shifted_k = k;
   shifted_k.cx += 0.37;
   shifted_k.cy += 0.61;
-  const cv::Mat shifted = render_frame(seq.scene, seq.poses[0], shifted_k, opt).bgr;
+  const cv::Mat shifted = bgr_image(render_frame(seq.scene, seq.poses[0], shifted_k, opt));
   cv::Mat back_x(pinhole.size(), CV_32F), back_y(pinhole.size(), CV_32F), back;
   for (int v = 0; v < back_x.rows; ++v) {
     for (int u = 0; u < back_x.cols; ++u) {
@@ -201,6 +203,8 @@ TEST(SynthCamera, DistortedDepthIsRegisteredToItsPixels) {
   const LensDistortion lens = webcam_lens();
   const RenderedFrame d = render_frame(seq.scene, seq.poses[0], LensRays(k, lens));
   const RenderedFrame p = render_frame(seq.scene, seq.poses[0], k);
+  const cv::Mat d_depth = depth_image(d), d_id = surface_id_image(d);
+  const cv::Mat p_depth = depth_image(p), p_id = surface_id_image(p);
   std::vector<cv::Point2d> pixels, rays;
   for (int v = 0; v < k.height; ++v) {
     for (int u = 0; u < k.width; ++u) pixels.emplace_back(u, v);
@@ -211,8 +215,8 @@ TEST(SynthCamera, DistortedDepthIsRegisteredToItsPixels) {
   double worst = 0.0, moved = 0.0;
   for (size_t i = 0; i < pixels.size(); ++i) {
     const int u = static_cast<int>(pixels[i].x), v = static_cast<int>(pixels[i].y);
-    const int id = d.surface_id.at<int32_t>(v, u);
-    const double z = d.depth.at<float>(v, u);
+    const int id = d_id.at<int32_t>(v, u);
+    const double z = d_depth.at<float>(v, u);
     if (!is_planar(seq.scene, id) || !(z > 0)) continue;
     const double pu = k.fx * rays[i].x + k.cx, pv = k.fy * rays[i].y + k.cy;
     const int u0 = static_cast<int>(std::floor(pu)), v0 = static_cast<int>(std::floor(pv));
@@ -221,14 +225,14 @@ TEST(SynthCamera, DistortedDepthIsRegisteredToItsPixels) {
     double inv = 0.0;
     for (int dy = 0; dy < 2; ++dy) {
       for (int dx = 0; dx < 2; ++dx) {
-        if (p.surface_id.at<int32_t>(v0 + dy, u0 + dx) != id) same = false;
+        if (p_id.at<int32_t>(v0 + dy, u0 + dx) != id) same = false;
         const double w = (dx ? pu - u0 : 1 - (pu - u0)) * (dy ? pv - v0 : 1 - (pv - v0));
-        inv += w / p.depth.at<float>(v0 + dy, u0 + dx);
+        inv += w / p_depth.at<float>(v0 + dy, u0 + dx);
       }
     }
     if (!same) continue;
     worst = std::max(worst, std::abs(1.0 / inv - z));
-    moved = std::max(moved, std::abs(p.depth.at<float>(v, u) - z));
+    moved = std::max(moved, std::abs(p_depth.at<float>(v, u) - z));
     ++checked;
   }
   EXPECT_GT(checked, k.width * k.height / 3);
@@ -322,11 +326,13 @@ TEST(SynthCamera, ExposureDriftsAndStepsWithinItsBounds) {
   RenderOptions dim, bright;
   dim.gain = 0.5f;
   bright.gain = 1.5f;
-  const cv::Mat base = render_frame(seq.scene, seq.poses[0], seq.config.intrinsics).bgr;
-  EXPECT_LT(cv::mean(render_frame(seq.scene, seq.poses[0], seq.config.intrinsics, dim).bgr)[1],
-            0.9 * cv::mean(base)[1]);
-  EXPECT_GT(cv::mean(render_frame(seq.scene, seq.poses[0], seq.config.intrinsics, bright).bgr)[1],
-            1.1 * cv::mean(base)[1]);
+  const cv::Mat base = bgr_image(render_frame(seq.scene, seq.poses[0], seq.config.intrinsics));
+  EXPECT_LT(
+      cv::mean(bgr_image(render_frame(seq.scene, seq.poses[0], seq.config.intrinsics, dim)))[1],
+      0.9 * cv::mean(base)[1]);
+  EXPECT_GT(
+      cv::mean(bgr_image(render_frame(seq.scene, seq.poses[0], seq.config.intrinsics, bright)))[1],
+      1.1 * cv::mean(base)[1]);
 }
 
 TEST(SynthCamera, WrittenSequenceCarriesTheEffects) {

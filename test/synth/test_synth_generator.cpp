@@ -8,7 +8,9 @@
 #include <iterator>
 
 #include "long3r/dataset/tum_dataset.hpp"
+#include "long3r/synth/sensor_image.hpp"
 #include "long3r/synth/synth.hpp"
+#include "long3r/synth/tum_writer.hpp"
 #include "support/test_support.hpp"
 
 using namespace long3r;
@@ -40,8 +42,10 @@ bool is_planar(const Scene& scene, int surface_id) {
 // compared with b's depth there (inverse depth interpolates exactly along a
 // plane). Returns the number of pixels checked; fills the worst 3D error.
 int cross_view_check(const Scene& scene, const PinholeIntrinsics& k, const Eigen::Isometry3d& Ta,
-                     const cv::Mat& depth_a, const cv::Mat& id_a, const Eigen::Isometry3d& Tb,
-                     const cv::Mat& depth_b, const cv::Mat& id_b, double* worst) {
+                     const RenderedFrame& a, const Eigen::Isometry3d& Tb, const RenderedFrame& b,
+                     double* worst) {
+  const cv::Mat depth_a = depth_image(a), id_a = surface_id_image(a);
+  const cv::Mat depth_b = depth_image(b), id_b = surface_id_image(b);
   int checked = 0;
   *worst = 0.0;
   const Eigen::Isometry3d Tb_inv = Tb.inverse();
@@ -106,8 +110,7 @@ TEST(SynthGenerator, DepthPosesAndIntrinsicsAgreeAcrossViews) {
   for (int j : {4, 11}) {
     const RenderedFrame b = render_frame(seq.scene, seq.poses[j], k);
     double worst = 0.0;
-    const int n = cross_view_check(seq.scene, k, seq.poses[0], a.depth, a.surface_id, seq.poses[j],
-                                   b.depth, b.surface_id, &worst);
+    const int n = cross_view_check(seq.scene, k, seq.poses[0], a, seq.poses[j], b, &worst);
     EXPECT_GT(n, k.width * k.height / 5) << "too few co-visible pixels with frame " << j;
     EXPECT_LT(worst, 1e-4) << "frame " << j;
   }
@@ -122,8 +125,7 @@ TEST(SynthGenerator, WrongIntrinsicsBreakTheCrossViewCheck) {
   PinholeIntrinsics wrong = cfg.intrinsics;
   wrong.fx *= 1.02;
   double worst = 0.0;
-  cross_view_check(seq.scene, wrong, seq.poses[0], a.depth, a.surface_id, seq.poses[11], b.depth,
-                   b.surface_id, &worst);
+  cross_view_check(seq.scene, wrong, seq.poses[0], a, seq.poses[11], b, &worst);
   EXPECT_GT(worst, 1e-3);
 }
 
@@ -149,8 +151,8 @@ TEST(SynthGenerator, SameSeedSameBytesAnyThreadCount) {
   SequenceConfig other = cfg;
   other.seed = 6;
   const Sequence s1 = generate_sequence(cfg), s2 = generate_sequence(other);
-  const cv::Mat i1 = render_frame(s1.scene, s1.poses[0], cfg.intrinsics).bgr;
-  const cv::Mat i2 = render_frame(s2.scene, s2.poses[0], cfg.intrinsics).bgr;
+  const cv::Mat i1 = bgr_image(render_frame(s1.scene, s1.poses[0], cfg.intrinsics));
+  const cv::Mat i2 = bgr_image(render_frame(s2.scene, s2.poses[0], cfg.intrinsics));
   EXPECT_GT(cv::norm(i1, i2, cv::NORM_L1), 0.0);
 }
 
@@ -185,11 +187,11 @@ TEST(SynthGenerator, CameraStaysClearOfEverySurface) {
       EXPECT_LE(worst_turn, 3.0) << to_string(type);
       EXPECT_GE(seq.scene.shapes.size(), 5u) << to_string(type) << " seed " << seed;
       // Nothing is rendered closer than the clearance allows (z >= distance * cos(corner angle)).
-      const RenderedFrame f = render_frame(seq.scene, seq.poses[777], cfg.intrinsics);
+      const cv::Mat depth = depth_image(render_frame(seq.scene, seq.poses[777], cfg.intrinsics));
       double min_depth = 1e9;
-      for (int v = 0; v < f.depth.rows; ++v) {
-        for (int u = 0; u < f.depth.cols; ++u)
-          min_depth = std::min<double>(min_depth, f.depth.at<float>(v, u));
+      for (int v = 0; v < depth.rows; ++v) {
+        for (int u = 0; u < depth.cols; ++u)
+          min_depth = std::min<double>(min_depth, depth.at<float>(v, u));
       }
       EXPECT_GT(min_depth, 0.6 * c) << to_string(type);
     }
@@ -218,7 +220,7 @@ TEST(SynthGenerator, ImagesCarryMatchableTexture) {
   for (int i : {0, 9}) {
     const RenderedFrame f = render_frame(seq.scene, seq.poses[i], cfg.intrinsics);
     cv::Mat grey;
-    cv::cvtColor(f.bgr, grey, cv::COLOR_BGR2GRAY);
+    cv::cvtColor(bgr_image(f), grey, cv::COLOR_BGR2GRAY);
     std::vector<cv::Point2f> corners;
     cv::goodFeaturesToTrack(grey, corners, 500, 0.01, 5.0);
     EXPECT_GT(corners.size(), 100u) << "frame " << i;

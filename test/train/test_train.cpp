@@ -22,6 +22,7 @@
 #include "long3r/model/safetensors.hpp"
 #include "long3r/pipeline/pose.hpp"
 #include "long3r/train/train.hpp"
+#include "long3r/train/train_cv.hpp"
 #include "support/test_support.hpp"
 
 namespace fs = std::filesystem;
@@ -172,11 +173,55 @@ TEST(TrainLoss, ScaleLossPenalisesOnlyLargerPredictions) {
   EXPECT_GT((p.grad() * p.detach()).sum().item<double>(), 0.0);
 }
 
+TEST(TrainData, PrepareSequenceShrinksImagesByAreaAndDepthByNearest) {
+  // A 4 x 4 frame to 2 x 2 (validation: full centred crop, no jitter).
+  long3r::RawFrame f;
+  f.bgr = at::arange(48, at::kFloat).mul(5.0).reshape({4, 4, 3}).to(at::kByte);
+  f.depth = at::arange(16, at::kFloat).add(1.0).reshape({4, 4});
+  f.intrinsics = long3r::PinholeIntrinsics::from_hfov(4, 4, 90.0);
+  const long3r::SequenceSample s =
+      long3r::prepare_sequence({f, f}, 2, long3r::AugmentConfig{}, nullptr, "t");
+  ASSERT_EQ(s.images[0].sizes(), (at::IntArrayRef{3, 2, 2}));
+  for (int v = 0; v < 2; ++v) {
+    for (int u = 0; u < 2; ++u) {
+      for (int c = 0; c < 3; ++c) {
+        // Model channel c is RGB: BGR channel 2 - c, mean of the 2 x 2 block.
+        double sum = 0.0;
+        for (int dy = 0; dy < 2; ++dy) {
+          for (int dx = 0; dx < 2; ++dx) {
+            sum += f.bgr[2 * v + dy][2 * u + dx][2 - c].item<double>();
+          }
+        }
+        EXPECT_NEAR(s.images[0][c][v][u].item<double>(), (sum / 4.0 / 255.0 - 0.5) / 0.5, 1e-5)
+            << "pixel " << u << "," << v << " channel " << c;
+      }
+      // Nearest: source pixel (2u, 2v), never a mix across pixels.
+      EXPECT_FLOAT_EQ(s.pts[0][v][u][2].item<float>(), f.depth[2 * v][2 * u].item<float>());
+    }
+  }
+  EXPECT_TRUE(s.valid.all().item<bool>());
+  // Growing is bilinear with pixel centres aligned: a constant stays constant.
+  long3r::RawFrame flat = f;
+  flat.bgr = at::full({4, 4, 3}, 51, at::kByte);
+  const long3r::SequenceSample big =
+      long3r::prepare_sequence({flat, flat}, 8, long3r::AugmentConfig{}, nullptr, "t");
+  EXPECT_NEAR((big.images[1] - (51.0 / 255.0 - 0.5) / 0.5).abs().max().item<double>(), 0.0, 1e-6);
+  // Frames that are not [H, W, 3] uint8 with an [H, W] float32 depth are refused.
+  long3r::RawFrame bad = f;
+  bad.depth = at::zeros({4, 3}, at::kFloat);
+  EXPECT_THROW(long3r::prepare_sequence({f, bad}, 2, long3r::AugmentConfig{}, nullptr, "t"),
+               std::invalid_argument);
+  bad = f;
+  bad.bgr = f.bgr.to(at::kFloat);
+  EXPECT_THROW(long3r::prepare_sequence({bad, f}, 2, long3r::AugmentConfig{}, nullptr, "t"),
+               std::invalid_argument);
+}
+
 TEST(TrainData, PointmapMatchesHandComputation) {
-  cv::Mat depth(2, 3, CV_32FC1, cv::Scalar(0));
-  depth.at<float>(0, 0) = 2.0f;
-  depth.at<float>(1, 2) = 4.0f;
-  depth.at<float>(0, 1) = std::nanf("");
+  at::Tensor depth = at::zeros({2, 3}, at::kFloat);
+  depth[0][0] = 2.0f;
+  depth[1][2] = 4.0f;
+  depth[0][1] = std::nanf("");
   long3r::PinholeIntrinsics k;
   k.fx = 2.0;
   k.fy = 4.0;
@@ -377,6 +422,118 @@ TEST(TrainTrainer, ResumeReproducesTheNextStep) {
   EXPECT_NE(d.step().loss, expected);
 }
 
+// The data thread draws the same batches in the same order (across the stage
+// change, whose sequences are longer), and a checkpoint taken while batches
+// wait ahead resumes exactly, with or without a data thread.
+TEST(TrainTrainer, PrefetchTrainsOnTheSameBatchesAndResumesExactly) {
+  long3r::TrainConfig c = tiny_config();
+  long3r::TrainOptions o;
+  o.quiet = true;
+  o.seed = 4;
+  o.out_dir = scratch("prefetch_reference");
+  std::vector<double> expected;
+  {
+    long3r::Trainer a(c, o);
+    for (int i = 0; i < 5; ++i) expected.push_back(a.step().loss);
+  }
+  o.out_dir = scratch("prefetch");
+  o.prefetch_batches = 2;
+  {
+    long3r::Trainer b(c, o);
+    for (int i = 0; i < 3; ++i) {
+      EXPECT_NEAR(b.step().loss, expected[i], 1e-6 * std::abs(expected[i])) << "step " << i + 1;
+    }
+    b.save_checkpoint();  // two batches are waiting ahead now
+  }                       // the data thread stops with its trainer
+  for (int prefetch : {0, 3}) {
+    long3r::TrainOptions r = o;
+    r.resume = true;
+    r.prefetch_batches = prefetch;
+    long3r::Trainer t(c, r);
+    ASSERT_EQ(t.global_step(), 3);
+    const long3r::LogRow row = t.step();
+    EXPECT_EQ(row.stage, 2);
+    EXPECT_NEAR(row.loss, expected[3], 1e-6 * std::abs(expected[3])) << "prefetch " << prefetch;
+    EXPECT_NEAR(t.step().loss, expected[4], 1e-6 * std::abs(expected[4]))
+        << "prefetch " << prefetch;
+  }
+}
+
+// A time budget ends the run early, as its end would: validated, with the
+// outputs written and the reason recorded; without the OpenCV side the
+// validation has the loss and pointmap figures and no picture is drawn.
+TEST(TrainTrainer, TimeBudgetEndsTheRunWithItsOutputs) {
+  long3r::TrainConfig c = tiny_config();
+  c.validation.sequences = 1;
+  c.validation.frames = 3;
+  c.validation.every = 0;
+  c.data.synth.val_scenes = 1;
+  long3r::TrainOptions o;
+  o.quiet = true;
+  o.out_dir = scratch("budget");
+  o.time_budget_s = 1e-3;  // spent by the first step
+  o.prefetch_batches = 1;
+  long3r::Trainer t(c, o);
+  t.run();
+  EXPECT_EQ(t.stop_reason(), "time_budget");
+  EXPECT_EQ(t.global_step(), 1);
+  const std::filesystem::path out(o.out_dir);
+  EXPECT_TRUE(std::filesystem::exists(out / "model.safetensors"));
+  EXPECT_TRUE(std::filesystem::exists(out / "checkpoint" / "step_00000001.pt"));
+  EXPECT_FALSE(std::filesystem::exists(out / "loss_curve.png"));
+  std::ifstream in(out / "validation.json");
+  std::stringstream text;
+  text << in.rdbuf();
+  const std::string j = text.str();
+  // A field of the file: its value's text (the file is indented JSON, one field a line).
+  auto field = [&j](const std::string& key) {
+    const std::size_t at = j.find("\"" + key + "\": ");
+    if (at == std::string::npos) return std::string("absent");
+    const std::size_t begin = at + key.size() + 4;
+    return j.substr(begin, j.find_first_of(",\n", begin) - begin);
+  };
+  EXPECT_EQ(field("step"), "1");
+  EXPECT_EQ(field("steps_planned"), "6");
+  EXPECT_EQ(field("stop_reason"), "\"time_budget\"");
+  const double pointmap_err = std::stod(field("pointmap_err_m"));
+  EXPECT_GT(pointmap_err, 0.0);
+  EXPECT_GT(std::stod(field("regression")), std::stod(field("registered")));
+  EXPECT_EQ(field("acc_mean_m"), "null");  // not computed without the OpenCV side
+  EXPECT_EQ(field("ate_rmse_m"), "null");
+
+  // With it: the paper's figures and the picture.
+  o.out_dir = scratch("budget_cv");
+  o.extensions = long3r::opencv_trainer_extensions();
+  long3r::Trainer full(c, o);
+  full.run();
+  EXPECT_TRUE(std::filesystem::exists(std::filesystem::path(o.out_dir) / "loss_curve.png"));
+  ASSERT_TRUE(full.log().back().val.has_value());
+  EXPECT_TRUE(std::isfinite(full.log().back().val->prediction.acc_mean));
+  EXPECT_NEAR(full.log().back().val->prediction.pointmap_error, pointmap_err, 0.5 * pointmap_err);
+}
+
+// Without the OpenCV side there is no TUM reader: such a config is refused by name.
+TEST(TrainTrainer, TumFoldersNeedTheOpenCvSide) {
+  long3r::TrainConfig c = tiny_config();
+  c.data.tum_dirs = {"/nonexistent"};
+  long3r::TrainOptions o;
+  o.quiet = true;
+  o.out_dir = scratch("tum_refused");
+  try {
+    long3r::Trainer t(c, o);
+    FAIL() << "accepted data.tum_dirs without a reader";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("data.tum_dirs"), std::string::npos) << e.what();
+  }
+  o.extensions = long3r::opencv_trainer_extensions();
+  try {
+    long3r::Trainer t(c, o);
+    FAIL() << "opened a folder that does not exist";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("/nonexistent"), std::string::npos) << e.what();
+  }
+}
+
 // Mixed precision (amp "bf16": the forward pass under bfloat16 autocast)
 // against float32, same seed, one fixed sequence (one scene, no augmentation)
 // so that the loss can fall over a few steps: every loss finite, the same fall
@@ -454,11 +611,12 @@ TEST(TrainLog, CsvColumnsAreReadBackByName) {
   v.prediction.ate_rmse = std::numeric_limits<double>::quiet_NaN();
   rows[1].val = v;
   const std::string csv = long3r::log_rows_to_csv(rows);
-  // The header train_log.csv has always had.
+  // The header train_log.csv has always had, then the columns added since.
   EXPECT_EQ(csv.substr(0, csv.find('\n')),
             "step,stage,loss,conf_loss,scale_loss,regression,lr,grad_norm,step_s,data_s,wall_s,"
             "val_loss,val_regression,val_pointmap_err_m,val_acc_mean_m,val_acc_median_m,"
-            "val_comp_mean_m,val_comp_median_m,val_nc_mean,val_nc_median,val_ate_rmse_m");
+            "val_comp_mean_m,val_comp_median_m,val_nc_mean,val_nc_median,val_ate_rmse_m,"
+            "val_registered");
   auto expect_rows = [&](const std::vector<long3r::LogRow>& got) {
     ASSERT_EQ(got.size(), 2u);
     EXPECT_EQ(got[0].step, 1);
@@ -491,6 +649,16 @@ TEST(TrainLog, CsvColumnsAreReadBackByName) {
   std::string renamed = csv;
   renamed.replace(renamed.find("grad_norm"), 9, "gradnorm");
   EXPECT_THROW(long3r::log_rows_from_csv(renamed), std::runtime_error);
+
+  // A log written before val_registered existed (a resumed older checkpoint).
+  rows[1].val->registered = 0.75;
+  std::string older;
+  std::istringstream lines(long3r::log_rows_to_csv(rows));
+  while (std::getline(lines, line)) older += line.substr(0, line.rfind(',')) + "\n";
+  const std::vector<long3r::LogRow> read = long3r::log_rows_from_csv(older);
+  expect_rows(read);
+  EXPECT_TRUE(std::isnan(read[1].val->registered));
+  EXPECT_EQ(long3r::log_rows_from_csv(long3r::log_rows_to_csv(rows))[1].val->registered, 0.75);
 }
 
 TEST(TrainInit, CopiesMatchingTensorsByNameAndShape) {

@@ -13,3 +13,16 @@ if(TARGET app_long3r_train AND TARGET app_long3r_synth AND TARGET app_long3r_rec
   set_tests_properties(train_cli PROPERTIES
     ENVIRONMENT "OMP_NUM_THREADS=2;OPENBLAS_NUM_THREADS=1" TIMEOUT 300)
 endif()
+
+# scripts/train_gpu.sh, checked on the CPU: the trainer and the generator
+# build with nothing but a libtorch and the header-only dependencies packed
+# as for a GPU machine (OpenCV, PCL and the system Eigen kept out), train a
+# few steps of the real GPU recipe with a data thread, and write the folder
+# to bring back; without a GPU the real run says why and exits 3.
+if(LONG3R_HAVE_CV)  # checked from the full build; the dry run makes the torch-only one
+  add_test(NAME train_gpu_cpu_dry_run
+    COMMAND /usr/bin/python3 ${PROJECT_SOURCE_DIR}/test/train/train_gpu_dry_run_test.py
+      --root ${PROJECT_SOURCE_DIR} --workdir ${PROJECT_BINARY_DIR}/test_tmp/train_gpu)
+  set_tests_properties(train_gpu_cpu_dry_run PROPERTIES
+    ENVIRONMENT "OPENBLAS_NUM_THREADS=1" TIMEOUT 1500)
+endif()

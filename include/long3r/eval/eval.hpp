@@ -139,10 +139,6 @@ ReconstructionEvalResult evaluate_reconstruction(const std::vector<Eigen::Vector
                                                  const std::vector<Eigen::Vector3f>& gt,
                                                  const ReconstructionEvalOptions& options = {});
 
-// Umeyama alignment of corresponding points (pred[i] <-> gt[i]).
-Sim3 align_correspondences(const std::vector<Eigen::Vector3f>& pred,
-                           const std::vector<Eigen::Vector3f>& gt, bool with_scale = true);
-
 // ------------------------------------------------------------- trajectories
 
 // evo's matching (sync.associate_trajectories): for each stamp of the shorter

@@ -10,6 +10,8 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <vector>
+
 namespace long3r {
 
 struct Sim3 {
@@ -38,5 +40,10 @@ struct Sim3 {
 // < 2, e.g. all points on one line).
 Sim3 umeyama_alignment(const Eigen::Matrix3Xd& src, const Eigen::Matrix3Xd& dst,
                        bool with_scale = true);
+
+// umeyama_alignment of corresponding float points (pred[i] <-> gt[i]); also
+// throws std::invalid_argument when the two differ in size.
+Sim3 align_correspondences(const std::vector<Eigen::Vector3f>& pred,
+                           const std::vector<Eigen::Vector3f>& gt, bool with_scale = true);
 
 }  // namespace long3r

@@ -29,10 +29,17 @@
 // from std::mt19937_64 (whose output the standard fixes) through the
 // distributions implemented here, so results do not depend on the standard
 // library's distribution code. Images are identical for any thread count.
+//
+// This header is the generator's core (library long3r_synth: Eigen and
+// libtorch only, so that training data can be rendered on a machine without
+// OpenCV). What needs OpenCV is in long3r_synth_cv: the LensRays constructor
+// (lens_rays.cpp), sensor noise and OpenCV images (sensor_image.hpp) and the
+// TUM writer (tum_writer.hpp).
 #pragma once
 
+#include <ATen/core/Tensor.h>
+
 #include <Eigen/Geometry>
-#include <opencv2/core.hpp>
 
 #include <cstdint>
 #include <functional>
@@ -224,10 +231,12 @@ struct Sequence {
 // small for the clearance).
 Sequence generate_sequence(const SequenceConfig& config);
 
+// CPU tensors, row-major (the memory layout of the OpenCV images of the same
+// content: sensor_image.hpp makes those).
 struct RenderedFrame {
-  cv::Mat bgr;         // CV_8UC3, OpenCV BGR order, sRGB-encoded
-  cv::Mat depth;       // CV_32FC1, z-depth in metres (0 where no surface)
-  cv::Mat surface_id;  // CV_32SC1, Hit::surface_id (-1 where no surface)
+  at::Tensor bgr;         // [H, W, 3] uint8, BGR order, sRGB-encoded
+  at::Tensor depth;       // [H, W] float32, z-depth in metres (0 where no surface)
+  at::Tensor surface_id;  // [H, W] int32, Hit::surface_id (-1 where no surface)
 };
 RenderedFrame render_frame(const Scene& scene, const Eigen::Isometry3d& T_W_C,
                            const PinholeIntrinsics& intrinsics, const RenderOptions& options = {});
@@ -235,7 +244,9 @@ RenderedFrame render_frame(const Scene& scene, const Eigen::Isometry3d& T_W_C,
 // The rays of a camera with lens distortion: for every pixel centre (and the
 // n x n sub-pixel samples of supersampling) the normalised ray (x, y, 1) that
 // the plumb_bob model maps onto it, found with cv::undistortPoints (iterated
-// to convergence and checked by projecting back), once per camera.
+// to convergence and checked by projecting back), once per camera. The
+// constructor is OpenCV's side (long3r_synth_cv); rendering with the table
+// is not.
 class LensRays {
  public:
   // Throws std::invalid_argument when the model cannot be inverted over the
@@ -266,35 +277,8 @@ class LensRays {
 RenderedFrame render_frame(const Scene& scene, const Eigen::Isometry3d& T_W_C, const LensRays& rays,
                            const RenderOptions& options = {});
 
-// The image the sensor writes for frame `index`: `bgr` (rendered with the
-// frame's exposure gain) made grey when sensor.mono, then noise added (seeded
-// by derived_seed(seed, index)). Returns `bgr` itself when neither applies.
-cv::Mat apply_sensor(const cv::Mat& bgr, const SensorConfig& sensor, uint64_t seed, int index);
-
 // Per-frame exposure gains for `stamps` (seconds); all 1 without exposure effects.
 std::vector<double> exposure_gains(const SensorConfig& sensor, uint64_t seed,
                                    const std::vector<double>& stamps);
-
-struct WriteStats {
-  int frames = 0;
-  double render_seconds = 0.0;  // wall time spent rendering
-  double write_seconds = 0.0;   // wall time spent encoding and writing files
-};
-
-// Writes the TUM layout (see tum_dataset.hpp) into `dir` (created):
-// rgb/<t>.png (colour, or grey with sensor.mono), depth/<t>.png (uint16,
-// metres * 5000, 0 beyond 13.1 m, registered to the image's pixels), rgb.txt,
-// depth.txt, groundtruth.txt, calibration.txt (with the plumb_bob
-// coefficients when distorted), plus scene.json (config and scene
-// description). <t> is the timestamp with 6 decimals. Robot paths add
-// base_groundtruth.txt (T_W_B, TUM format) and camera_mount.txt (T_B_C, the
-// optical frame in base_link); exposure effects add exposure.txt ("timestamp
-// gain"). `progress(i, n)` is called after each frame when given.
-WriteStats write_tum_sequence(const Sequence& sequence, const std::string& dir,
-                              const RenderOptions& options = {},
-                              const std::function<void(int, int)>& progress = {});
-
-// Depth PNG scale shared with the TUM reader's default.
-constexpr double kTumDepthFactor = 5000.0;
 
 }  // namespace long3r::synth

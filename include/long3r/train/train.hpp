@@ -6,12 +6,18 @@
 //
 // Frames: ground-truth pointmaps are in the optical frame of camera 0 of each
 // sampled sequence (x right, y down, z forward), metres, like the model's.
+//
+// This is the trainer's core (library long3r_train: libtorch, Eigen and the
+// generator's core only), so that it builds and trains on a machine with
+// nothing but a libtorch, e.g. a CUDA one. What needs OpenCV, PCL or the
+// pipeline (TUM folders as data, PnP poses and the point-cloud metrics in
+// validation, the loss-curve PNG) is in train_cv.hpp and reaches the trainer
+// through TrainerExtensions.
 #pragma once
 
 #include <ATen/core/Tensor.h>
 
 #include <Eigen/Geometry>
-#include <opencv2/core.hpp>
 
 #include <cstdint>
 #include <functional>
@@ -22,7 +28,6 @@
 #include <string>
 #include <vector>
 
-#include "long3r/dataset/tum_dataset.hpp"
 #include "long3r/model/long3r_model.hpp"
 #include "long3r/model/streaming.hpp"
 #include "long3r/pipeline/pinhole_intrinsics.hpp"
@@ -45,16 +50,29 @@ double learning_rate_at(const TrainConfig& config, int64_t step);
 
 // ====================================================================== data
 
-// One source frame with ground truth.
+// One source frame with ground truth (CPU tensors).
 struct RawFrame {
-  cv::Mat bgr;    // CV_8UC3
-  cv::Mat depth;  // CV_32FC1 z-depth, metres; 0 / non-finite = invalid
+  at::Tensor bgr;    // [H, W, 3] uint8, BGR order
+  at::Tensor depth;  // [H, W] float32 z-depth, metres; 0 / non-finite = invalid
   PinholeIntrinsics intrinsics;
   Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
 };
 
+// A recorded sequence used as training data: frames with depth, pose and
+// calibration (TUM folders: open_tum_training_source in train_cv.hpp).
+class RecordedSource {
+ public:
+  virtual ~RecordedSource() = default;
+  virtual int64_t size() const = 0;
+  virtual RawFrame frame(int64_t index) const = 0;
+  virtual std::string name() const = 0;  // in the samples' source strings
+};
+// Opens the folder of a data.tum_dirs entry, or throws naming the problem.
+using RecordedSourceOpener = std::function<std::unique_ptr<RecordedSource>(const std::string&)>;
+
 // Intrinsics after cropping the rectangle (x0, y0, w, h) out of an image and
-// resizing it to out_w x out_h with pixel-centre alignment (cv::resize):
+// resizing it to out_w x out_h with pixel-centre alignment (as cv::resize and
+// torch's interpolation without align_corners):
 // f' = f * out / crop, c' = (c - x0 + 0.5) * out / crop - 0.5.
 PinholeIntrinsics crop_resize_intrinsics(const PinholeIntrinsics& k, int x0, int y0, int w, int h,
                                          int out_w, int out_h);
@@ -62,11 +80,13 @@ PinholeIntrinsics crop_resize_intrinsics(const PinholeIntrinsics& k, int x0, int
 // Ground-truth pointmap of one frame: depth unprojected with `k` and mapped by
 // T_C0_C into camera 0's frame. Returns [H, W, 3] float32 (zeros where
 // invalid) and sets *valid ([H, W] bool: depth > 0 and finite).
-at::Tensor depth_to_pointmap(const cv::Mat& depth, const PinholeIntrinsics& k,
+// depth: [H, W] float32.
+at::Tensor depth_to_pointmap(const at::Tensor& depth, const PinholeIntrinsics& k,
                              const Eigen::Isometry3d& T_C0_C, at::Tensor* valid);
 
-// [3, H, W] float32 model input, (rgb - 0.5) / 0.5, from a BGR image.
-at::Tensor bgr_to_model_input(const cv::Mat& bgr);
+// [3, H, W] float32 model input, (rgb - 0.5) / 0.5, from a BGR image
+// ([H, W, 3] uint8).
+at::Tensor bgr_to_model_input(const at::Tensor& bgr);
 
 // A sequence ready for the model.
 struct SequenceSample {
@@ -82,7 +102,9 @@ struct SequenceSample {
 // a random square of side (1 - u * max_crop) times the largest centred
 // square, at a random position, u uniform), optional colour jitter per frame,
 // and ground truth in camera 0's frame. rng == nullptr: centred full crop and
-// no jitter (validation).
+// no jitter (validation). Images shrink by area averaging and grow
+// bilinearly; depth is resized by nearest neighbour (no depth mixed across
+// object boundaries); a crop of the output size is copied as it is.
 SequenceSample prepare_sequence(const std::vector<RawFrame>& frames, int size,
                                 const AugmentConfig& augment, std::mt19937_64* rng,
                                 const std::string& source = "");
@@ -99,9 +121,14 @@ Batch collate(const std::vector<SequenceSample>& samples);
 // Draws training sequences (random source, scene, start and stride) and
 // builds the fixed validation sequences. Deterministic given its RNG state,
 // which checkpoints save and restore.
+// Thread-compatible: one thread uses a sampler at a time (the trainer's data
+// thread while it prefetches).
 class SequenceSampler {
  public:
-  SequenceSampler(const DataConfig& config, int image_size, uint64_t seed, int render_threads = 2);
+  // open_recorded opens data.tum_dirs; without it a config naming any is
+  // refused (std::runtime_error).
+  SequenceSampler(const DataConfig& config, int image_size, uint64_t seed, int render_threads = 2,
+                  const RecordedSourceOpener& open_recorded = {});
 
   SequenceSample sample(int64_t frames);
   Batch sample_batch(int64_t batch_size, int64_t frames);
@@ -127,7 +154,7 @@ class SequenceSampler {
   int render_threads_;
   std::mt19937_64 rng_;
   std::map<uint64_t, synth::Sequence> scenes_;
-  std::vector<TumDataset> tum_;
+  std::vector<std::unique_ptr<RecordedSource>> recorded_;
 };
 
 // ====================================================================== loss
@@ -206,6 +233,10 @@ struct PredictionMetrics {
 
 struct ValidationMetrics {
   double loss = 0, regression = 0;  // sequence_loss over the sequences, averaged
+  // probe_loss's `registered` (shape error left once every frame is placed
+  // by its own Sim(3)), averaged: regression - registered is what
+  // registration costs.
+  double registered = 0;
   // evaluate_prediction's figures averaged over the sequences; ate_rmse and
   // the RPE over those where they are finite (NaN when there is none);
   // frames and posed are totals.
@@ -231,34 +262,43 @@ class TrainingModeGuard {
   bool was_training_;
 };
 
-// Inference-mode run of `model` (switched to inference and back) over the
-// sequences: loss, and after a Sim(3) Umeyama alignment of each sequence's
-// predicted points to the GT (scale alignment, as long3r_eval's corr mode),
-// the point-cloud metrics and the ATE of PnP poses. Averages over sequences.
-ValidationMetrics validate(Long3rModel& model, const std::vector<SequenceSample>& sequences,
-                           const LossConfig& loss, const ValidationConfig& config);
-
-// ======================================================= held-out evaluation
-
 // A model's (or a baseline's) pointmaps for one sequence, CPU float32.
 struct SequencePrediction {
   std::vector<at::Tensor> pts;   // N x [H, W, 3], camera-0 frame
   std::vector<at::Tensor> conf;  // N x [H, W]
   double seconds = 0;            // wall time of the prediction
 };
+
+// Scores one predicted validation sequence against its ground truth.
+using PredictionScorer = std::function<PredictionMetrics(
+    const SequencePrediction&, const SequenceSample&, const ValidationConfig&)>;
+
+// What needs no OpenCV: pointmap_error (mean || aligned pred - gt || after
+// one Sim(3), Umeyama on the valid pixels every config.pixel_step-th row and
+// column); the point-cloud and trajectory figures NaN. frames = N, posed = 0.
+PredictionMetrics pointmap_metrics(const SequencePrediction& prediction,
+                                   const SequenceSample& sample, const ValidationConfig& config);
+
+// Inference-mode run of `model` (switched to inference and back) over the
+// sequences: the loss, probe_loss's registered share, and `score`'s figures
+// (pointmap_metrics when empty; train_cv.hpp's full_validation_scorer adds
+// Acc / Comp / NC and the ATE of PnP poses). Averages over sequences.
+ValidationMetrics validate(Long3rModel& model, const std::vector<SequenceSample>& sequences,
+                           const LossConfig& loss, const ValidationConfig& config,
+                           const PredictionScorer& score = {});
+
+// ======================================================= held-out evaluation
+
 // Streams the sequence through `model` in inference mode (one push per
 // frame, the last frame from flush(), as the pipeline does).
 SequencePrediction predict_sequence(Long3rModel& model, const SequenceSample& sample);
 // The constant-depth baseline: every pixel of every frame at depth `depth_m`
 // in its own camera, all cameras at camera 0 (no motion), confidence 1.
 SequencePrediction constant_depth_prediction(const SequenceSample& sample, double depth_m);
-// Oracles of the loss probe (docs/model_card.md, "Why the model does not
-// register"), both from the ground truth, confidence 1:
-//  - true depth, no motion: every frame's exact pointmap in its own camera,
-//    all cameras at camera 0 (a perfect depth predictor that never registers);
-//  - frame-0 geometry: frame 0's exact pointmap for every frame (ignores the
-//    images after the first).
-SequencePrediction true_depth_no_motion_prediction(const SequenceSample& sample);
+// Oracle of the loss probe (docs/model_card.md, "Why the model does not
+// register"), from the ground truth, confidence 1: frame 0's exact pointmap
+// for every frame (ignores the images after the first). The other oracle,
+// true_depth_no_motion_prediction, is in train_cv.hpp.
 SequencePrediction first_frame_prediction(const SequenceSample& sample);
 
 // What a prediction costs in the training loss, and how much of that is
@@ -277,32 +317,19 @@ struct LossProbe {
 };
 LossProbe probe_loss(const SequencePrediction& prediction, const SequenceSample& sample);
 
-struct PredictionMetricsOptions {
-  int pixel_step = 2;   // subsampling of the clouds
-  bool normals = true;  // NC
-  // When set: a PNG of the aligned prediction next to the GT, top views
-  // coloured by Acc / Comp error (plot_error_top_view, saturating at
-  // picture_max_error_m).
-  std::string picture_path;
-  double picture_max_error_m = 0.3;
-  // Intrinsics of the PnP poses: the generator's (false) or, as the pipeline
-  // does without a calibration, estimated from frame 0's pointmap (true; if
-  // that fails, no frame is posed).
-  bool estimate_intrinsics = false;
-};
-// Scores a prediction against the sequence's ground truth: one Sim(3)
-// (Umeyama on corresponding valid pixels) aligns the predicted points to the
-// GT, then Acc / Comp / NC on the aligned clouds; camera poses by PnP on the
-// predicted pointmaps (all pixels, as validation) give ATE / RPE after their
-// own Sim(3) alignment. An estimate without any motion (the baseline) has no
-// unique Sim(3); its least-squares optimum maps every pose onto the GT
-// centroid, so ATE is then the spread of the GT positions and RPE the GT's
-// own frame-to-frame motion.
-PredictionMetrics evaluate_prediction(const SequencePrediction& prediction,
-                                      const SequenceSample& sample,
-                                      const PredictionMetricsOptions& options);
-
 // =================================================================== trainer
+
+struct LogRow;
+
+// What the trainer takes from the OpenCV side when it is built
+// (train_cv.hpp: opencv_trainer_extensions()). Each part may be empty, as on
+// a machine with nothing but a libtorch.
+struct TrainerExtensions {
+  PredictionScorer score;              // validation figures; empty: pointmap_metrics
+  RecordedSourceOpener open_recorded;  // data.tum_dirs; empty: such configs are refused
+  // Writes loss_curve.png; empty: no picture (train_log.csv holds the curves).
+  std::function<void(const std::vector<LogRow>&, const std::string& path)> write_plot;
+};
 
 struct TrainOptions {
   std::string out_dir;
@@ -313,6 +340,18 @@ struct TrainOptions {
   std::string init_checkpoint;  // DUSt3R / Spann3R / LONG3R weights to start from
   std::string model_override;   // replaces config.model when set
   bool quiet = false;
+  // Threads rendering training scenes; 0: torch's intra-op thread count.
+  int render_threads = 0;
+  // Batches prepared ahead on a data thread while the model trains (renders
+  // on the CPU while a GPU computes); 0: each batch when its step needs it.
+  // Any value trains on the same batches, in the same order.
+  int prefetch_batches = 0;
+  // Wall-clock budget of this run in seconds (0: none): no step starts that
+  // would, at the mean step time so far, end past it; the run then validates
+  // and writes its outputs as at the schedule's end, learning-rate schedule
+  // unchanged.
+  double time_budget_s = 0;
+  TrainerExtensions extensions;
 };
 
 // One CSV row (train_log.csv); validation columns are NaN where not run.
@@ -330,8 +369,9 @@ class Trainer {
   Trainer(const TrainConfig& config, const TrainOptions& options);
   ~Trainer();
 
-  // Runs until the schedule's end or max_steps; writes model.safetensors,
-  // train_log.csv, loss_curve.png and checkpoints.
+  // Runs until the schedule's end, max_steps or the time budget; writes
+  // model.safetensors, train_log.csv, validation.json (the last validation),
+  // loss_curve.png (with extensions.write_plot) and checkpoints.
   void run();
   // One optimiser step (sampling, forward, loss, backward, clip, update).
   LogRow step();
@@ -344,7 +384,9 @@ class Trainer {
   // Restores all of the above from such a file.
   void load_checkpoint(const std::string& path);
   ValidationMetrics run_validation();
-  void write_outputs();  // model.safetensors, CSV, PNG
+  void write_outputs();  // model.safetensors, CSV, validation.json, PNG
+  // Why the last run() ended: "schedule", "max_steps" or "time_budget".
+  const std::string& stop_reason() const { return stop_reason_; }
 
   int64_t global_step() const { return step_; }
   Long3rModel& model() { return *model_; }
@@ -355,6 +397,10 @@ class Trainer {
  private:
   void apply_stage(int64_t stage);
   void set_lr(double lr);
+  const TrainStage& stage_of_step(int64_t step) const;
+  // The batch of step step_: drawn now, or taken from the data thread.
+  Batch next_batch(int64_t batch_size, int64_t frames);
+  void stop_prefetch();
 
   TrainConfig config_;
   TrainOptions options_;
@@ -364,6 +410,12 @@ class Trainer {
   struct Optim;
   std::unique_ptr<Optim> optim_;
   std::unique_ptr<SequenceSampler> sampler_;
+  // The sampler's RNG state after the last batch a step used (what a
+  // checkpoint saves: batches prefetched beyond it are drawn again on resume).
+  std::string sampler_state_;
+  struct Prefetch;
+  std::unique_ptr<Prefetch> prefetch_;
+  std::string stop_reason_;
   std::vector<SequenceSample> val_sequences_;
   std::vector<LogRow> log_;
   std::optional<InitReport> init_report_;
@@ -372,10 +424,6 @@ class Trainer {
   double wall_offset_s_ = 0;  // wall time of the runs before a resume
   double start_time_ = 0;
 };
-
-// loss_curve.png: training loss (raw and smoothed), validation loss and the
-// learning rate over the steps (plot_line_chart).
-cv::Mat plot_training_curves(const std::vector<LogRow>& rows, int width = 900, int height = 560);
 
 // CSV text of the rows (header included).
 std::string log_rows_to_csv(const std::vector<LogRow>& rows);

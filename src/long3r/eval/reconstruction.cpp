@@ -291,19 +291,6 @@ ReconstructionMetrics reconstruction_metrics(const std::vector<Eigen::Vector3f>&
   return m;
 }
 
-Sim3 align_correspondences(const std::vector<Eigen::Vector3f>& pred,
-                           const std::vector<Eigen::Vector3f>& gt, bool with_scale) {
-  if (pred.size() != gt.size()) {
-    throw std::invalid_argument("align_correspondences: clouds differ in size");
-  }
-  Eigen::Matrix3Xd src(3, pred.size()), dst(3, gt.size());
-  for (size_t i = 0; i < pred.size(); ++i) {
-    src.col(i) = pred[i].cast<double>();
-    dst.col(i) = gt[i].cast<double>();
-  }
-  return umeyama_alignment(src, dst, with_scale);
-}
-
 ReconstructionEvalResult evaluate_reconstruction(const std::vector<Eigen::Vector3f>& pred,
                                                  const std::vector<Eigen::Vector3f>& gt,
                                                  const ReconstructionEvalOptions& o) {

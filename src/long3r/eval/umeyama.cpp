@@ -74,4 +74,17 @@ Sim3 umeyama_alignment(const Eigen::Matrix3Xd& src, const Eigen::Matrix3Xd& dst,
   return out;
 }
 
+Sim3 align_correspondences(const std::vector<Eigen::Vector3f>& pred,
+                           const std::vector<Eigen::Vector3f>& gt, bool with_scale) {
+  if (pred.size() != gt.size()) {
+    throw std::invalid_argument("align_correspondences: clouds differ in size");
+  }
+  Eigen::Matrix3Xd src(3, pred.size()), dst(3, gt.size());
+  for (size_t i = 0; i < pred.size(); ++i) {
+    src.col(i) = pred[i].cast<double>();
+    dst.col(i) = gt[i].cast<double>();
+  }
+  return umeyama_alignment(src, dst, with_scale);
+}
+
 }  // namespace long3r

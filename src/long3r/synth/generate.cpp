@@ -755,4 +755,29 @@ Sequence generate_sequence(const SequenceConfig& config) {
   return seq;
 }
 
+namespace {
+// derived_seed stream of the exposure gains (an arbitrary constant).
+constexpr uint64_t kExposureStream = 0x6578706f73757265ull;  // "exposure"
+}  // namespace
+
+std::vector<double> exposure_gains(const SensorConfig& sensor, uint64_t seed,
+                                   const std::vector<double>& stamps) {
+  std::vector<double> gains(stamps.size(), 1.0);
+  if (!sensor.exposure() || stamps.empty()) return gains;
+  Rng rng(derived_seed(seed, kExposureStream));
+  const double w1 = 2 * M_PI / rng.uniform(6.0, 12.0), p1 = rng.uniform(0.0, 2 * M_PI);
+  const double w2 = 2 * M_PI / rng.uniform(2.5, 5.0), p2 = rng.uniform(0.0, 2 * M_PI);
+  const double log_step = std::log1p(sensor.exposure_step);
+  double step = 1.0;
+  for (size_t i = 0; i < stamps.size(); ++i) {
+    if (sensor.exposure_step_prob > 0.0 && rng.bernoulli(sensor.exposure_step_prob)) {
+      step = std::exp(rng.uniform(-1.0, 1.0) * log_step);
+    }
+    const double t = stamps[i] - stamps[0];
+    const double wave = 0.6 * std::sin(w1 * t + p1) + 0.4 * std::sin(w2 * t + p2);
+    gains[i] = (1.0 + sensor.exposure_drift * wave) * step;
+  }
+  return gains;
+}
+
 }  // namespace long3r::synth

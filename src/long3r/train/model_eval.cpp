@@ -1,10 +1,9 @@
-// Held-out evaluation of a model or a baseline on generated sequences: the
-// numbers of docs/model_card.md and of the shipped model's regression test.
+// Held-out evaluation of a model or a baseline on generated sequences with
+// the paper's metrics: the numbers of docs/model_card.md and of the shipped
+// model's regression test.
 #include <ATen/ATen.h>
 #include <ATen/Parallel.h>
-#include <c10/core/InferenceMode.h>
 
-#include <chrono>
 #include <cmath>
 #include <limits>
 #include <optional>
@@ -14,7 +13,8 @@
 #include "long3r/eval/eval.hpp"
 #include "long3r/pipeline/intrinsics.hpp"
 #include "long3r/pipeline/pose.hpp"
-#include "long3r/train/train.hpp"
+#include "long3r/train/correspondences.hpp"
+#include "long3r/train/train_cv.hpp"
 
 namespace long3r {
 
@@ -31,75 +31,7 @@ cv::Mat mat1(const at::Tensor& t) {  // [H, W] float CPU, shares memory
 
 double nan() { return std::numeric_limits<double>::quiet_NaN(); }
 
-// Appends the (prediction, GT) points of the valid pixels of one frame
-// ([H, W, 3] pointmaps, [H, W] mask), every `step`-th row and column.
-// Pixels whose prediction is not finite are left out; returns their count.
-int64_t append_correspondences(const at::Tensor& pred, const at::Tensor& gt,
-                               const at::Tensor& valid, int step,
-                               std::vector<Eigen::Vector3f>* pred_pts,
-                               std::vector<Eigen::Vector3f>* gt_pts) {
-  const at::Tensor p = pred.to(at::kFloat).contiguous();
-  const at::Tensor g = gt.to(at::kFloat).contiguous();
-  const at::Tensor v = valid.contiguous();
-  const int64_t H = p.size(0), W = p.size(1);
-  const float* pp = p.data_ptr<float>();
-  const float* gp = g.data_ptr<float>();
-  const bool* vp = v.data_ptr<bool>();
-  int64_t non_finite = 0;
-  for (int64_t y = 0; y < H; y += step) {
-    for (int64_t x = 0; x < W; x += step) {
-      const int64_t k = y * W + x;
-      if (!vp[k]) continue;
-      const Eigen::Vector3f q(pp[3 * k], pp[3 * k + 1], pp[3 * k + 2]);
-      if (!q.allFinite()) {
-        ++non_finite;
-        continue;
-      }
-      pred_pts->push_back(q);
-      gt_pts->emplace_back(gp[3 * k], gp[3 * k + 1], gp[3 * k + 2]);
-    }
-  }
-  return non_finite;
-}
-
 }  // namespace
-
-SequencePrediction predict_sequence(Long3rModel& model, const SequenceSample& sample) {
-  SequencePrediction p;
-  const auto t0 = std::chrono::steady_clock::now();
-  {
-    const TrainingModeGuard inference(model, false);
-    c10::InferenceMode guard;
-    std::vector<at::Tensor> frames;
-    for (const at::Tensor& f : sample.images) frames.push_back(f.unsqueeze(0).to(model.device()));
-    const std::vector<StreamOutput> out = model.forward_sequence(frames);
-    for (const StreamOutput& o : out) {
-      p.pts.push_back(o.pts3d[0].to(at::kCPU, at::kFloat).contiguous());
-      p.conf.push_back(o.conf[0].to(at::kCPU, at::kFloat).contiguous());
-    }
-  }
-  p.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  return p;
-}
-
-SequencePrediction constant_depth_prediction(const SequenceSample& sample, double depth_m) {
-  if (!(depth_m > 0.0)) throw std::invalid_argument("constant_depth_prediction: depth must be > 0");
-  SequencePrediction p;
-  for (std::size_t i = 0; i < sample.images.size(); ++i) {
-    const int64_t H = sample.images[i].size(1), W = sample.images[i].size(2);
-    const PinholeIntrinsics& k = sample.intrinsics[i];
-    const at::Tensor u = at::arange(W, at::kFloat).view({1, W}).expand({H, W});
-    const at::Tensor v = at::arange(H, at::kFloat).view({H, 1}).expand({H, W});
-    const float z = static_cast<float>(depth_m);
-    p.pts.push_back(at::stack({(u - static_cast<float>(k.cx)) * (z / static_cast<float>(k.fx)),
-                               (v - static_cast<float>(k.cy)) * (z / static_cast<float>(k.fy)),
-                               at::full({H, W}, z)},
-                              -1)
-                        .contiguous());
-    p.conf.push_back(at::ones({H, W}, at::kFloat));
-  }
-  return p;
-}
 
 SequencePrediction true_depth_no_motion_prediction(const SequenceSample& sample) {
   SequencePrediction p;
@@ -116,62 +48,6 @@ SequencePrediction true_depth_no_motion_prediction(const SequenceSample& sample)
   return p;
 }
 
-SequencePrediction first_frame_prediction(const SequenceSample& sample) {
-  SequencePrediction p;
-  for (std::size_t i = 0; i < sample.images.size(); ++i) {
-    p.pts.push_back(sample.pts[0].clone());
-    p.conf.push_back(at::ones({sample.pts.size(1), sample.pts.size(2)}, at::kFloat));
-  }
-  return p;
-}
-
-LossProbe probe_loss(const SequencePrediction& prediction, const SequenceSample& sample) {
-  const std::size_t n = prediction.pts.size();
-  if (n < 2 || n != sample.images.size()) {
-    throw std::invalid_argument("probe_loss: need a prediction of N >= 2 frames for the sequence");
-  }
-  std::vector<StreamOutput> outputs(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    outputs[i].frame_index = static_cast<int64_t>(i);
-    outputs[i].pts3d = prediction.pts[i].to(at::kFloat).unsqueeze(0);
-  }
-  LossConfig lc;
-  lc.coarse = false;
-  LossProbe r;
-  r.regression =
-      sequence_loss(outputs, {}, sample.pts.unsqueeze(0), sample.valid.unsqueeze(0), lc).regression;
-
-  // Normalised like the loss: each cloud by its own average distance over the sequence.
-  const at::Tensor pred = at::stack(prediction.pts, 0).to(at::kFloat).unsqueeze(0);
-  const at::Tensor valid = sample.valid.unsqueeze(0);
-  const at::Tensor pred_n = (pred / average_distance(pred, valid).item<double>())[0];
-  const at::Tensor gt_n =
-      sample.pts / average_distance(sample.pts.unsqueeze(0), valid).item<double>();
-  double sum = 0.0;
-  for (std::size_t i = 0; i < n; ++i) {
-    const int64_t f = static_cast<int64_t>(i);
-    std::vector<Eigen::Vector3f> src, dst;
-    if (append_correspondences(pred_n[f], gt_n[f], sample.valid[f], 1, &src, &dst) > 0) {
-      return {r.regression, nan()};  // so is the loss then
-    }
-    if (src.size() < 3) continue;  // as the loss: a frame without valid pixels adds 0
-    Sim3 T;
-    try {
-      T = align_correspondences(src, dst, true);
-    } catch (const std::invalid_argument&) {
-      // A collapsed frame (all points on a line) has no best placement.
-      return {r.regression, nan()};
-    }
-    double err = 0.0;
-    for (std::size_t k = 0; k < src.size(); ++k) {
-      err += (T * src[k].cast<double>() - dst[k].cast<double>()).norm();
-    }
-    sum += err / static_cast<double>(src.size());
-  }
-  r.registered = sum / static_cast<double>(n);
-  return r;
-}
-
 PredictionMetrics evaluate_prediction(const SequencePrediction& prediction,
                                       const SequenceSample& sample,
                                       const PredictionMetricsOptions& options) {
@@ -183,25 +59,9 @@ PredictionMetrics evaluate_prediction(const SequencePrediction& prediction,
   PredictionMetrics m;
   m.frames = static_cast<int64_t>(n);
 
-  // Corresponding valid pixels: one Sim(3) for the whole sequence.
-  std::vector<Eigen::Vector3f> pred_pts, gt_pts;
-  for (std::size_t i = 0; i < n; ++i) {
-    const int64_t f = static_cast<int64_t>(i);
-    if (prediction.pts[i].sizes() != sample.pts[f].sizes()) {
-      throw std::invalid_argument("evaluate_prediction: pointmap sizes");
-    }
-    append_correspondences(prediction.pts[i], sample.pts[f], sample.valid[f], options.pixel_step,
-                           &pred_pts, &gt_pts);
-  }
-  if (pred_pts.size() < 3) throw std::runtime_error("evaluate_prediction: too few valid points");
-  const Sim3 align = align_correspondences(pred_pts, gt_pts, true);
-  std::vector<Eigen::Vector3f> aligned(pred_pts.size());
-  double err = 0.0;
-  for (std::size_t i = 0; i < pred_pts.size(); ++i) {
-    aligned[i] = (align * pred_pts[i].cast<double>()).cast<float>();
-    err += (aligned[i] - gt_pts[i]).norm();
-  }
-  m.pointmap_error = err / static_cast<double>(pred_pts.size());
+  std::vector<Eigen::Vector3f> aligned, gt_pts;
+  m.pointmap_error =
+      aligned_pointmap_error(prediction, sample, options.pixel_step, &aligned, &gt_pts);
   ReconstructionMetricsOptions ro;
   ro.normals = options.normals;
   ro.keep_errors = !options.picture_path.empty();
@@ -275,6 +135,15 @@ PredictionMetrics evaluate_prediction(const SequencePrediction& prediction,
     // Degenerate (e.g. collinear) estimate: no trajectory numbers.
   }
   return m;
+}
+
+PredictionMetrics full_validation_scorer(const SequencePrediction& prediction,
+                                         const SequenceSample& sample,
+                                         const ValidationConfig& config) {
+  PredictionMetricsOptions po;
+  po.pixel_step = config.pixel_step;
+  po.normals = config.normals;
+  return evaluate_prediction(prediction, sample, po);
 }
 
 }  // namespace long3r

@@ -1,7 +1,6 @@
 // Training data: sequence sampling from generated scenes and TUM folders,
 // augmentation, and ground-truth pointmaps in camera 0's frame.
 #include <ATen/ATen.h>
-#include <opencv2/imgproc.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -24,28 +23,53 @@ int64_t uniform_int(std::mt19937_64& rng, int64_t lo, int64_t hi) {
   return lo + static_cast<int64_t>(rng() % static_cast<uint64_t>(hi - lo + 1));
 }
 
+// Luma of [H, W, 3] RGB (Rec. 601 weights, as OpenCV's RGB2GRAY): [H, W, 1].
+at::Tensor luma(const at::Tensor& rgb) {
+  return (rgb.select(-1, 0) * 0.299f + rgb.select(-1, 1) * 0.587f + rgb.select(-1, 2) * 0.114f)
+      .unsqueeze(-1);
+}
+
 // Brightness, contrast and saturation factors in [1 - j, 1 + j] on linear
-// [0, 1] RGB (CV_32FC3), in place.
-void colour_jitter(cv::Mat& rgb, double j, std::mt19937_64& rng) {
+// [0, 1] RGB ([H, W, 3] float32).
+at::Tensor colour_jitter(at::Tensor rgb, double j, std::mt19937_64& rng) {
   const double b = 1.0 + (2.0 * uniform01(rng) - 1.0) * j;
   const double c = 1.0 + (2.0 * uniform01(rng) - 1.0) * j;
   const double s = 1.0 + (2.0 * uniform01(rng) - 1.0) * j;
-  rgb *= b;
-  cv::Mat grey;
-  cv::cvtColor(rgb, grey, cv::COLOR_RGB2GRAY);
-  const double mean = cv::mean(grey)[0];
-  rgb = (rgb - cv::Scalar::all(mean)) * c + cv::Scalar::all(mean);
-  cv::cvtColor(rgb, grey, cv::COLOR_RGB2GRAY);
-  cv::Mat grey3;
-  cv::cvtColor(grey, grey3, cv::COLOR_GRAY2RGB);
-  rgb = grey3 + (rgb - grey3) * s;
-  cv::min(cv::max(rgb, 0.0), 1.0, rgb);
+  rgb = rgb * b;
+  const at::Tensor mean = luma(rgb).mean();
+  rgb = (rgb - mean) * c + mean;
+  const at::Tensor grey = luma(rgb);
+  rgb = grey + (rgb - grey) * s;
+  return rgb.clamp(0.0, 1.0);
 }
 
-at::Tensor rgb_float_to_input(const cv::Mat& rgb) {
-  cv::Mat cont = rgb.isContinuous() ? rgb : rgb.clone();
-  at::Tensor t = at::from_blob(cont.data, {cont.rows, cont.cols, 3}, at::kFloat).clone();
-  return t.permute({2, 0, 1}).contiguous().sub_(0.5).div_(0.5);
+// [H, W, 3] float RGB in [0, 1] -> [3, H, W] model input.
+at::Tensor rgb_float_to_input(const at::Tensor& rgb) {
+  return rgb.permute({2, 0, 1}).contiguous().sub_(0.5).div_(0.5);
+}
+
+// [H, W, 3] uint8 BGR -> [H, W, 3] float RGB in [0, 1]. Multiplied by the
+// float 1/255 (as OpenCV's convertTo), not divided: the inputs stay
+// bit-identical to those the shipped model was trained and scored on.
+at::Tensor bgr_to_rgb_float(const at::Tensor& bgr) {
+  return bgr.flip({-1}).to(at::kFloat).mul_(1.0 / 255.0);
+}
+
+// Square crop (x0, y0, side) of an [H, W, C] image, resized to size x size:
+// area averaging to shrink, bilinear (pixel centres aligned) to grow,
+// nearest for depth.
+at::Tensor crop_resize(const at::Tensor& image, int x0, int y0, int side, int size, bool nearest) {
+  at::Tensor crop = image.slice(0, y0, y0 + side).slice(1, x0, x0 + side);
+  if (side == size) return crop.contiguous();
+  at::Tensor x = crop.permute({2, 0, 1}).unsqueeze(0);  // [1, C, side, side]
+  if (nearest) {
+    x = at::upsample_nearest2d(x, {size, size});
+  } else if (side > size) {
+    x = at::adaptive_avg_pool2d(x, {size, size});
+  } else {
+    x = at::upsample_bilinear2d(x, {size, size}, /*align_corners=*/false);
+  }
+  return x[0].permute({1, 2, 0}).contiguous();
 }
 
 }  // namespace
@@ -56,7 +80,7 @@ PinholeIntrinsics crop_resize_intrinsics(const PinholeIntrinsics& k, int x0, int
   PinholeIntrinsics r;
   r.fx = k.fx * sx;
   r.fy = k.fy * sy;
-  // cv::resize aligns pixel centres: dst = (src - x0 + 0.5) * s - 0.5.
+  // Pixel centres aligned: dst = (src - x0 + 0.5) * s - 0.5.
   r.cx = (k.cx - x0 + 0.5) * sx - 0.5;
   r.cy = (k.cy - y0 + 0.5) * sy - 0.5;
   r.width = out_w;
@@ -64,11 +88,15 @@ PinholeIntrinsics crop_resize_intrinsics(const PinholeIntrinsics& k, int x0, int
   return r;
 }
 
-at::Tensor depth_to_pointmap(const cv::Mat& depth, const PinholeIntrinsics& k,
+at::Tensor depth_to_pointmap(const at::Tensor& depth_map, const PinholeIntrinsics& k,
                              const Eigen::Isometry3d& T_C0_C, at::Tensor* valid) {
-  if (depth.type() != CV_32FC1) throw std::invalid_argument("depth_to_pointmap: need CV_32FC1");
+  if (depth_map.dim() != 2 || depth_map.scalar_type() != at::kFloat) {
+    throw std::invalid_argument("depth_to_pointmap: need an [H, W] float32 depth map");
+  }
   if (!k.valid()) throw std::invalid_argument("depth_to_pointmap: invalid intrinsics");
-  const int H = depth.rows, W = depth.cols;
+  const at::Tensor depth = depth_map.to(at::kCPU).contiguous();
+  const int H = static_cast<int>(depth.size(0)), W = static_cast<int>(depth.size(1));
+  const float* d = depth.data_ptr<float>();
   at::Tensor pts = at::zeros({H, W, 3}, at::kFloat);
   at::Tensor mask = at::zeros({H, W}, at::kBool);
   float* p = pts.data_ptr<float>();
@@ -76,7 +104,7 @@ at::Tensor depth_to_pointmap(const cv::Mat& depth, const PinholeIntrinsics& k,
   const Eigen::Matrix3d R = T_C0_C.linear();
   const Eigen::Vector3d t = T_C0_C.translation();
   for (int v = 0; v < H; ++v) {
-    const float* row = depth.ptr<float>(v);
+    const float* row = d + static_cast<std::size_t>(v) * W;
     for (int u = 0; u < W; ++u) {
       const double z = row[u];
       if (!(z > 0.0) || !std::isfinite(z)) continue;
@@ -92,19 +120,28 @@ at::Tensor depth_to_pointmap(const cv::Mat& depth, const PinholeIntrinsics& k,
   return pts;
 }
 
-at::Tensor bgr_to_model_input(const cv::Mat& bgr) {
-  if (bgr.type() != CV_8UC3) throw std::invalid_argument("bgr_to_model_input: need CV_8UC3");
-  cv::Mat rgb;
-  cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
-  rgb.convertTo(rgb, CV_32FC3, 1.0 / 255.0);
-  return rgb_float_to_input(rgb);
+at::Tensor bgr_to_model_input(const at::Tensor& bgr) {
+  if (bgr.dim() != 3 || bgr.size(2) != 3 || bgr.scalar_type() != at::kByte) {
+    throw std::invalid_argument("bgr_to_model_input: need an [H, W, 3] uint8 image");
+  }
+  return rgb_float_to_input(bgr_to_rgb_float(bgr.to(at::kCPU)));
 }
 
 SequenceSample prepare_sequence(const std::vector<RawFrame>& frames, int size,
                                 const AugmentConfig& augment, std::mt19937_64* rng,
                                 const std::string& source) {
   if (frames.empty()) throw std::invalid_argument("prepare_sequence: no frames");
-  const int w = frames[0].bgr.cols, h = frames[0].bgr.rows;
+  const auto check = [](const RawFrame& f) {
+    if (f.bgr.dim() != 3 || f.bgr.size(2) != 3 || f.bgr.scalar_type() != at::kByte ||
+        f.depth.dim() != 2 || f.depth.scalar_type() != at::kFloat ||
+        f.depth.size(0) != f.bgr.size(0) || f.depth.size(1) != f.bgr.size(1)) {
+      throw std::invalid_argument(
+          "prepare_sequence: a frame needs an [H, W, 3] uint8 image and an [H, W] float32 depth");
+    }
+  };
+  check(frames[0]);
+  const int w = static_cast<int>(frames[0].bgr.size(1)),
+            h = static_cast<int>(frames[0].bgr.size(0));
   // One crop for the whole sequence, so that every frame keeps one camera.
   const int base = std::min(w, h);
   const double shrink = rng != nullptr ? uniform01(*rng) * augment.max_crop : 0.0;
@@ -114,7 +151,6 @@ SequenceSample prepare_sequence(const std::vector<RawFrame>& frames, int size,
     x0 = static_cast<int>(uniform_int(*rng, 0, w - side));
     y0 = static_cast<int>(uniform_int(*rng, 0, h - side));
   }
-  const cv::Rect roi(x0, y0, side, side);
   SequenceSample s;
   s.source = source;
   const int N = static_cast<int>(frames.size());
@@ -123,19 +159,16 @@ SequenceSample prepare_sequence(const std::vector<RawFrame>& frames, int size,
   const Eigen::Isometry3d T_C0_W = frames[0].T_W_C.inverse();
   for (int i = 0; i < N; ++i) {
     const RawFrame& f = frames[static_cast<std::size_t>(i)];
-    if (f.bgr.cols != w || f.bgr.rows != h || f.depth.size() != f.bgr.size()) {
+    check(f);
+    if (f.bgr.size(1) != w || f.bgr.size(0) != h) {
       throw std::invalid_argument("prepare_sequence: frames of one sequence need one size");
     }
-    cv::Mat bgr, depth;
-    cv::resize(f.bgr(roi), bgr, cv::Size(size, size), 0, 0,
-               side > size ? cv::INTER_AREA : cv::INTER_LINEAR);
-    // Nearest: no depth mixed across object boundaries.
-    cv::resize(f.depth(roi), depth, cv::Size(size, size), 0, 0, cv::INTER_NEAREST);
-    cv::Mat rgb;
-    cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
-    rgb.convertTo(rgb, CV_32FC3, 1.0 / 255.0);
-    if (rng != nullptr && augment.color_jitter > 0.0)
-      colour_jitter(rgb, augment.color_jitter, *rng);
+    at::Tensor rgb = crop_resize(bgr_to_rgb_float(f.bgr.to(at::kCPU)), x0, y0, side, size, false);
+    const at::Tensor depth =
+        crop_resize(f.depth.to(at::kCPU).unsqueeze(-1), x0, y0, side, size, true).squeeze(-1);
+    if (rng != nullptr && augment.color_jitter > 0.0) {
+      rgb = colour_jitter(rgb, augment.color_jitter, *rng);
+    }
     s.images.push_back(rgb_float_to_input(rgb));
     const PinholeIntrinsics k =
         crop_resize_intrinsics(f.intrinsics, x0, y0, side, side, size, size);
@@ -180,20 +213,17 @@ Batch collate(const std::vector<SequenceSample>& samples) {
 }
 
 SequenceSampler::SequenceSampler(const DataConfig& config, int image_size, uint64_t seed,
-                                 int render_threads)
+                                 int render_threads, const RecordedSourceOpener& open_recorded)
     : config_(config),
       image_size_(image_size),
       render_threads_(std::max(1, render_threads)),
       rng_(seed) {
-  TumDatasetOptions opt;
-  opt.require_depth = true;
-  opt.require_pose = true;
-  for (const std::string& dir : config_.tum_dirs) {
-    TumDataset ds = TumDataset::open(dir, opt);
-    if (!ds.calibration()) throw std::runtime_error(dir + ": training needs calibration.txt");
-    if (ds.size() < 2) throw std::runtime_error(dir + ": fewer than 2 frames with depth and pose");
-    tum_.push_back(std::move(ds));
+  if (!config_.tum_dirs.empty() && !open_recorded) {
+    throw std::runtime_error(
+        "data.tum_dirs: this build reads no TUM folders (built without OpenCV); train on "
+        "generated scenes only, or build with OpenCV");
   }
+  for (const std::string& dir : config_.tum_dirs) recorded_.push_back(open_recorded(dir));
 }
 
 int64_t SequenceSampler::draw_int(int64_t lo, int64_t hi) { return uniform_int(rng_, lo, hi); }
@@ -234,8 +264,8 @@ std::vector<RawFrame> SequenceSampler::synth_frames(uint64_t scene_seed, int64_t
     synth::RenderedFrame r =
         synth::render_frame(seq.scene, seq.poses[idx], seq.config.intrinsics, ro);
     RawFrame f;
-    f.bgr = r.bgr;
-    f.depth = r.depth;
+    f.bgr = std::move(r.bgr);
+    f.depth = std::move(r.depth);
     f.intrinsics = seq.config.intrinsics;
     f.T_W_C = seq.poses[idx];
     out.push_back(std::move(f));
@@ -244,7 +274,7 @@ std::vector<RawFrame> SequenceSampler::synth_frames(uint64_t scene_seed, int64_t
 }
 
 SequenceSample SequenceSampler::sample(int64_t frames) {
-  bool use_tum = !tum_.empty();
+  bool use_tum = !recorded_.empty();
   if (use_tum && config_.synth.enabled) use_tum = draw_uniform() < config_.tum_fraction;
   std::ostringstream source;
   std::vector<RawFrame> raw;
@@ -257,20 +287,12 @@ SequenceSample SequenceSampler::sample(int64_t frames) {
     *start = draw_int(0, length - span);
   };
   if (use_tum) {
-    const TumDataset& ds =
-        tum_[static_cast<std::size_t>(draw_int(0, static_cast<int64_t>(tum_.size()) - 1))];
+    const RecordedSource& ds = *recorded_[static_cast<std::size_t>(
+        draw_int(0, static_cast<int64_t>(recorded_.size()) - 1))];
     int64_t start = 0, stride = 1;
-    pick(static_cast<int64_t>(ds.size()), &start, &stride);
-    for (int64_t i = 0; i < frames; ++i) {
-      const std::size_t idx = static_cast<std::size_t>(start + i * stride);
-      RawFrame f;
-      f.bgr = ds.load_rgb(idx);
-      f.depth = ds.load_depth(idx);
-      f.intrinsics = *ds.calibration();
-      f.T_W_C = *ds.frame(idx).pose;
-      raw.push_back(std::move(f));
-    }
-    source << "tum:" << ds.root() << "@" << start << "+" << stride;
+    pick(ds.size(), &start, &stride);
+    for (int64_t i = 0; i < frames; ++i) raw.push_back(ds.frame(start + i * stride));
+    source << "tum:" << ds.name() << "@" << start << "+" << stride;
   } else {
     const uint64_t seed = config_.synth.train_seed_begin +
                           static_cast<uint64_t>(draw_int(0, config_.synth.train_scenes - 1));

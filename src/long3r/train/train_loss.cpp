@@ -9,9 +9,7 @@
 #include <limits>
 #include <stdexcept>
 
-#include "long3r/eval/eval.hpp"
 #include "long3r/model/safetensors.hpp"
-#include "long3r/pipeline/pose.hpp"
 #include "long3r/train/train.hpp"
 
 namespace long3r {
@@ -167,7 +165,8 @@ PredictionMetrics average(const std::vector<PredictionMetrics>& all) {
 }  // namespace
 
 ValidationMetrics validate(Long3rModel& model, const std::vector<SequenceSample>& sequences,
-                           const LossConfig& loss_config, const ValidationConfig& config) {
+                           const LossConfig& loss_config, const ValidationConfig& config,
+                           const PredictionScorer& score) {
   const TrainingModeGuard inference(model, false);
   ValidationMetrics m;
   std::vector<PredictionMetrics> scores;
@@ -188,15 +187,14 @@ ValidationMetrics validate(Long3rModel& model, const std::vector<SequenceSample>
       pred.pts.push_back(o.pts3d[0].to(at::kCPU, at::kFloat).contiguous());
       pred.conf.push_back(o.conf[0].to(at::kCPU, at::kFloat).contiguous());
     }
-    PredictionMetricsOptions po;
-    po.pixel_step = config.pixel_step;
-    po.normals = config.normals;
-    scores.push_back(evaluate_prediction(pred, s, po));
+    m.registered += probe_loss(pred, s).registered;
+    scores.push_back(score ? score(pred, s, config) : pointmap_metrics(pred, s, config));
     ++m.sequences;
   }
   if (m.sequences > 0) {
     m.loss /= static_cast<double>(m.sequences);
     m.regression /= static_cast<double>(m.sequences);
+    m.registered /= static_cast<double>(m.sequences);
   }
   m.prediction = average(scores);
   return m;

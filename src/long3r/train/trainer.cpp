@@ -13,7 +13,10 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <cstdio>
+#include <deque>
+#include <exception>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -23,9 +26,8 @@
 #include <set>
 #include <sstream>
 #include <stdexcept>
+#include <thread>
 
-#include "long3r/dataset/image_file.hpp"
-#include "long3r/eval/eval.hpp"
 #include "long3r/io/atomic_file.hpp"
 #include "long3r/model/autocast.hpp"
 #include "long3r/model/inference.hpp"
@@ -79,10 +81,13 @@ const TrainColumn kTrainColumns[] = {
     {"data_s", &LogRow::data_s},
     {"wall_s", &LogRow::wall_s},
 };
-// Validation columns: "nan" on the rows without validation.
+// Validation columns: "nan" on the rows without validation. Columns added
+// after the first version go last and are optional when reading (logs and
+// checkpoints written before them read as NaN there).
 struct ValColumn {
   const char* name;
   double& (*field)(ValidationMetrics&);
+  bool optional = false;
 };
 const ValColumn kValColumns[] = {
     {"val_loss", [](ValidationMetrics& v) -> double& { return v.loss; }},
@@ -96,6 +101,7 @@ const ValColumn kValColumns[] = {
     {"val_nc_mean", [](ValidationMetrics& v) -> double& { return v.prediction.nc_mean; }},
     {"val_nc_median", [](ValidationMetrics& v) -> double& { return v.prediction.nc_median; }},
     {"val_ate_rmse_m", [](ValidationMetrics& v) -> double& { return v.prediction.ate_rmse; }},
+    {"val_registered", [](ValidationMetrics& v) -> double& { return v.registered; }, true},
 };
 
 std::vector<std::string> split_csv_line(const std::string& line) {
@@ -139,15 +145,17 @@ std::vector<LogRow> log_rows_from_csv(const std::string& csv) {
   std::vector<LogRow> rows;
   if (!std::getline(in, line)) return rows;
   const std::vector<std::string> header = split_csv_line(line);
-  auto column = [&](const std::string& name) {
+  constexpr std::size_t kAbsent = static_cast<std::size_t>(-1);
+  auto column = [&](const std::string& name, bool optional = false) {
     const auto it = std::find(header.begin(), header.end(), name);
-    if (it == header.end()) throw std::runtime_error("train log: no column \"" + name + "\"");
-    return static_cast<std::size_t>(it - header.begin());
+    if (it != header.end()) return static_cast<std::size_t>(it - header.begin());
+    if (optional) return kAbsent;
+    throw std::runtime_error("train log: no column \"" + name + "\"");
   };
   const std::size_t step = column("step"), stage = column("stage"), val_loss = column("val_loss");
   std::vector<std::size_t> train_at, val_at;
   for (const TrainColumn& c : kTrainColumns) train_at.push_back(column(c.name));
-  for (const ValColumn& c : kValColumns) val_at.push_back(column(c.name));
+  for (const ValColumn& c : kValColumns) val_at.push_back(column(c.name, c.optional));
   while (std::getline(in, line)) {
     const std::vector<std::string> f = split_csv_line(line);
     if (f.size() < header.size()) continue;
@@ -160,7 +168,7 @@ std::vector<LogRow> log_rows_from_csv(const std::string& csv) {
     if (std::isfinite(parse_num(f[val_loss]))) {
       ValidationMetrics v;
       for (std::size_t i = 0; i < val_at.size(); ++i) {
-        kValColumns[i].field(v) = parse_num(f[val_at[i]]);
+        kValColumns[i].field(v) = val_at[i] == kAbsent ? parse_num("nan") : parse_num(f[val_at[i]]);
       }
       r.val = v;
     }
@@ -169,38 +177,26 @@ std::vector<LogRow> log_rows_from_csv(const std::string& csv) {
   return rows;
 }
 
-cv::Mat plot_training_curves(const std::vector<LogRow>& rows, int width, int height) {
-  PlotSeries raw{"train loss", {}, {}, cv::Scalar(200, 200, 200), 1};
-  PlotSeries smooth{"train loss (EMA 0.95)", {}, {}, cv::Scalar(180, 80, 0), 2};
-  PlotSeries val{"validation loss", {}, {}, cv::Scalar(0, 0, 220), 2};
-  double ema = std::numeric_limits<double>::quiet_NaN();
-  double lo = std::numeric_limits<double>::infinity();
-  for (const LogRow& r : rows) {
-    lo = std::min({lo, r.loss, r.val ? r.val->loss : lo});
-  }
-  // The loss can go negative (the -alpha log conf term), so it is plotted
-  // with an offset that keeps log-y usable and says so in the title.
-  const double offset = std::isfinite(lo) && lo <= 0.0 ? -lo + 1e-2 : 0.0;
-  for (const LogRow& r : rows) {
-    if (!std::isfinite(r.loss)) continue;
-    ema = std::isfinite(ema) ? 0.95 * ema + 0.05 * r.loss : r.loss;
-    raw.x.push_back(static_cast<double>(r.step));
-    raw.y.push_back(r.loss + offset);
-    smooth.x.push_back(static_cast<double>(r.step));
-    smooth.y.push_back(ema + offset);
-    if (r.val) {
-      val.x.push_back(static_cast<double>(r.step));
-      val.y.push_back(r.val->loss + offset);
-    }
-  }
-  std::string title = "LONG3R training loss";
-  if (offset > 0.0) title += " (+" + fmt(offset) + ")";
-  return plot_line_chart({raw, smooth, val}, title, "step", true, width, height);
-}
-
 struct Trainer::Optim {
   std::unique_ptr<torch::optim::AdamW> adamw;
   std::vector<at::Tensor> params;
+};
+
+// The data thread: draws the batches of the coming steps, in step order, with
+// the trainer's sampler (which nothing else touches while it runs), and keeps
+// up to `capacity` of them ready.
+struct Trainer::Prefetch {
+  struct Item {
+    Batch batch;
+    std::string sampler_state;  // the sampler's RNG state after drawing it
+    std::exception_ptr error;   // set instead when drawing failed
+  };
+  std::mutex mutex;
+  std::condition_variable changed;
+  std::deque<Item> ready;
+  std::size_t capacity = 1;
+  bool stop = false;
+  std::thread thread;
 };
 
 Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
@@ -252,12 +248,22 @@ Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
   groups.emplace_back(no_decay, std::move(nd));
   optim_->adamw = std::make_unique<torch::optim::AdamW>(std::move(groups), defaults);
 
+  if (options_.render_threads < 0 || options_.prefetch_batches < 0 ||
+      !(options_.time_budget_s >= 0.0)) {
+    throw std::invalid_argument(
+        "Trainer: render_threads, prefetch_batches and time_budget_s "
+        "must be >= 0");
+  }
+  const int render_threads =
+      options_.render_threads > 0 ? options_.render_threads : at::get_num_threads();
   sampler_ = std::make_unique<SequenceSampler>(config_.data, static_cast<int>(config_.image_size),
-                                               options_.seed, at::get_num_threads());
+                                               options_.seed, render_threads,
+                                               options_.extensions.open_recorded);
   for (int64_t i = 0; i < config_.validation.sequences; ++i) {
     val_sequences_.push_back(
         sampler_->validation_sequence(i, config_.validation.frames, config_.validation.stride));
   }
+  sampler_state_ = sampler_->rng_state();
   if (options_.resume) {
     const fs::path latest = fs::path(options_.out_dir) / "checkpoint" / "latest";
     if (!fs::exists(latest)) {
@@ -270,7 +276,85 @@ Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
   start_time_ = now_s();
 }
 
-Trainer::~Trainer() = default;
+Trainer::~Trainer() { stop_prefetch(); }
+
+void Trainer::stop_prefetch() {
+  if (!prefetch_) return;
+  {
+    std::lock_guard<std::mutex> lock(prefetch_->mutex);
+    prefetch_->stop = true;
+  }
+  prefetch_->changed.notify_all();
+  prefetch_->thread.join();
+  prefetch_.reset();
+  // Batches drawn ahead and not used: the sampler goes back to where the
+  // steps left it, so that they are drawn again, identically.
+  sampler_->set_rng_state(sampler_state_);
+}
+
+Batch Trainer::next_batch(int64_t batch_size, int64_t frames) {
+  if (options_.prefetch_batches == 0) {
+    Batch b = sampler_->sample_batch(batch_size, frames);
+    sampler_state_ = sampler_->rng_state();
+    return b;
+  }
+  if (!prefetch_) {
+    prefetch_ = std::make_unique<Prefetch>();
+    prefetch_->capacity = static_cast<std::size_t>(options_.prefetch_batches);
+    Prefetch* q = prefetch_.get();
+    const int64_t first_step = step_;
+    q->thread = std::thread([this, q, first_step] {
+      for (int64_t k = first_step;; ++k) {
+        {
+          std::unique_lock<std::mutex> lock(q->mutex);
+          q->changed.wait(lock, [q] { return q->stop || q->ready.size() < q->capacity; });
+          if (q->stop) return;
+        }
+        Prefetch::Item item;
+        try {
+          const TrainStage& stage = stage_of_step(k);
+          item.batch = sampler_->sample_batch(stage.batch_size, stage.frames);
+          item.sampler_state = sampler_->rng_state();
+        } catch (...) {
+          item.error = std::current_exception();
+        }
+        const bool failed = static_cast<bool>(item.error);
+        {
+          std::lock_guard<std::mutex> lock(q->mutex);
+          q->ready.push_back(std::move(item));
+        }
+        q->changed.notify_all();
+        if (failed) return;
+      }
+    });
+  }
+  Prefetch::Item item;
+  {
+    std::unique_lock<std::mutex> lock(prefetch_->mutex);
+    prefetch_->changed.wait(lock, [this] { return !prefetch_->ready.empty(); });
+    item = std::move(prefetch_->ready.front());
+    prefetch_->ready.pop_front();
+  }
+  prefetch_->changed.notify_all();
+  if (item.error) {
+    prefetch_->thread.join();
+    prefetch_.reset();
+    sampler_->set_rng_state(sampler_state_);
+    std::rethrow_exception(item.error);
+  }
+  if (item.batch.frames.size() != static_cast<std::size_t>(frames) ||
+      item.batch.pts.size(0) != batch_size) {
+    throw std::logic_error("Trainer: a prefetched batch does not fit its step");
+  }
+  sampler_state_ = std::move(item.sampler_state);
+  return std::move(item.batch);
+}
+
+const TrainStage& Trainer::stage_of_step(int64_t step) const {
+  const int64_t index = std::min<int64_t>(stage_at(config_, step).index,
+                                          static_cast<int64_t>(config_.stages.size()) - 1);
+  return config_.stages[static_cast<std::size_t>(index)];
+}
 
 void Trainer::apply_stage(int64_t stage) {
   if (stage == applied_stage_) return;
@@ -300,7 +384,7 @@ LogRow Trainer::step() {
   const double lr = learning_rate_at(config_, step_);
   set_lr(lr);
 
-  const Batch batch = sampler_->sample_batch(stage.batch_size, stage.frames).to(device_);
+  const Batch batch = next_batch(stage.batch_size, stage.frames).to(device_);
   const double data_s = now_s() - t0;
   for (at::Tensor& p : optim_->params) p.mutable_grad() = at::Tensor();
   std::vector<StreamOutput> outputs, coarse;
@@ -348,7 +432,8 @@ LogRow Trainer::step() {
 }
 
 ValidationMetrics Trainer::run_validation() {
-  ValidationMetrics v = validate(*model_, val_sequences_, config_.loss, config_.validation);
+  ValidationMetrics v = validate(*model_, val_sequences_, config_.loss, config_.validation,
+                                 options_.extensions.score);
   // set_training() re-enabled every parameter: re-apply the stage's freeze.
   applied_stage_ = -1;
   return v;
@@ -365,7 +450,7 @@ void Trainer::save_checkpoint() {
   bundle.write("optimizer", optimizer);
   bundle.write("step", step_);
   bundle.write("seed", static_cast<int64_t>(options_.seed));  // for the record only
-  bundle.write("sampler_rng", sampler_->rng_state());
+  bundle.write("sampler_rng", sampler_state_);
   {
     at::Generator gen = at::detail::getDefaultCPUGenerator();
     std::lock_guard<std::mutex> lock(gen.mutex());
@@ -395,6 +480,7 @@ void Trainer::save_checkpoint() {
 }
 
 void Trainer::load_checkpoint(const std::string& path) {
+  stop_prefetch();  // its batches belong to the steps being replaced
   if (fs::is_directory(path)) {
     throw std::runtime_error("checkpoint " + path +
                              " is a folder of separate files, which this version does not read");
@@ -420,6 +506,7 @@ void Trainer::load_checkpoint(const std::string& path) {
   step_ = value.toInt();
   bundle.read("sampler_rng", value);
   sampler_->set_rng_state(value.toStringRef());
+  sampler_state_ = value.toStringRef();
   {
     at::Tensor state;
     bundle.read("torch_cpu_rng", state, /*is_buffer=*/true);
@@ -439,13 +526,47 @@ void Trainer::write_outputs() {
   const fs::path out(options_.out_dir);
   model_->save((out / "model.safetensors").string());
   write_file_atomically((out / "train_log.csv").string(), log_rows_to_csv(log_));
-  write_image_atomically((out / "loss_curve.png").string(), plot_training_curves(log_));
+  if (options_.extensions.write_plot) {
+    options_.extensions.write_plot(log_, (out / "loss_curve.png").string());
+  }
   write_file_atomically((out / "train_config.json").string(), train_config_to_json(config_));
+  // The last validation, for whoever brings the folder back from a remote run.
+  const auto last = std::find_if(log_.rbegin(), log_.rend(), [](const LogRow& r) { return r.val; });
+  if (last != log_.rend()) {
+    const ValidationMetrics& v = *last->val;
+    const PredictionMetrics& p = v.prediction;
+    nlohmann::json j;
+    j["step"] = last->step;
+    j["steps_planned"] = config_.total_steps();
+    j["stop_reason"] = stop_reason_.empty() ? "running" : stop_reason_;
+    j["model"] = config_.model;
+    j["device"] = device_.str();
+    j["wall_s"] = last->wall_s;
+    j["sequences"] = v.sequences;
+    j["loss"] = v.loss;
+    j["regression"] = v.regression;
+    j["registered"] = v.registered;
+    j["pointmap_err_m"] = p.pointmap_error;
+    j["acc_mean_m"] = p.acc_mean;
+    j["comp_mean_m"] = p.comp_mean;
+    j["nc_mean"] = p.nc_mean;
+    j["ate_rmse_m"] = p.ate_rmse;
+    j["frames"] = p.frames;
+    j["posed"] = p.posed;
+    // NaN (a figure this build does not compute) is written as null.
+    write_file_atomically((out / "validation.json").string(), j.dump(1) + "\n");
+  }
 }
 
 void Trainer::run() {
   int64_t end = config_.total_steps();
-  if (options_.max_steps >= 0) end = std::min(end, options_.max_steps);
+  stop_reason_ = "schedule";
+  if (options_.max_steps >= 0 && options_.max_steps < end) {
+    end = options_.max_steps;
+    stop_reason_ = "max_steps";
+  }
+  const double run_start = now_s();
+  int64_t steps_this_run = 0;
   if (!options_.quiet) {
     int64_t params = 0;
     for (const at::Tensor& p : optim_->params) params += p.numel();
@@ -459,7 +580,19 @@ void Trainer::run() {
   }
   bool validated_last = false;
   while (step_ < end) {
+    if (options_.time_budget_s > 0.0 && steps_this_run > 0) {
+      const double spent = now_s() - run_start;
+      if (spent + spent / static_cast<double>(steps_this_run) > options_.time_budget_s) {
+        stop_reason_ = "time_budget";
+        if (!options_.quiet) {
+          std::printf("time budget of %.0f s reached after %lld steps of this run (%.0f s)\n",
+                      options_.time_budget_s, static_cast<long long>(steps_this_run), spent);
+        }
+        break;
+      }
+    }
     step();
+    ++steps_this_run;
     validated_last = false;
     const ValidationConfig& vc = config_.validation;
     if (vc.sequences > 0 && vc.every > 0 && step_ % vc.every == 0) {
@@ -488,6 +621,7 @@ void Trainer::run() {
       write_outputs();
     }
   }
+  stop_prefetch();
   if (config_.validation.sequences > 0 && !validated_last && !log_.empty()) {
     log_.back().val = run_validation();
   }

@@ -1,7 +1,5 @@
-// What a real camera adds to the ideal render: lens distortion (as the rays
-// each pixel sees), exposure changes and sensor noise, mono output.
+// Lens distortion as the rays each pixel sees (OpenCV's plumb_bob inverse).
 #include <opencv2/calib3d.hpp>
-#include <opencv2/imgproc.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -13,10 +11,6 @@
 namespace long3r::synth {
 
 namespace {
-
-// derived_seed streams (arbitrary distinct constants).
-constexpr uint64_t kExposureStream = 0x6578706f73757265ull;  // "exposure"
-constexpr uint64_t kNoiseStream = 0x6e6f697365000000ull;     // "noise" + frame index
 
 // Normalised rays (x, y) of pixel positions, by inverting plumb_bob: OpenCV's
 // fixed-point iteration run until the reprojection error is below 1e-10 px,
@@ -90,50 +84,6 @@ LensRays::LensRays(const PinholeIntrinsics& k, const LensDistortion& distortion,
       pixel_size_[index(u, v)] = std::sqrt(std::abs(du.x() * dv.y() - du.y() * dv.x()));
     }
   }
-}
-
-cv::Mat apply_sensor(const cv::Mat& bgr, const SensorConfig& sensor, uint64_t seed, int index) {
-  if (!sensor.mono && !sensor.noise()) return bgr;
-  cv::Mat out;
-  if (sensor.mono) {
-    cv::cvtColor(bgr, out, cv::COLOR_BGR2GRAY);
-  } else {
-    out = bgr.clone();
-  }
-  if (sensor.noise()) {
-    Rng rng(derived_seed(seed, kNoiseStream + static_cast<uint64_t>(index)));
-    const double read2 = sensor.read_noise * sensor.read_noise;
-    const int values = out.cols * out.channels();
-    for (int r = 0; r < out.rows; ++r) {
-      uint8_t* p = out.ptr<uint8_t>(r);
-      for (int i = 0; i < values; ++i) {
-        const double sigma = std::sqrt(read2 + sensor.shot_noise * p[i]);
-        const double noisy = p[i] + sigma * rng.normal();
-        p[i] = static_cast<uint8_t>(std::clamp(std::lround(noisy), 0L, 255L));
-      }
-    }
-  }
-  return out;
-}
-
-std::vector<double> exposure_gains(const SensorConfig& sensor, uint64_t seed,
-                                   const std::vector<double>& stamps) {
-  std::vector<double> gains(stamps.size(), 1.0);
-  if (!sensor.exposure() || stamps.empty()) return gains;
-  Rng rng(derived_seed(seed, kExposureStream));
-  const double w1 = 2 * M_PI / rng.uniform(6.0, 12.0), p1 = rng.uniform(0.0, 2 * M_PI);
-  const double w2 = 2 * M_PI / rng.uniform(2.5, 5.0), p2 = rng.uniform(0.0, 2 * M_PI);
-  const double log_step = std::log1p(sensor.exposure_step);
-  double step = 1.0;
-  for (size_t i = 0; i < stamps.size(); ++i) {
-    if (sensor.exposure_step_prob > 0.0 && rng.bernoulli(sensor.exposure_step_prob)) {
-      step = std::exp(rng.uniform(-1.0, 1.0) * log_step);
-    }
-    const double t = stamps[i] - stamps[0];
-    const double wave = 0.6 * std::sin(w1 * t + p1) + 0.4 * std::sin(w2 * t + p2);
-    gains[i] = (1.0 + sensor.exposure_drift * wave) * step;
-  }
-  return gains;
 }
 
 }  // namespace long3r::synth
