@@ -26,3 +26,13 @@ if(LONG3R_HAVE_CV)  # checked from the full build; the dry run makes the torch-o
   set_tests_properties(train_gpu_cpu_dry_run PROPERTIES
     ENVIRONMENT "OPENBLAS_NUM_THREADS=1" TIMEOUT 1500)
 endif()
+
+# scripts/bench_train.py on the tiny model: its table, checked (figures are
+# not asserted; the benchmark prints them).
+if(TARGET app_long3r_train)
+  add_test(NAME bench_train
+    COMMAND /usr/bin/python3 ${PROJECT_SOURCE_DIR}/test/train/bench_train_test.py
+      ${PROJECT_SOURCE_DIR} $<TARGET_FILE:app_long3r_train>)
+  set_tests_properties(bench_train PROPERTIES
+    ENVIRONMENT "OMP_NUM_THREADS=1;OPENBLAS_NUM_THREADS=1" TIMEOUT 300)
+endif()
