@@ -420,6 +420,57 @@ TEST(Long3rModel, TrainingGradientsReachAllParts) {
   EXPECT_FALSE(params.find("norm_q.weight")->requires_grad());
 }
 
+// Cross-view completion: the encoder sees the visible patches of the masked
+// view only (hidden pixels change nothing, bit for bit), the reference is
+// seen whole, every patch gets a decoder token, and in training the
+// gradients reach the encoder, mask_token and the coarse branch but not the
+// refined one, which the task does not run.
+TEST(Long3rModel, CompleteViewSeesOnlyTheVisiblePatches) {
+  at::manual_seed(11);
+  long3r::Long3rModel model(tiny());
+  const int64_t p = model.config().dust3r.patch_size;
+  const int64_t n = (64 / p) * (64 / p);
+  const at::Tensor visible = at::tensor({0, 2, 5, 7}, at::kLong);
+  const at::Tensor masked = frame(1), reference = frame(0);
+  const at::Tensor out = model.complete_view(masked, reference, visible);
+  EXPECT_EQ(out.sizes(), (std::vector<int64_t>{1, n, model.config().dust3r.dec_embed_dim}));
+  EXPECT_EQ(model.frames_pushed(), 0);
+
+  auto patch_changed = [&](int64_t index) {
+    at::Tensor m = masked.clone();
+    const int64_t gw = 64 / p;
+    m.narrow(2, (index / gw) * p, p).narrow(3, (index % gw) * p, p).mul_(-1.0).add_(0.3);
+    return m;
+  };
+  EXPECT_TRUE(at::equal(model.complete_view(patch_changed(1), reference, visible), out));
+  EXPECT_TRUE(at::equal(model.complete_view(patch_changed(n - 1), reference, visible), out));
+  EXPECT_FALSE(at::allclose(model.complete_view(patch_changed(5), reference, visible), out));
+  EXPECT_FALSE(at::allclose(model.complete_view(masked, frame(3), visible), out));
+  // The visible tokens keep their grid positions: the same pixels shown at
+  // another place of the grid decode differently.
+  EXPECT_FALSE(at::allclose(
+      model.complete_view(masked, reference, at::tensor({1, 2, 5, 7}, at::kLong)), out));
+  EXPECT_THROW(model.complete_view(masked, reference, at::tensor({0.5F})), c10::Error);
+  EXPECT_THROW(model.complete_view(masked, reference, at::empty({0}, at::kLong)), c10::Error);
+
+  model.set_training(true);
+  model.complete_view(masked, reference, visible).pow(2).mean().backward();
+  const auto params = model.module().named_parameters();
+  for (const char* name :
+       {"dust3r.patch_embed.proj.weight", "dust3r.enc_blocks.0.attn.qkv.weight",
+        "dust3r.mask_token", "dust3r.decoder_embed.weight",
+        "dust3r.dec_blocks2.0.cross_attn.projk.weight", "dust3r.dec_norm.weight"}) {
+    ASSERT_NE(params.find(name), nullptr) << name;
+    ASSERT_TRUE(params.find(name)->grad().defined()) << name;
+    EXPECT_GT(params.find(name)->grad().abs().sum().item<double>(), 0.0) << name;
+  }
+  for (const char* name : {"dust3r.dec_blocks.0.attn.qkv.weight",
+                           "dust3r.downstream_head1.dpt.head.0.weight", "attn_head_1.0.weight"}) {
+    ASSERT_NE(params.find(name), nullptr) << name;
+    EXPECT_FALSE(params.find(name)->grad().defined()) << name;
+  }
+}
+
 TEST(Long3rModel, StrictLoadRoundTrip) {
   at::manual_seed(11);
   long3r::Long3rModel model(tiny());

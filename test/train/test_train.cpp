@@ -347,6 +347,88 @@ TEST(TrainOptim, FewStepsOverfitAFixedBatch) {
   EXPECT_LT(last, 0.6 * first) << "first " << first << " last " << last;
 }
 
+// CroCo's layout and loss: patches row-major, pixels row by row, channels
+// last; per-patch normalised targets; only hidden patches count.
+TEST(TrainLoss, CrossViewCompletionPatchesAndLoss) {
+  const int64_t p = 2;
+  const at::Tensor yy = at::arange(4, at::kFloat).view({1, 1, 4, 1}).expand({1, 3, 4, 6});
+  const at::Tensor xx = at::arange(6, at::kFloat).view({1, 1, 1, 6}).expand({1, 3, 4, 6});
+  const at::Tensor cc = at::arange(3, at::kFloat).view({1, 3, 1, 1}).expand({1, 3, 4, 6});
+  const at::Tensor img = (cc * 1000 + yy * 10 + xx).contiguous();
+  const at::Tensor patches = long3r::patchify(img, p);
+  ASSERT_EQ(patches.sizes(), (std::vector<int64_t>{1, 6, p * p * 3}));
+  for (int64_t k = 0; k < 6; ++k) {
+    for (int64_t py = 0; py < p; ++py) {
+      for (int64_t px = 0; px < p; ++px) {
+        for (int64_t c = 0; c < 3; ++c) {
+          const double y = static_cast<double>((k / 3) * p + py),
+                       x = static_cast<double>((k % 3) * p + px);
+          EXPECT_EQ(patches[0][k][(py * p + px) * 3 + c].item<float>(), c * 1000 + y * 10 + x)
+              << k << " " << py << " " << px << " " << c;
+        }
+      }
+    }
+  }
+
+  at::manual_seed(3);
+  const at::Tensor target = at::randn({2, 6, 12});
+  const at::Tensor mean = target.mean(-1, true);
+  const at::Tensor normalised = (target - mean) / (target.var(-1, true, true) + 1e-6).sqrt();
+  const at::Tensor visible = at::tensor({1, 4}, at::kLong);
+  at::Tensor pred = normalised.clone();
+  pred.index_fill_(1, visible, 50.0);  // visible patches are not scored
+  EXPECT_NEAR(long3r::completion_loss(pred, target, visible).item<double>(), 0.0, 1e-10);
+  EXPECT_NEAR(long3r::completion_loss(pred + 1.0, target, visible).item<double>() -
+                  long3r::completion_loss(pred.index_fill(1, visible, 1.0) + 0.0, target, visible)
+                      .item<double>(),
+              1.0, 1e-5);
+  // The target's scale and offset per patch do not matter.
+  EXPECT_NEAR(long3r::completion_loss(pred, target * 3.0 + 2.0, visible).item<double>(), 0.0, 1e-8);
+
+  const at::Tensor v = long3r::draw_visible_patches(16, 0.75);
+  ASSERT_EQ(v.numel(), 4);
+  EXPECT_TRUE(at::equal(std::get<0>(v.sort()), v));
+  EXPECT_EQ(std::get<0>(at::_unique(v)).numel(), 4);
+  EXPECT_GE(v.min().item<int64_t>(), 0);
+  EXPECT_LT(v.max().item<int64_t>(), 16);
+  EXPECT_EQ(long3r::draw_visible_patches(16, 0.99).numel(), 1);
+  EXPECT_THROW(long3r::draw_visible_patches(16, 1.0), std::invalid_argument);
+}
+
+// The model with a pixel head learns to complete a fixed pair: the pretext
+// task is wired end to end.
+TEST(TrainOptim, CrossViewCompletionFitsAFixedPair) {
+  at::manual_seed(7);
+  long3r::Long3rModel model(long3r::test::tiny_long3r_config());
+  model.set_training(true);
+  const int64_t p = model.config().dust3r.patch_size;
+  torch::nn::Linear head(model.config().dust3r.dec_embed_dim, p * p * 3);
+  long3r::DataConfig dc;
+  dc.synth.train_scenes = 1;
+  dc.synth.trajectory_frames = 20;
+  long3r::SequenceSampler sampler(dc, 64, 3);
+  const long3r::Batch batch = long3r::collate({sampler.sample(2)});
+  std::vector<at::Tensor> params = model.module().parameters();
+  for (const at::Tensor& t : head->parameters()) params.push_back(t);
+  torch::optim::AdamW opt(params, torch::optim::AdamWOptions(2e-3));
+  const at::Tensor visible = long3r::draw_visible_patches((64 / p) * (64 / p), 0.75);
+  const at::Tensor target = long3r::patchify(batch.frames[1], p);
+  // Predicting the patches' mean (0 after normalisation) scores about 1:
+  // the bar for having learned anything of the hidden pixels.
+  const double blind =
+      long3r::completion_loss(at::zeros_like(target), target, visible).item<double>();
+  double last = 0;
+  for (int i = 0; i < 100; ++i) {
+    opt.zero_grad();
+    const at::Tensor loss = long3r::completion_loss(
+        head(model.complete_view(batch.frames[1], batch.frames[0], visible)), target, visible);
+    loss.backward();
+    opt.step();
+    last = loss.item<double>();
+  }
+  EXPECT_LT(last, 0.5 * blind) << "blind " << blind << " last " << last;
+}
+
 TEST(TrainTrainer, StageTwoFreezesTheEncoder) {
   long3r::TrainConfig c = tiny_config();
   c.stages[0].steps = 1;
@@ -456,6 +538,72 @@ TEST(TrainTrainer, PrefetchTrainsOnTheSameBatchesAndResumesExactly) {
     EXPECT_NEAR(row.loss, expected[3], 1e-6 * std::abs(expected[3])) << "prefetch " << prefetch;
     EXPECT_NEAR(t.step().loss, expected[4], 1e-6 * std::abs(expected[4]))
         << "prefetch " << prefetch;
+  }
+}
+
+// A cross_view_completion stage before the sequence stage: its rows log the
+// completion loss (no pointmap terms), a resume reproduces both kinds of
+// step (the pixel head is in the checkpoint), and the exported model is the
+// LONG3R model alone (loaded strictly, no pixel head).
+TEST(TrainTrainer, CrossViewCompletionStageResumesAndIsNotExported) {
+  long3r::TrainConfig c = tiny_config();
+  c.stages[0].task = long3r::kTaskCrossViewCompletion;
+  c.stages[0].frames = 2;
+  c.stages[0].batch_size = 2;
+  c.stages[1].steps = 2;
+  long3r::TrainOptions o;
+  o.out_dir = scratch("completion");
+  o.quiet = true;
+  o.seed = 4;
+  std::vector<double> expected;
+  {
+    long3r::Trainer a(c, o);
+    for (int i = 0; i < 2; ++i) {
+      const long3r::LogRow r = a.step();
+      EXPECT_EQ(r.stage, 1);
+      EXPECT_TRUE(std::isfinite(r.loss) && r.loss > 0.0) << r.loss;
+      EXPECT_TRUE(std::isnan(r.regression));
+      EXPECT_GT(r.grad_norm, 0.0);
+    }
+    a.save_checkpoint();
+    for (int i = 0; i < 2; ++i) expected.push_back(a.step().loss);
+    EXPECT_EQ(a.log().back().stage, 2);
+    EXPECT_TRUE(std::isfinite(a.log().back().regression));
+    a.write_outputs();
+  }
+  EXPECT_NO_THROW(long3r::Long3rModel::from_file(o.out_dir + "/model.safetensors"));
+  long3r::Long3rModel fresh(long3r::test::tiny_long3r_config());
+  fresh.save(o.out_dir + "/fresh.safetensors");
+  const long3r::TensorFile file = long3r::load_safetensors(o.out_dir + "/model.safetensors");
+  const long3r::TensorFile reference = long3r::load_safetensors(o.out_dir + "/fresh.safetensors");
+  std::vector<std::string> names, reference_names;
+  for (const auto& kv : file.tensors) names.push_back(kv.first);
+  for (const auto& kv : reference.tensors) reference_names.push_back(kv.first);
+  EXPECT_EQ(names, reference_names);
+
+  o.resume = true;
+  long3r::Trainer b(c, o);
+  ASSERT_EQ(b.global_step(), 2);
+  EXPECT_NEAR(b.step().loss, expected[0], 1e-6 * std::abs(expected[0]));
+  EXPECT_NEAR(b.step().loss, expected[1], 1e-6 * std::abs(expected[1]));
+
+  // A configuration with the stage cannot resume a checkpoint without its
+  // head: it says so.
+  long3r::TrainOptions plain = o;
+  plain.resume = false;
+  plain.out_dir = scratch("completion_plain");
+  {
+    long3r::Trainer p(tiny_config(), plain);
+    p.step();
+    p.save_checkpoint();
+  }
+  plain.resume = true;
+  try {
+    long3r::Trainer t(c, plain);
+    ADD_FAILURE() << "resumed without the completion head";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("cross-view completion head"), std::string::npos)
+        << e.what();
   }
 }
 
@@ -709,6 +857,20 @@ TEST(TrainConfig, ParsesAndRejectsBadFields) {
     "data": {"synth": {"train_seed_begin": 0, "train_scenes": 100, "val_seed_begin": 50}}})"),
                std::invalid_argument);
   EXPECT_THROW(long3r::parse_train_config(R"({"image_size": 70, "stages": [{"steps": 1}]})"),
+               std::invalid_argument);
+  // Stage tasks: a known name; completion takes pairs and hides some but
+  // not all patches.
+  EXPECT_EQ(c.stages[0].task, "sequence");
+  const long3r::TrainConfig cc = long3r::parse_train_config(
+      R"({"stages": [{"steps": 1, "frames": 2, "task": "cross_view_completion"}]})");
+  EXPECT_DOUBLE_EQ(cc.stages[0].mask_ratio, 0.9);
+  EXPECT_THROW(long3r::parse_train_config(R"({"stages": [{"steps": 1, "task": "croco"}]})"),
+               std::invalid_argument);
+  EXPECT_THROW(long3r::parse_train_config(
+                   R"({"stages": [{"steps": 1, "frames": 3, "task": "cross_view_completion"}]})"),
+               std::invalid_argument);
+  EXPECT_THROW(long3r::parse_train_config(R"({"stages": [{"steps": 1, "frames": 2,
+    "task": "cross_view_completion", "mask_ratio": 1.0}]})"),
                std::invalid_argument);
 }
 

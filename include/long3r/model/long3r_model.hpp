@@ -85,6 +85,16 @@ class Long3rModel : public StreamingModel, public ModelShell {
   std::vector<StreamOutput> forward_sequence(const std::vector<at::Tensor>& frames,
                                              std::vector<StreamOutput>* coarse = nullptr);
 
+  // Cross-view completion, CroCo's pretext task, for a pretraining stage
+  // (docs/training.md): `masked` and `reference` [B, 3, H, W] as push() takes
+  // them; the encoder sees only the patches of `masked` listed in `visible`
+  // (int64 [V], one set for the batch), the coarse decoder branch decodes all
+  // of them against the whole `reference`. Returns the last decoder layer
+  // (after dec_norm), [B, N, C_d] for the N patches of `masked`, for a pixel
+  // head the caller owns. Uses no memory and leaves the stream untouched.
+  at::Tensor complete_view(const at::Tensor& masked, const at::Tensor& reference,
+                           const at::Tensor& visible);
+
   // The memory after the last push (that step's read and write done); empty
   // after flush() or reset().
   const SpatioTemporalMemory& memory() const;

@@ -16,6 +16,7 @@
 #pragma once
 
 #include <ATen/core/Tensor.h>
+#include <torch/nn/modules/linear.h>
 
 #include <Eigen/Geometry>
 
@@ -198,6 +199,22 @@ std::pair<at::Tensor, at::Tensor> confidence_regression(const at::Tensor& pred_n
 LossTerms sequence_loss(const std::vector<StreamOutput>& outputs,
                         const std::vector<StreamOutput>& coarse, const at::Tensor& gt_pts,
                         const at::Tensor& gt_valid, const LossConfig& config);
+
+// Cross-view completion (CroCo, Weinzaepfel et al. 2022), the pretext task of
+// a "cross_view_completion" stage.
+//
+// The patches of images [B, 3, H, W] as [B, N, p * p * 3]: patches in
+// row-major grid order, each one's pixels row by row, channels last.
+at::Tensor patchify(const at::Tensor& images, int64_t patch);
+// Which patches of n the encoder sees: int64 [V] of sorted indices, V =
+// max(1, round(n * (1 - mask_ratio))), drawn with torch's CPU generator; the
+// rest are hidden.
+at::Tensor draw_visible_patches(int64_t n, double mask_ratio);
+// CroCo's loss: the mean squared error over the hidden patches (those not in
+// `visible`) between `pred` [B, N, p * p * 3] and the target patches, each
+// normalised by its own mean and variance (norm_pix_loss). Float32.
+at::Tensor completion_loss(const at::Tensor& pred, const at::Tensor& target_patches,
+                           const at::Tensor& visible);
 
 // ============================================================ initialisation
 
@@ -401,12 +418,17 @@ class Trainer {
   // The batch of step step_: drawn now, or taken from the data thread.
   Batch next_batch(int64_t batch_size, int64_t frames);
   void stop_prefetch();
+  // The forward pass and backward of one step's task; return its loss terms.
+  LossTerms sequence_step(const Batch& batch);
+  LossTerms completion_step(const Batch& batch, double mask_ratio);
 
   TrainConfig config_;
   TrainOptions options_;
   at::Device device_;
   bool mixed_precision_ = false;  // forward pass under bfloat16 autocast (config amp)
   std::unique_ptr<Long3rModel> model_;
+  // Pixel head of cross_view_completion stages (null without one).
+  torch::nn::Linear completion_head_{nullptr};
   struct Optim;
   std::unique_ptr<Optim> optim_;
   std::unique_ptr<SequenceSampler> sampler_;

@@ -13,6 +13,10 @@
 
 namespace long3r {
 
+// TrainStage::task values.
+inline constexpr const char* kTaskSequence = "sequence";
+inline constexpr const char* kTaskCrossViewCompletion = "cross_view_completion";
+
 struct TrainStage {
   std::string name;
   int64_t steps = 0;            // optimiser steps in this stage
@@ -22,6 +26,12 @@ struct TrainStage {
   int64_t warmup_steps = 0;     // linear warm-up from 0 to lr
   double min_lr_ratio = 0.01;   // cosine decay ends at lr * min_lr_ratio
   bool freeze_encoder = false;  // dust3r.patch_embed / enc_blocks / enc_norm
+  // What the stage trains: "sequence" (the LONG3R losses on sequences) or
+  // "cross_view_completion" (CroCo's pretext task on pairs, frames = 2: the
+  // encoder and the coarse decoder branch learn to fill in the hidden
+  // patches of one view from the other; docs/training.md).
+  std::string task = "sequence";
+  double mask_ratio = 0.9;  // cross_view_completion: share of the patches hidden
 };
 
 struct LossConfig {
@@ -99,6 +109,8 @@ config::FieldsOf<S, TrainStage> visit_fields(S& s, V& v) {
   v("warmup_steps", s.warmup_steps);
   v("min_lr_ratio", s.min_lr_ratio);
   v("freeze_encoder", s.freeze_encoder);
+  v("task", s.task);
+  v("mask_ratio", s.mask_ratio);
 }
 template <class S, class V>
 config::FieldsOf<S, LossConfig> visit_fields(S& s, V& v) {

@@ -192,6 +192,14 @@ std::optional<StreamOutput> Long3rModel::peek_last() {
   return out;
 }
 
+at::Tensor Long3rModel::complete_view(const at::Tensor& masked, const at::Tensor& reference,
+                                      const at::Tensor& visible) {
+  std::optional<c10::InferenceMode> guard;
+  if (!impl_->training) guard.emplace();
+  return impl_->net->dust3r->complete_view(masked.to(device(), dtype()),
+                                           reference.to(device(), dtype()), visible);
+}
+
 std::vector<StreamOutput> Long3rModel::forward_sequence(const std::vector<at::Tensor>& frames,
                                                         std::vector<StreamOutput>* coarse) {
   if (frames.size() < 2) {

@@ -446,13 +446,47 @@ at::Tensor Dust3rNetImpl::encode(const at::Tensor& images, const Trace& trace) {
     trace.put("pos", grid_positions(x.size(0), g.first, g.second, x.device()));
   }
   const RopeTable r = enc_rope(g.first, g.second, x);
+  return encode_tokens(std::move(x), r, trace);
+}
+
+at::Tensor Dust3rNetImpl::encode_tokens(at::Tensor x, const RopeTable& rope, const Trace& trace) {
   for (std::size_t i = 0; i < enc.size(); ++i) {
-    x = enc[i](x, r);
+    x = enc[i](x, rope);
     if (trace.enabled()) trace.put("enc_block" + std::to_string(i), x);
   }
   x = enc_norm(x);
   if (trace.enabled()) trace.put("enc_out", x);
   return x;
+}
+
+at::Tensor Dust3rNetImpl::complete_view(const at::Tensor& masked, const at::Tensor& reference,
+                                        const at::Tensor& visible) {
+  TORCH_CHECK(masked.dim() == 4 && masked.sizes() == reference.sizes(),
+              "cross-view completion: expected two [B, 3, H, W] images of one size, got ",
+              masked.sizes(), " and ", reference.sizes());
+  const Grid g = grid(masked.size(2), masked.size(3));
+  const int64_t n = g.first * g.second;
+  TORCH_CHECK(visible.dim() == 1 && visible.scalar_type() == at::kLong && visible.numel() > 0 &&
+                  visible.numel() <= n,
+              "cross-view completion: visible must be a non-empty int64 [V] of patch indices");
+  const at::Tensor vis = visible.to(masked.device());
+  // The visible tokens keep their own grid positions: the RoPE rows of
+  // theirs, so the encoder knows where each one lies.
+  at::Tensor x = patch_embed(masked).to(masked.scalar_type()).index_select(1, vis);
+  const RopeTable full = enc_rope(g.first, g.second, x);
+  x = encode_tokens(std::move(x), {full.cos.index_select(0, vis), full.sin.index_select(0, vis)},
+                    Trace());
+  const at::Tensor f2 = encode(reference, Trace());
+  // Every patch of the masked view: the decoder embedding of the visible
+  // ones, mask_token elsewhere.
+  const at::Tensor embedded = decoder_embed(x);
+  const at::Tensor filler =
+      mask_token.to(embedded.scalar_type()).expand({embedded.size(0), n, embedded.size(2)});
+  at::Tensor x1 = filler.index_copy(1, vis, embedded);
+  const at::Tensor y = decoder_embed(f2);
+  const RopeTable r = dec_rope(g.first, g.second, x1);
+  for (DecoderBlock& block : dec2) x1 = block(x1, y, r, r);
+  return dec_norm(x1);
 }
 
 std::pair<DecoderOutputs, DecoderOutputs> Dust3rNetImpl::decode(const at::Tensor& f1, Grid grid1,

@@ -267,6 +267,16 @@ class Dust3rNetImpl : public torch::nn::Module {
                                                    const at::Tensor& f2, Grid grid2,
                                                    const Trace& trace);
 
+  // Cross-view completion, CroCo's pretext task (the pretraining DUSt3R
+  // starts from): the encoder sees only the patches of `masked` [B, 3, H, W]
+  // listed in `visible` (int64 [V], one set for the batch; the rest become
+  // mask_token), the coarse branch (dec_blocks2) decodes all of its patches
+  // cross-attending to the encoded `reference`, which it sees whole.
+  // Returns dec_norm of the last layer, [B, N, C_d], N the patches of
+  // `masked`; a pixel head on top predicts the hidden patches (training only).
+  at::Tensor complete_view(const at::Tensor& masked, const at::Tensor& reference,
+                           const at::Tensor& visible);
+
   // Head `which` (1 or 2) on an H x W image: DPT + postprocess, with the
   // official transpose_to_landscape behaviour (portrait + landscape_only:
   // the head runs at H x W and the outputs are transposed to [B, W, H, .]).
@@ -288,6 +298,10 @@ class Dust3rNetImpl : public torch::nn::Module {
   Rope2D rope;
 
  private:
+  // The encoder blocks and enc_norm on patch tokens `x`, with their RoPE
+  // table (one row per token).
+  at::Tensor encode_tokens(at::Tensor x, const RopeTable& rope, const Trace& trace);
+
   Dust3rConfig config_;
 };
 TORCH_MODULE(Dust3rNet);

@@ -40,6 +40,13 @@ void validate_train_config(const TrainConfig& c) {
     if (!(s.lr > 0.0) || !std::isfinite(s.lr)) fail(w + "lr must be > 0");
     if (s.warmup_steps < 0) fail(w + "warmup_steps must be >= 0");
     if (s.min_lr_ratio < 0.0 || s.min_lr_ratio > 1.0) fail(w + "min_lr_ratio must be in [0, 1]");
+    if (s.task != kTaskSequence && s.task != kTaskCrossViewCompletion) {
+      fail(w + "task must be \"" + kTaskSequence + "\" or \"" + kTaskCrossViewCompletion + "\"");
+    }
+    if (s.task == kTaskCrossViewCompletion) {
+      if (s.frames != 2) fail(w + "cross_view_completion takes pairs: frames must be 2");
+      if (!(s.mask_ratio > 0.0 && s.mask_ratio < 1.0)) fail(w + "mask_ratio must be in (0, 1)");
+    }
   }
   if (c.image_size < 16 || c.image_size % 16 != 0) fail("image_size must be a multiple of 16");
   if (c.amp != "auto" && c.amp != "bf16" && c.amp != "off") {

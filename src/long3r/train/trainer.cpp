@@ -239,6 +239,22 @@ Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
     optim_->params.push_back(kv.value());
     (kv.value().dim() >= 2 ? decay : no_decay).push_back(kv.value());
   }
+  // The pixel head of a cross-view completion stage: trained with the model,
+  // kept in the checkpoints, never in the exported model (CroCo's
+  // prediction_head, which DUSt3R does not carry either). Made after the
+  // model, so a config without such a stage initialises as before.
+  const bool completes_views =
+      std::any_of(config_.stages.begin(), config_.stages.end(),
+                  [](const TrainStage& s) { return s.task == kTaskCrossViewCompletion; });
+  if (completes_views) {
+    const Dust3rConfig& d = model_->config().dust3r;
+    completion_head_ = torch::nn::Linear(d.dec_embed_dim, d.patch_size * d.patch_size * 3);
+    completion_head_->to(device_);
+    optim_->params.push_back(completion_head_->weight);
+    optim_->params.push_back(completion_head_->bias);
+    decay.push_back(completion_head_->weight);
+    no_decay.push_back(completion_head_->bias);
+  }
   torch::optim::AdamWOptions defaults(config_.stages[0].lr);
   defaults.betas({config_.beta1, config_.beta2}).weight_decay(config_.weight_decay);
   std::vector<torch::optim::OptimizerParamGroup> groups;
@@ -387,17 +403,9 @@ LogRow Trainer::step() {
   const Batch batch = next_batch(stage.batch_size, stage.frames).to(device_);
   const double data_s = now_s() - t0;
   for (at::Tensor& p : optim_->params) p.mutable_grad() = at::Tensor();
-  std::vector<StreamOutput> outputs, coarse;
-  {
-    // bfloat16 needs no loss scaling (which libtorch's C++ API lacks).
-    std::optional<AutocastOn> autocast;
-    if (mixed_precision_) autocast.emplace(device_.type(), at::kBFloat16);
-    outputs = model_->forward_sequence(batch.frames, config_.loss.coarse ? &coarse : nullptr);
-  }
-  const LossTerms loss = sequence_loss(outputs, coarse, batch.pts, batch.valid, config_.loss);
-  loss.total.backward();
-  outputs.clear();
-  coarse.clear();
+  const LossTerms loss = stage.task == kTaskCrossViewCompletion
+                             ? completion_step(batch, stage.mask_ratio)
+                             : sequence_step(batch);
 
   // Clipping to a global L2 norm of grad_clip; none is an infinite bound,
   // which scales by exactly 1. The norm is logged either way.
@@ -446,6 +454,11 @@ void Trainer::save_checkpoint() {
   torch::serialize::OutputArchive bundle, weights, optimizer;
   model_->module().save(weights);
   bundle.write("weights", weights);
+  if (completion_head_) {
+    torch::serialize::OutputArchive head;
+    completion_head_->save(head);
+    bundle.write("completion_head", head);
+  }
   optim_->adamw->save(optimizer);
   bundle.write("optimizer", optimizer);
   bundle.write("step", step_);
@@ -500,6 +513,15 @@ void Trainer::load_checkpoint(const std::string& path) {
   model_->module().load(weights);
   model_->set_training(true);
   applied_stage_ = -1;
+  if (completion_head_) {
+    torch::serialize::InputArchive head;
+    if (!bundle.try_read("completion_head", head)) {
+      throw std::runtime_error("checkpoint " + path +
+                               " has no cross-view completion head, which this configuration's "
+                               "cross_view_completion stage needs");
+    }
+    completion_head_->load(head);
+  }
   bundle.read("optimizer", optimizer);
   optim_->adamw->load(optimizer);
   bundle.read("step", value);
@@ -556,6 +578,44 @@ void Trainer::write_outputs() {
     // NaN (a figure this build does not compute) is written as null.
     write_file_atomically((out / "validation.json").string(), j.dump(1) + "\n");
   }
+}
+
+LossTerms Trainer::sequence_step(const Batch& batch) {
+  std::vector<StreamOutput> outputs, coarse;
+  {
+    // bfloat16 needs no loss scaling (which libtorch's C++ API lacks).
+    std::optional<AutocastOn> autocast;
+    if (mixed_precision_) autocast.emplace(device_.type(), at::kBFloat16);
+    outputs = model_->forward_sequence(batch.frames, config_.loss.coarse ? &coarse : nullptr);
+  }
+  LossTerms loss = sequence_loss(outputs, coarse, batch.pts, batch.valid, config_.loss);
+  loss.total.backward();
+  return loss;
+}
+
+LossTerms Trainer::completion_step(const Batch& batch, double mask_ratio) {
+  // The later frame is completed from the earlier one, as the coarse branch
+  // decodes frame t+1 against frame t in the stream.
+  const at::Tensor& masked = batch.frames[1];
+  const at::Tensor& reference = batch.frames[0];
+  const int64_t patch = model_->config().dust3r.patch_size;
+  const at::Tensor visible =
+      draw_visible_patches((masked.size(2) / patch) * (masked.size(3) / patch), mask_ratio);
+  at::Tensor pred;
+  {
+    std::optional<AutocastOn> autocast;
+    if (mixed_precision_) autocast.emplace(device_.type(), at::kBFloat16);
+    pred = completion_head_(model_->complete_view(masked, reference, visible));
+  }
+  LossTerms loss;
+  loss.total = completion_loss(pred, patchify(masked, patch), visible);
+  loss.total.backward();
+  // No confidence, scale or pointmap terms in this task: the log's columns
+  // for them are 0 / NaN and `loss` is the completion error.
+  loss.conf_loss = at::zeros({}, at::kFloat);
+  loss.scale_loss = at::zeros({}, at::kFloat);
+  loss.regression = std::numeric_limits<double>::quiet_NaN();
+  return loss;
 }
 
 void Trainer::run() {
