@@ -33,7 +33,7 @@ CASES = [("float32", "off", 0), ("float32", "off", 1), ("bfloat16", "bf16", 0),
 
 def bench_config(path, amp, steps):
     """The configuration with its first stage only, amp set, no validation and
-    no checkpoint but the final one."""
+    no checkpoint but the final one; and that stage."""
     with open(path) as f:
         cfg = json.load(f)
     stage = dict(cfg["stages"][0])
@@ -46,8 +46,8 @@ def bench_config(path, amp, steps):
     return cfg, stage
 
 
-def run_case(opts, work, name, amp, prefetch, rnd):
-    cfg, stage = bench_config(opts.config, amp, opts.steps)
+def run_case(opts, work, frames, name, amp, prefetch, rnd):
+    cfg, _ = bench_config(opts.config, amp, opts.steps)
     case_dir = os.path.join(work, "%s_prefetch%d_r%d" % (name, prefetch, rnd))
     os.makedirs(case_dir, exist_ok=True)
     cfg_path = os.path.join(case_dir, "config.json")
@@ -70,8 +70,7 @@ def run_case(opts, work, name, amp, prefetch, rnd):
         return None, "no step after the warm-up"
     step_s = statistics.median(float(r["step_s"]) for r in rows)
     data_s = statistics.mean(float(r["data_s"]) for r in rows)
-    frames = int(stage.get("batch_size", 1)) * int(stage["frames"])
-    return (step_s, data_s, frames / step_s, frames, len(rows)), None
+    return (step_s, data_s, frames / step_s), None
 
 
 def main():
@@ -99,6 +98,8 @@ def main():
            opts.render_threads or opts.threads, opts.steps, opts.warmup, opts.rounds,
            "yes" if native else "no"))
     sys.stdout.flush()
+    stage = bench_config(opts.config, "off", opts.steps)[1]
+    frames = int(stage.get("batch_size", 1)) * int(stage["frames"])
     with tempfile.TemporaryDirectory(prefix="long3r_bench_train_") as tmp:
         work = opts.work or tmp
         results = {case: [] for case in CASES}
@@ -107,7 +108,7 @@ def main():
             for case in CASES:
                 if case in refused:
                     continue
-                res, why = run_case(opts, work, case[0], case[1], case[2], rnd)
+                res, why = run_case(opts, work, frames, case[0], case[1], case[2], rnd)
                 if res is None:
                     refused[case] = why
                 else:
@@ -127,15 +128,8 @@ def main():
         base = base or fps
         print("%-10s %-9d %12.3f %14.3f %10.2f   (%.2fx)" % (name, prefetch, step_s, data_s, fps,
                                                             fps / base))
-    print("frames per step: %d (batch_size x frames of the first stage)" % results_frames(results))
+    print("frames per step: %d (batch_size x frames of the first stage)" % frames)
     return 1 if len(refused) == len(CASES) else 0
-
-
-def results_frames(results):
-    for runs in results.values():
-        if runs:
-            return runs[0][3]
-    return 0
 
 
 if __name__ == "__main__":

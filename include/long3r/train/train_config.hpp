@@ -30,7 +30,7 @@ struct TrainStage {
   // "cross_view_completion" (CroCo's pretext task on pairs, frames = 2: the
   // encoder and the coarse decoder branch learn to fill in the hidden
   // patches of one view from the other; docs/training.md).
-  std::string task = "sequence";
+  std::string task = kTaskSequence;
   double mask_ratio = 0.9;  // cross_view_completion: share of the patches hidden
 };
 
