@@ -16,7 +16,7 @@ using long3r::ModelConfigError;
 using long3r::parse_model_config;
 using Json = nlohmann::ordered_json;
 
-const std::string kGolden = std::string(LONG3R_SHARED_DIR) + "/golden/";
+const std::string kGolden = std::string(LONG3R_GOLDEN_DIR) + "/";
 
 // A complete tiny Spann3R config (the golden land96x64 model's fields).
 Json tiny_spann3r() {
@@ -137,7 +137,10 @@ TEST(ModelConfig, ErrorsNameTheField) {
       {{"dust3r", "enc_depth"}, "2.5", "dust3r.enc_depth: expected an integer"},
       {{"dust3r", "enc_depth"}, "0", "dust3r.enc_depth: must be at least 1"},
       {{"dust3r", "enc_embed_dims"}, "32", "unknown field(s) \"enc_embed_dims\""},
-      {{"dust3r", "head_type"}, "\"linear\"", "only \"dpt\" heads"},
+      {{"dust3r", "head_type"}, "\"conv\"",
+       "dust3r.head_type: must be \"dpt\" or \"linear\", got \"conv\""},
+      // A linear head takes no DPT arguments: a dpt_head section is a mistake.
+      {{"dust3r", "head_type"}, "\"linear\"", "unknown field(s) \"dpt_head\""},
       {{"dust3r", "pos_embed"}, "\"cosine\"", "only RoPE"},
       {{"dust3r", "patch_embed_cls"}, "\"Foo\"", "unknown class"},
       {{"dust3r", "norm_layer"}, "\"BatchNorm\"", "only LayerNorm"},
@@ -210,6 +213,28 @@ TEST(ModelConfig, WritesTheOfficialEncodings) {
   EXPECT_NE(error_of(bad).find("long3r.long_term_policy: must be \"voxel\" or \"spann3r\", got "
                                "\"lru\""),
             std::string::npos);
+}
+
+// DUSt3R's linear head (official head_type 'linear', LinearPts3d): no DPT
+// section read or written, any patch size.
+TEST(ModelConfig, LinearHead) {
+  Json cfg = tiny_spann3r();
+  cfg["dust3r"]["head_type"] = "linear";
+  cfg["dust3r"]["patch_size"] = 8;
+  cfg["dust3r"].erase("dpt_head");
+  const ModelConfig c = parse_model_config(cfg);
+  EXPECT_EQ(c.dust3r.head_type, long3r::HeadType::kLinear);
+  EXPECT_EQ(c.dust3r.patch_size, 8);
+  const Json written = Json::parse(long3r::model_config_to_json(c));
+  EXPECT_EQ(written.at("dust3r").at("head_type"), "linear");
+  EXPECT_FALSE(written.at("dust3r").contains("dpt_head"));
+  EXPECT_EQ(parse_model_config(written.dump()).dust3r.head_type, long3r::HeadType::kLinear);
+  // The DPT default stays what it was.
+  EXPECT_EQ(parse_model_config(tiny_spann3r()).dust3r.head_type, long3r::HeadType::kDpt);
+  EXPECT_EQ(Json::parse(long3r::model_config_to_json(parse_model_config(tiny_spann3r())))
+                .at("dust3r")
+                .at("head_type"),
+            "dpt");
 }
 
 TEST(ModelConfig, BadJsonAndMissingMetadata) {

@@ -12,7 +12,8 @@ if(LONG3R_TORCH_PYTHON AND TARGET app_long3r_ckpt_info)
     COMMAND ${LONG3R_TORCH_PYTHON} ${PROJECT_SOURCE_DIR}/test/scripts/test_convert_roundtrip.py
             --script ${PROJECT_SOURCE_DIR}/scripts/convert_checkpoint.py
             --info $<TARGET_FILE:app_long3r_ckpt_info>
-            --golden ${LONG3R_SHARED_DIR}/golden)
+            --golden ${LONG3R_GOLDEN_DIR}
+            --linear-golden ${LONG3R_GOLDEN_DIR}/dust3r_linear_sq64)
   set_tests_properties(convert_checkpoint_roundtrip PROPERTIES
     SKIP_RETURN_CODE 77 TIMEOUT 300 ENVIRONMENT "OMP_NUM_THREADS=1")
 endif()

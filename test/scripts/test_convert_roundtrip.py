@@ -105,6 +105,8 @@ def main():
     ap.add_argument("--script", required=True)
     ap.add_argument("--info", required=True)
     ap.add_argument("--golden", required=True)
+    ap.add_argument("--linear-golden", help="folder of the linear-head golden case "
+                    "(test/data/golden/dust3r_linear_sq64)")
     opts = ap.parse_args()
     conv = load_module(opts.script)
     py = sys.executable
@@ -165,6 +167,25 @@ def main():
                 same_tensors(collections.OrderedDict((k, v.to(dtype)) for k, v in gd.items()),
                              out, "DUSt3R %s" % flag)
                 cpp_reads(path, 661)
+
+        # ---- DUSt3R with the linear head (the official 224 linear layout) ------
+        if opts.linear_golden:
+            gl, gl_meta = conv.read_safetensors(os.path.join(opts.linear_golden,
+                                                             "weights.safetensors"))
+            gl_cfg = json.loads(gl_meta["config"])
+            args = argparse.Namespace(model=dust3r_model_string(gl_cfg["dust3r"]), epoch=1)
+            torch.save({"model": collections.OrderedDict(gl), "args": args, "epoch": 1},
+                       tmpf("linear.pth"))
+            p = convert(tmpf("linear.pth"), tmpf("linear.safetensors"))
+            if check(p.returncode == 0, "DUSt3R linear-head .pth converts"):
+                out, meta = conv.read_safetensors(tmpf("linear.safetensors"))
+                same_tensors(gl, out, "DUSt3R linear head")
+                cfg = json.loads(meta["config"])
+                check(cfg["dust3r"]["head_type"] == "linear" and "dpt_head" not in cfg["dust3r"],
+                      "linear head: no DPT section")
+                check(without_notes(cfg["dust3r"]) == without_notes(gl_cfg["dust3r"]),
+                      "linear-head config matches the golden one (patch size from the shapes)")
+                cpp_reads(tmpf("linear.safetensors"), len(gl))
 
         # ---- Spann3R: 'dust3r.'-prefixed keys ----------------------------------
         gs_path = os.path.join(opts.golden, "spann3r_seq_sq224", "weights.safetensors")

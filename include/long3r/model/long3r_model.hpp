@@ -81,7 +81,10 @@ class Long3rModel : public StreamingModel, public ModelShell {
   // returns N outputs, frames 0..N-2 from head1 and frame N-1 from head2. With
   // `coarse`, it receives N-1 head2 predictions: (*coarse)[j] is frame j+1 as
   // predicted at step j (training targets). Needs N >= 2. Works in both modes;
-  // use it with set_training(true) to back-propagate.
+  // use it with set_training(true) to back-propagate. The last step's memory
+  // write is skipped: the stream ends there, so nothing would read it (the
+  // outputs are those of push() and flush(); that step's StepStats then
+  // count the memory without frame N-2).
   std::vector<StreamOutput> forward_sequence(const std::vector<at::Tensor>& frames,
                                              std::vector<StreamOutput>* coarse = nullptr);
 

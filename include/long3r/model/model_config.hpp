@@ -8,11 +8,13 @@
 // misspelt field is reported instead of silently defaulted.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <limits>
 #include <map>
 #include <nlohmann/json_fwd.hpp>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "long3r/io/config_fields.hpp"
@@ -36,6 +38,16 @@ enum class ConfMode { kNone, kExp, kSigmoid };
 // PatchEmbedDust3R, or ManyAR_PatchEmbed (same weights and, for landscape
 // images, the same result; portrait images are refused with it).
 enum class PatchEmbedKind { kDust3r, kManyAR };
+
+// The official head_type: "dpt" (PixelwiseTaskWithDPT, the DUSt3R 512
+// checkpoints) or "linear" (LinearPts3d, the DUSt3R 224 linear checkpoint):
+// one linear layer per decoder token to its patch's p x p pixels.
+enum class HeadType { kDpt, kLinear };
+inline const std::array<std::pair<HeadType, const char*>, 2>& enum_names(HeadType) {
+  static const std::array<std::pair<HeadType, const char*>, 2> names{
+      {{HeadType::kDpt, "dpt"}, {HeadType::kLinear, "linear"}}};
+  return names;
+}
 
 // DPT head (official PixelwiseTaskWithDPT + DPTOutputAdapter_fix).
 struct DptHeadConfig {
@@ -70,7 +82,8 @@ struct Dust3rConfig {
   bool landscape_only = true;
   PatchEmbedKind patch_embed = PatchEmbedKind::kDust3r;
   std::vector<int64_t> img_size{512, 512};  // training size; informational (RoPE has no table)
-  DptHeadConfig dpt;
+  HeadType head_type = HeadType::kDpt;
+  DptHeadConfig dpt;  // head_type dpt only
 
   int64_t mlp_hidden(int64_t dim) const { return static_cast<int64_t>(dim * mlp_ratio); }
 };

@@ -39,6 +39,9 @@ struct Long3rModel::Impl {
   bool training = false;
   bool projection_cache = true;  // set_memory_projection_cache()
   bool collect_coarse = false;   // run head2 at every step (training targets)
+  // forward_sequence's last push: its memory write would never be read (the
+  // stream ends with flush(), which empties the memory), so it is skipped.
+  bool write_memory = true;
 
   // Stream state.
   int64_t frames = 0;
@@ -140,17 +143,19 @@ std::optional<StreamOutput> Long3rModel::push(const at::Tensor& image) {
 
   // Step 6: memory write of frame t, on the image's token grid.
   const auto t2 = Clock::now();
-  at::Tensor pts = res1.pts3d, conf = res1.conf;
-  if (pts.size(1) != H) {  // landscape_only transposed a portrait map
-    pts = pts.transpose(1, 2).contiguous();
-    if (conf.defined()) conf = conf.transpose(1, 2).contiguous();
+  if (s.write_memory) {
+    at::Tensor pts = res1.pts3d, conf = res1.conf;
+    if (pts.size(1) != H) {  // landscape_only transposed a portrait map
+      pts = pts.transpose(1, 2).contiguous();
+      if (conf.defined()) conf = conf.transpose(1, 2).contiguous();
+    }
+    if (!conf.defined()) conf = at::ones(pts.sizes().slice(0, 3), pts.options());
+    const at::Tensor key = s.net->feat_key(1, s.feat, dec.refined.back());
+    const at::Tensor value = s.net->cur_value(pts, dec.refined.back(), g.first, g.second) + key;
+    const at::Tensor positions = token_positions(pts, conf, s.config.dust3r.patch_size);
+    s.memory.add_frame(key, value, positions, t, {g.first, g.second},
+                       cached ? s.net->project_memory(key, value) : at::Tensor());
   }
-  if (!conf.defined()) conf = at::ones(pts.sizes().slice(0, 3), pts.options());
-  const at::Tensor key = s.net->feat_key(1, s.feat, dec.refined.back());
-  const at::Tensor value = s.net->cur_value(pts, dec.refined.back(), g.first, g.second) + key;
-  const at::Tensor positions = token_positions(pts, conf, s.config.dust3r.patch_size);
-  s.memory.add_frame(key, value, positions, t, {g.first, g.second},
-                     cached ? s.net->project_memory(key, value) : at::Tensor());
   out.stats.memory_ms = ms_since(t2);
 
   s.feat = next;
@@ -211,8 +216,9 @@ std::vector<StreamOutput> Long3rModel::forward_sequence(const std::vector<at::Te
   if (coarse != nullptr) coarse->clear();
   std::vector<StreamOutput> outs;
   try {
-    for (const at::Tensor& f : frames) {
-      std::optional<StreamOutput> o = push(f);
+    for (std::size_t i = 0; i < frames.size(); ++i) {
+      s.write_memory = i + 1 < frames.size();
+      std::optional<StreamOutput> o = push(frames[i]);
       if (!o) continue;
       if (coarse != nullptr) {
         StreamOutput c;
@@ -224,9 +230,11 @@ std::vector<StreamOutput> Long3rModel::forward_sequence(const std::vector<at::Te
       }
       outs.push_back(std::move(*o));
     }
+    s.write_memory = true;
     outs.push_back(*flush());
   } catch (...) {
     s.collect_coarse = false;
+    s.write_memory = true;
     s.reset();
     throw;
   }

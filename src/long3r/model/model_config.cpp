@@ -225,7 +225,7 @@ void dpt_fields(S& h, V& v, int64_t patch_size) {
 template <class S, class V>
 void dust3r_fields(S& d, V& v) {
   v.fixed("output_mode", std::string("pts3d"), "only \"pts3d\" is supported");
-  v.fixed("head_type", std::string("dpt"), "only \"dpt\" heads are supported");
+  v("head_type", d.head_type);
   v.template ignored<double>("mask_ratio");   // pre-training only
   v.template ignored<std::string>("freeze");  // training only
   v("patch_size", d.patch_size);
@@ -250,7 +250,10 @@ void dust3r_fields(S& d, V& v) {
   v.derive(d.dpt.dim_tokens, std::vector<int64_t>{d.enc_embed_dim, d.dec_embed_dim, d.dec_embed_dim,
                                                   d.dec_embed_dim});
   v.derive(d.dpt.num_channels, d.conf_mode == ConfMode::kNone ? int64_t{3} : int64_t{4});
-  v.section("dpt_head", [&](auto& sub) { dpt_fields(d.dpt, sub, d.patch_size); });
+  // A linear head has no DPT arguments (the official LinearPts3d takes none).
+  if (d.head_type == HeadType::kDpt) {
+    v.section("dpt_head", [&](auto& sub) { dpt_fields(d.dpt, sub, d.patch_size); });
+  }
 }
 
 // Spann3R's memory encoders; `d` gives the widths the defaults follow.
@@ -329,28 +332,30 @@ void validate_model_config(const ModelConfig& config) {
             "dust3r.conf_mode", "sigmoid needs finite vmin < vmax");
   }
 
-  const DptHeadConfig& h = d.dpt;
-  const std::string hp = "dust3r.dpt_head";
-  require(h.feature_dim >= 2, hp + ".feature_dim", "must be at least 2");
-  require(h.last_dim >= 1, hp + ".last_dim", "must be positive");
-  require(h.layer_dims.size() == 4, hp + ".layer_dims", "needs 4 entries");
-  for (int64_t v : h.layer_dims) require(v >= 1, hp + ".layer_dims", "entries must be positive");
-  require(h.hooks.size() == 4, hp + ".hooks", "needs 4 entries");
-  require(h.dim_tokens.size() == 4, hp + ".dim_tokens", "needs 4 entries");
-  for (std::size_t i = 0; i < 4; ++i) {
-    const std::string ip = "[" + std::to_string(i) + "]";
-    require(h.hooks[i] >= 0 && h.hooks[i] <= d.dec_depth, hp + ".hooks" + ip,
-            "must lie in [0, dec_depth = " + std::to_string(d.dec_depth) + "], got " +
-                std::to_string(h.hooks[i]));
-    const int64_t width = h.hooks[i] == 0 ? d.enc_embed_dim : d.dec_embed_dim;
-    require(h.dim_tokens[i] == width, hp + ".dim_tokens" + ip,
-            "must be the width of hooked layer " + std::to_string(h.hooks[i]) + " (" +
-                std::to_string(width) + "), got " + std::to_string(h.dim_tokens[i]));
+  if (d.head_type == HeadType::kDpt) {
+    const DptHeadConfig& h = d.dpt;
+    const std::string hp = "dust3r.dpt_head";
+    require(h.feature_dim >= 2, hp + ".feature_dim", "must be at least 2");
+    require(h.last_dim >= 1, hp + ".last_dim", "must be positive");
+    require(h.layer_dims.size() == 4, hp + ".layer_dims", "needs 4 entries");
+    for (int64_t v : h.layer_dims) require(v >= 1, hp + ".layer_dims", "entries must be positive");
+    require(h.hooks.size() == 4, hp + ".hooks", "needs 4 entries");
+    require(h.dim_tokens.size() == 4, hp + ".dim_tokens", "needs 4 entries");
+    for (std::size_t i = 0; i < 4; ++i) {
+      const std::string ip = "[" + std::to_string(i) + "]";
+      require(h.hooks[i] >= 0 && h.hooks[i] <= d.dec_depth, hp + ".hooks" + ip,
+              "must lie in [0, dec_depth = " + std::to_string(d.dec_depth) + "], got " +
+                  std::to_string(h.hooks[i]));
+      const int64_t width = h.hooks[i] == 0 ? d.enc_embed_dim : d.dec_embed_dim;
+      require(h.dim_tokens[i] == width, hp + ".dim_tokens" + ip,
+              "must be the width of hooked layer " + std::to_string(h.hooks[i]) + " (" +
+                  std::to_string(width) + "), got " + std::to_string(h.dim_tokens[i]));
+    }
+    const int64_t channels = d.conf_mode == ConfMode::kNone ? 3 : 4;
+    require(h.num_channels == channels, hp + ".num_channels",
+            "must be " + std::to_string(channels) + " (xyz" +
+                (channels == 4 ? " + confidence)" : ", no confidence)"));
   }
-  const int64_t channels = d.conf_mode == ConfMode::kNone ? 3 : 4;
-  require(h.num_channels == channels, hp + ".num_channels",
-          "must be " + std::to_string(channels) + " (xyz" +
-              (channels == 4 ? " + confidence)" : ", no confidence)"));
 
   if (config.kind == ModelKind::kDust3r) return;
   const Spann3rConfig& s = config.spann3r;

@@ -369,8 +369,29 @@ HeadOutput postprocess(const at::Tensor& raw, const Dust3rConfig& c) {
   return out;
 }
 
-DptHeadImpl::DptHeadImpl(const Dust3rConfig& config) {
-  dpt = register_module("dpt", DptAdapter(config));
+PixelHeadImpl::PixelHeadImpl(const Dust3rConfig& config) : patch(config.patch_size) {
+  if (config.head_type == HeadType::kDpt) {
+    dpt = register_module("dpt", DptAdapter(config));
+  } else {
+    const int64_t channels = config.conf_mode == ConfMode::kNone ? 3 : 4;
+    proj = register_module("proj", torch::nn::Linear(config.dec_embed_dim,
+                                                     channels * patch * patch));
+  }
+}
+
+at::Tensor PixelHeadImpl::forward(const std::vector<at::Tensor>& decout, int64_t H, int64_t W,
+                                  const Trace& trace) {
+  if (dpt) return dpt(decout, H, W, trace);
+  const at::Tensor& tokens = decout.back();  // dec_norm of the last decoder layer
+  const int64_t nh = H / patch, nw = W / patch;
+  TORCH_CHECK(tokens.size(1) == nh * nw, "linear head: ", tokens.size(1), " tokens for a ", nh,
+              "x", nw, " patch grid");
+  // 'b (nh nw) (c p p) -> b c (nh p) (nw p)', as the official transpose, view
+  // and pixel_shuffle.
+  const at::Tensor feat = proj(tokens).transpose(1, 2).reshape({tokens.size(0), -1, nh, nw});
+  at::Tensor out = at::pixel_shuffle(feat, patch);
+  if (trace.enabled()) trace.put("raw", out);
+  return out;
 }
 
 // ---------------------------------------------------------------------------
@@ -406,8 +427,8 @@ Dust3rNetImpl::Dust3rNetImpl(const Dust3rConfig& c, bool refined_branch)
     dec_blocks2->push_back(dec2.back());
   }
   dec_norm = register_module("dec_norm", layer_norm(c.dec_embed_dim, c.norm_eps));
-  downstream_head1 = register_module("downstream_head1", DptHead(c));
-  downstream_head2 = register_module("downstream_head2", DptHead(c));
+  downstream_head1 = register_module("downstream_head1", PixelHead(c));
+  downstream_head2 = register_module("downstream_head2", PixelHead(c));
 }
 
 Grid Dust3rNetImpl::grid(int64_t H, int64_t W) const {
@@ -533,7 +554,7 @@ std::pair<DecoderOutputs, DecoderOutputs> Dust3rNetImpl::decode(const at::Tensor
 HeadOutput Dust3rNetImpl::head(int which, const DecoderOutputs& dec, int64_t H, int64_t W,
                                const Trace& trace) {
   TORCH_CHECK(which == 1 || which == 2, "head: 1 or 2");
-  DptHead& h = which == 1 ? downstream_head1 : downstream_head2;
+  PixelHead& h = which == 1 ? downstream_head1 : downstream_head2;
   // Under autocast (mixed-precision training) the head runs in float32 with
   // autocast off, as the official Spann3R runs its downstream heads
   // (autocast(enabled=False) on tokens made float); libtorch 1.13 also has no
@@ -544,7 +565,7 @@ HeadOutput Dust3rNetImpl::head(int which, const DecoderOutputs& dec, int64_t H, 
     for (at::Tensor& t : tokens) t = t.to(at::kFloat);
   }
   // The postprocess (exp / square of the depth, the confidence) in float32.
-  HeadOutput out = postprocess(h->dpt(tokens, H, W, trace).to(at::kFloat), config_);
+  HeadOutput out = postprocess(h->forward(tokens, H, W, trace).to(at::kFloat), config_);
   // transpose_to_landscape: with PatchEmbedDust3R the tokens of a portrait
   // image are in image order, the head runs at (H, W) and only its outputs are
   // transposed.
@@ -648,7 +669,11 @@ void StreamShape::check(const at::Tensor& image, bool first_frame, const Dust3rN
 
 void keep_head_layers(DecoderOutputs& dec, const Dust3rConfig& config) {
   std::vector<bool> hooked(dec.size(), false);
-  for (int64_t h : config.dpt.hooks) hooked.at(static_cast<std::size_t>(h)) = true;
+  if (config.head_type == HeadType::kLinear) {
+    hooked.back() = true;  // the linear head reads the last layer only
+  } else {
+    for (int64_t h : config.dpt.hooks) hooked.at(static_cast<std::size_t>(h)) = true;
+  }
   for (std::size_t i = 0; i < hooked.size(); ++i) {
     if (!hooked[i]) dec[i] = at::Tensor();
   }

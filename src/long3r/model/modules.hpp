@@ -226,12 +226,21 @@ struct HeadOutput {
 // Official postprocess(): channel-last, depth_mode on xyz, conf_mode on the rest.
 HeadOutput postprocess(const at::Tensor& raw, const Dust3rConfig& config);
 
-class DptHeadImpl : public torch::nn::Module {
+// One downstream head, as the official head_factory builds it: DPT
+// (`dpt.*`) or LinearPts3d (`proj`: a linear layer from each decoder token to
+// its patch's p x p pixels of xyz (+ confidence), pixel-shuffled).
+class PixelHeadImpl : public torch::nn::Module {
  public:
-  explicit DptHeadImpl(const Dust3rConfig& config);
-  DptAdapter dpt{nullptr};
+  explicit PixelHeadImpl(const Dust3rConfig& config);
+  // Raw head output [B, channels, H, W] (before postprocess) from the decoder
+  // outputs of an H x W image. Records the DPT intermediates and raw.
+  at::Tensor forward(const std::vector<at::Tensor>& decout, int64_t H, int64_t W,
+                     const Trace& trace);
+  DptAdapter dpt{nullptr};       // head_type dpt
+  torch::nn::Linear proj{nullptr};  // head_type linear
+  int64_t patch = 16;
 };
-TORCH_MODULE(DptHead);
+TORCH_MODULE(PixelHead);
 
 // ---------------------------------------------------------------------------
 // AsymmetricCroCo3DStereo.
@@ -277,7 +286,7 @@ class Dust3rNetImpl : public torch::nn::Module {
   at::Tensor complete_view(const at::Tensor& masked, const at::Tensor& reference,
                            const at::Tensor& visible);
 
-  // Head `which` (1 or 2) on an H x W image: DPT + postprocess, with the
+  // Head `which` (1 or 2) on an H x W image: DPT or linear + postprocess, with the
   // official transpose_to_landscape behaviour (portrait + landscape_only:
   // the head runs at H x W and the outputs are transposed to [B, W, H, .]).
   // Records act_postprocess{i}, layer_rn{i}, refinenet{n}, raw.
@@ -291,8 +300,8 @@ class Dust3rNetImpl : public torch::nn::Module {
   torch::nn::ModuleList dec_blocks{nullptr};
   torch::nn::ModuleList dec_blocks2{nullptr};
   LayerNorm dec_norm{nullptr};
-  DptHead downstream_head1{nullptr};
-  DptHead downstream_head2{nullptr};
+  PixelHead downstream_head1{nullptr};
+  PixelHead downstream_head2{nullptr};
   std::vector<Block> enc;
   std::vector<DecoderBlock> dec1, dec2;
   Rope2D rope;
@@ -348,7 +357,8 @@ struct StreamShape {
   void check(const at::Tensor& image, bool first_frame, const Dust3rNetImpl& net, const char* who);
 };
 
-// Releases the decoder layers the DPT heads do not read (config.dpt.hooks):
+// Releases the decoder layers the head does not read (DPT: config.dpt.hooks;
+// linear: all but the last):
 // what a later head call (flush) needs of a decoder branch.
 void keep_head_layers(DecoderOutputs& dec, const Dust3rConfig& config);
 
