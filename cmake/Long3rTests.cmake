@@ -45,13 +45,16 @@ function(long3r_add_gtest_binary name)
   target_include_directories(${name} PRIVATE ${PROJECT_SOURCE_DIR}/src ${PROJECT_SOURCE_DIR}/test)
   target_compile_options(${name} PRIVATE ${LONG3R_WARNINGS})
   target_compile_definitions(${name} PRIVATE
-    LONG3R_SHARED_DIR="${LONG3R_SHARED_DIR}"
+    LONG3R_GOLDEN_DIR="${LONG3R_GOLDEN_DIR}"
     LONG3R_SOURCE_DIR="${PROJECT_SOURCE_DIR}"
     LONG3R_BINARY_DIR="${PROJECT_BINARY_DIR}")
   gtest_discover_tests(${name}
     WORKING_DIRECTORY ${PROJECT_BINARY_DIR}
     DISCOVERY_TIMEOUT 60
-    PROPERTIES ENVIRONMENT "OMP_NUM_THREADS=2;OPENBLAS_NUM_THREADS=1")
+    # One variable only: the discovery writes a list value as separate
+    # arguments, which would cut the property list (OPENBLAS_NUM_THREADS
+    # comes from scripts/env.sh, whose environment ctest runs in).
+    PROPERTIES LABELS unit ENVIRONMENT "OMP_NUM_THREADS=2")
 endfunction()
 
 long3r_add_gtest_binary(long3r_model_tests FOLDERS io model memory
@@ -134,6 +137,25 @@ if(LONG3R_WITH_ROS)
     add_executable(long3r_ros_unit_tests ${LONG3R_ROS_UNIT_SRCS})
     target_link_libraries(long3r_ros_unit_tests PRIVATE long3r_nodelet GTest::gtest GTest::gtest_main)
     target_compile_options(long3r_ros_unit_tests PRIVATE ${LONG3R_WARNINGS})
-    gtest_discover_tests(long3r_ros_unit_tests DISCOVERY_TIMEOUT 60)
+    gtest_discover_tests(long3r_ros_unit_tests DISCOVERY_TIMEOUT 60 PROPERTIES LABELS "unit;ros")
   endif()
 endif()
+
+# Labels, so that a tier runs alone (README, "Run every test"):
+#   unit         the gtests and the golden parity runs (a few minutes);
+#   integration  the command-line drivers, scripts, benchmarks' checks and
+#                the shipped model's figures;
+#   ros          launch checks and rostests (with a ROS build).
+# The gtests carry theirs from gtest_discover_tests above; every other test
+# registered in this folder gets one here.
+get_property(LONG3R_ALL_TESTS DIRECTORY PROPERTY TESTS)
+foreach(t ${LONG3R_ALL_TESTS})
+  get_test_property(${t} LABELS labels)
+  if(t MATCHES "rostest|roslaunch|^launch_by_name_|^ros_")
+    set_property(TEST ${t} APPEND PROPERTY LABELS ros)
+  elseif(labels MATCHES "golden" OR t STREQUAL "clang_format")
+    set_property(TEST ${t} APPEND PROPERTY LABELS unit)
+  else()
+    set_property(TEST ${t} APPEND PROPERTY LABELS integration)
+  endif()
+endforeach()

@@ -6,7 +6,7 @@
 # 1. builds the torch-only part (-DLONG3R_WITH_ROS=OFF, OpenCV/PCL left out)
 #    against that torch's libtorch (python3 -c 'import torch;
 #    print(torch.utils.cmake_prefix_path)'; --torch-dir overrides);
-# 2. runs every golden case of ../shared/golden on CUDA in float32 with TF32
+# 2. runs every golden case of test/data/golden on CUDA in float32 with TF32
 #    off (long3r_golden: PASS at the 1e-4 relative tolerance, deviation
 #    printed), and in bfloat16 and float16 (deviation printed, not judged);
 # 3. runs the CUDA unit tests (ctest -R Cuda, where googletest is installed);
@@ -69,7 +69,7 @@ bin="$build"  # plain CMake puts the executables at the top of the build folder
 say ""
 say "== golden cases on $device (TF32 off), max relative deviation of the outputs vs the official float32 run"
 status=0
-for case_dir in "$root"/../shared/golden/*/; do
+for case_dir in "$root"/test/data/golden/*/; do
   [ -f "$case_dir/io.safetensors" ] || continue
   name=$(basename "$case_dir")
   for prec in float32 bfloat16 float16; do

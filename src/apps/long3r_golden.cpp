@@ -1,6 +1,6 @@
 // long3r_golden: numerical parity of the inference engine against golden
 // reference cases (official DUSt3R / Spann3R runs; format described in
-// ../shared/golden/README.md).
+// test/data/golden/README.md).
 //
 //   long3r_golden [--tol T] [--device D] [--precision P] CASE_DIR...
 //
@@ -456,7 +456,7 @@ int main(int argc, char** argv) {
   std::vector<std::string> dirs;
   long3r::CliOptions cli(
       "long3r_golden",
-      "Compares every tensor of each golden case (see ../shared/golden/README.md)."
+      "Compares every tensor of each golden case (see test/data/golden/README.md)."
       " Exit status 0 when all are within the tolerance, 1 otherwise.");
   cli.positional("CASE_DIR", &dirs, "weights.safetensors and io.safetensors of one case")
       .required();

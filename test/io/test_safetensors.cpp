@@ -26,7 +26,7 @@ namespace {
 using long3r::CheckpointError;
 using long3r::parse_safetensors_header;
 
-const std::string kGolden = std::string(LONG3R_SHARED_DIR) + "/golden/";
+const std::string kGolden = std::string(LONG3R_GOLDEN_DIR) + "/";
 const char* const kCases[] = {"dust3r_pair_sq224", "dust3r_pair_land112x80",
                               "dust3r_pair_port80x112", "spann3r_seq_sq224",
                               "spann3r_seq_land96x64"};

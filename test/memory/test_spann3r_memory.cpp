@@ -83,7 +83,7 @@ const Golden& golden(const std::string& name) {
   static std::map<std::string, std::unique_ptr<Golden>> cache;
   auto& slot = cache[name];
   if (slot) return *slot;
-  const std::string dir = std::string(LONG3R_SHARED_DIR) + "/golden/" + name + "/";
+  const std::string dir = std::string(LONG3R_GOLDEN_DIR) + "/" + name + "/";
   auto g = std::make_unique<Golden>();
   g->name = name;
   g->io = long3r::load_safetensors(dir + "io.safetensors");

@@ -1,4 +1,4 @@
-# Golden parity: one ctest per case folder of ../shared/golden (official
+# Golden parity: one ctest per case folder of test/data/golden (official
 # DUSt3R / Spann3R reference runs). The folder is globbed at configure time
 # (CONFIGURE_DEPENDS re-globs on build), so new cases are picked up without
 # editing this file. long3r_golden compares every stored tensor at 1e-4
@@ -17,13 +17,13 @@ set(LONG3R_GOLDEN_BF16_TOL_spann3r_seq_land96x64 0.026)
 set(LONG3R_GOLDEN_BF16_TOL_spann3r_seq_sq224 0.10)
 if(TARGET app_long3r_golden)
   file(GLOB LONG3R_GOLDEN_CASE_DIRS LIST_DIRECTORIES true CONFIGURE_DEPENDS
-       "${LONG3R_SHARED_DIR}/golden/*")
+       "${LONG3R_GOLDEN_DIR}/*")
   foreach(case_dir ${LONG3R_GOLDEN_CASE_DIRS})
     if(IS_DIRECTORY "${case_dir}" AND EXISTS "${case_dir}/io.safetensors"
        AND EXISTS "${case_dir}/weights.safetensors")
       get_filename_component(case "${case_dir}" NAME)
       add_test(NAME golden_${case}
-               COMMAND app_long3r_golden ${LONG3R_SHARED_DIR}/golden/${case})
+               COMMAND app_long3r_golden ${case_dir})
       # One thread: the runs are small, and spinning OpenMP workers on a
       # loaded machine cost far more than they bring.
       set_tests_properties(golden_${case} PROPERTIES
@@ -32,7 +32,7 @@ if(TARGET app_long3r_golden)
       if(DEFINED LONG3R_GOLDEN_BF16_TOL_${case})
         add_test(NAME golden_bf16_${case}
                  COMMAND app_long3r_golden --precision bfloat16 --allow-emulated-precision
-                         --tol ${LONG3R_GOLDEN_BF16_TOL_${case}} ${LONG3R_SHARED_DIR}/golden/${case})
+                         --tol ${LONG3R_GOLDEN_BF16_TOL_${case}} ${case_dir})
         set_tests_properties(golden_bf16_${case} PROPERTIES
           TIMEOUT 600 LABELS golden
           ENVIRONMENT "OMP_NUM_THREADS=1;OPENBLAS_NUM_THREADS=1")

@@ -20,7 +20,7 @@
 
 namespace {
 
-const std::string kGolden = std::string(LONG3R_SHARED_DIR) + "/golden/";
+const std::string kGolden = std::string(LONG3R_GOLDEN_DIR) + "/";
 
 // Empty when a GPU is usable, else why not.
 std::string no_gpu_reason() {

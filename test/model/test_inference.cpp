@@ -28,7 +28,7 @@ using long3r::InferenceConfig;
 using long3r::InferenceUnsupportedError;
 using long3r::Precision;
 
-const std::string kGolden = std::string(LONG3R_SHARED_DIR) + "/golden/";
+const std::string kGolden = std::string(LONG3R_GOLDEN_DIR) + "/";
 
 std::string error_of(const InferenceConfig& c) {
   try {

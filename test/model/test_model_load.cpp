@@ -1,5 +1,5 @@
 // Tests of the public model classes on the golden checkpoints
-// (../shared/golden): strict loading (success, renamed and missing tensors),
+// (test/data/golden): strict loading (success, renamed and missing tensors),
 // pair inference against the reference outputs, and the Spann3R streaming
 // semantics (latency of one frame, flush from the coarse head, reset).
 #include <ATen/ATen.h>
@@ -16,7 +16,7 @@
 
 namespace {
 
-const std::string kGolden = std::string(LONG3R_SHARED_DIR) + "/golden/";
+const std::string kGolden = std::string(LONG3R_GOLDEN_DIR) + "/";
 
 using long3r::test::rel_diff;
 

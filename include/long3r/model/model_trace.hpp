@@ -3,7 +3,7 @@
 // against reference outputs and for debugging. A default-constructed Trace is
 // off and costs one branch per capture point.
 //
-// Names follow the golden-data conventions (docs in ../shared/golden/README.md):
+// Names follow the golden-data conventions (docs in test/data/golden/README.md):
 // "img1.enc_block0", "dec2.block3", "head1.refinenet4", ...; child() prepends a
 // prefix so that a sub-module records under its caller's namespace.
 #pragma once
