@@ -45,6 +45,9 @@ double mean_finite(const std::vector<double>& v) {
 
 int main(int argc, char** argv) {
   std::string model_path, untrained, baseline, picture, json_path, policy;
+  bool blind = false;
+  std::vector<int64_t> blind_strides, blind_lengths;
+  int64_t blind_starts = 8;
   int64_t frames = 50, sequences = 3, stride = 2, img_size = 224, lt_capacity = -1, st_frames = -1;
   uint64_t seed_begin = 2000000, seed = 0;
   int pixel_step = 2;
@@ -80,6 +83,19 @@ int main(int argc, char** argv) {
   cli.option("--picture", "FILE.png", &picture,
              "top views of the first sequence (prediction vs GT)");
   cli.option("--json", "FILE", &json_path, "write the per-sequence and mean metrics");
+  cli.flag("--blind-control", &blind,
+           "instead of the metrics: the blind control (docs/model_card.md) of the model, per "
+           "sequence length and stride: reg_true (placement error of frames 1.. given the true "
+           "reference), reg_blind (each frame given itself as its reference) and blind_ratio = "
+           "true / blind (about 1: no registration), with the rotation error against the true "
+           "relative rotation and the image motion in pixels and patches");
+  cli.option("--blind-stride", "D", &blind_strides,
+             "a stride of the blind control (repeatable; default 4, 8, 16)");
+  cli.option("--blind-frames", "N", &blind_lengths,
+             "a sequence length of the blind control (repeatable; default 2 and 5)");
+  cli.option("--blind-starts", "N", &blind_starts,
+             "evenly spaced start frames per scene in the blind control")
+      .min(1);
   long3r::add_thread_options(cli, &threads);
   long3r::InferenceConfig inference;
   long3r::add_inference_options(cli, &inference);
@@ -135,6 +151,71 @@ int main(int argc, char** argv) {
     dc.synth.val_seed_begin = seed_begin;
     dc.synth.train_scenes = 0;
     dc.synth.trajectory_frames = (frames - 1) * stride + 1;
+    if (blind) {
+      if (!model) throw std::invalid_argument("--blind-control needs --model or --untrained");
+      if (blind_strides.empty()) blind_strides = {4, 8, 16};
+      if (blind_lengths.empty()) blind_lengths = {2, 5};
+      // The training scenes' path length, so that the strides mean what they
+      // mean in training.
+      dc.synth.trajectory_frames = 240;
+      long3r::SequenceSampler sampler(dc, static_cast<int>(img_size), 0,
+                                      thread_state.torch_threads);
+      const int64_t patch = model->config().dust3r.patch_size;
+      std::printf("%s: blind control, %lld scenes x %lld starts at %lld x %lld, seeds %llu..\n",
+                  what.c_str(), static_cast<long long>(sequences),
+                  static_cast<long long>(blind_starts), static_cast<long long>(img_size),
+                  static_cast<long long>(img_size), static_cast<unsigned long long>(seed_begin));
+      std::printf("%6s %6s %6s %9s %9s %9s %9s %11s %10s %11s\n", "frames", "stride", "scored",
+                  "motion_px", "motion_tk", "reg_true", "reg_blind", "blind_ratio", "rot_err_deg",
+                  "rot_true_deg");
+      nlohmann::ordered_json rows = nlohmann::ordered_json::array();
+      for (const int64_t n : blind_lengths) {
+        for (const int64_t d : blind_strides) {
+          long3r::ValidationConfig vc;
+          vc.blind_scenes = sequences;
+          vc.blind_starts = blind_starts;
+          vc.blind_strides = {d};
+          vc.blind_frames = n;
+          if (n < 2 || d < 1 || (n - 1) * d + 1 > dc.synth.trajectory_frames) {
+            throw std::invalid_argument("--blind-frames / --blind-stride: " + std::to_string(n) +
+                                        " frames at stride " + std::to_string(d) +
+                                        " do not fit a 240-frame path");
+          }
+          const long3r::BlindControl b =
+              long3r::blind_control(*model, sampler.blind_sequences(vc));
+          const double tokens = b.motion_px / static_cast<double>(patch);
+          std::printf("%6lld %6lld %6lld %9.2f %9.2f %9.4f %9.4f %11.3f %10.2f %11.2f\n",
+                      static_cast<long long>(n), static_cast<long long>(d),
+                      static_cast<long long>(b.frames), b.motion_px, tokens, b.reg_true,
+                      b.reg_blind, b.blind_ratio, b.rot_err_deg, b.rot_true_deg);
+          std::fflush(stdout);
+          nlohmann::ordered_json o;
+          o["frames"] = n;
+          o["stride"] = d;
+          o["scored"] = b.frames;
+          o["unplaced"] = b.unplaced;
+          o["motion_px"] = num(b.motion_px);
+          o["motion_tokens"] = num(tokens);
+          o["reg_true"] = num(b.reg_true);
+          o["reg_blind"] = num(b.reg_blind);
+          o["blind_ratio"] = num(b.blind_ratio);
+          o["rot_err_deg"] = num(b.rot_err_deg);
+          o["rot_true_deg"] = num(b.rot_true_deg);
+          rows.push_back(o);
+        }
+      }
+      if (!json_path.empty()) {
+        nlohmann::ordered_json root;
+        root["what"] = what;
+        root["img_size"] = img_size;
+        root["seed_begin"] = static_cast<int64_t>(seed_begin);
+        root["scenes"] = sequences;
+        root["starts"] = blind_starts;
+        root["blind_control"] = rows;
+        long3r::write_file_atomically(json_path, root.dump(2) + "\n");
+      }
+      return 0;
+    }
     long3r::SequenceSampler sampler(dc, static_cast<int>(img_size), 0, thread_state.torch_threads);
 
     std::printf("%s: %lld sequences x %lld frames (stride %lld) at %lld x %lld, seeds %llu..\n",

@@ -4,6 +4,7 @@
 // generated scenes and validates by the loss and pointmap figures only.
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
@@ -71,7 +72,9 @@ int main(int argc, char** argv) {
     tc.torch_threads = threads;
     tc.openblas_threads = threads;  // the recipe's wall times were measured so
     long3r::apply_thread_config(tc);
-    const long3r::TrainConfig config = long3r::parse_train_config(read_file(config_path));
+    long3r::TrainConfig config = long3r::parse_train_config(read_file(config_path));
+    config.model = long3r::locate_model_config(
+        config.model, std::filesystem::path(config_path).parent_path().string());
 #ifdef LONG3R_TRAIN_WITH_OPENCV
     opt.extensions = long3r::opencv_trainer_extensions();
 #endif

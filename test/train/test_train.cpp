@@ -3,6 +3,8 @@
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
 #include <torch/nn/module.h>
+#include <torch/nn/modules/linear.h>
+#include <torch/nn/modules/normalization.h>
 #include <torch/optim/adamw.h>
 
 #include <opencv2/core.hpp>
@@ -15,6 +17,7 @@
 #include <map>
 #include <sstream>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "long3r/model/inference.hpp"
@@ -53,6 +56,26 @@ at::Tensor random_gt(int64_t B, int64_t N, int64_t H, int64_t W) {
 }
 
 std::string scratch(const std::string& name) { return long3r::test::scratch_dir("train/" + name); }
+
+// `steps` AdamW steps (lr 2e-3) of the sequence loss on one fixed batch:
+// the regression term of the first and of the last step.
+std::pair<double, double> overfit(long3r::Long3rModel& model, const long3r::Batch& batch,
+                                  int steps) {
+  torch::optim::AdamW opt(model.module().parameters(), torch::optim::AdamWOptions(2e-3));
+  double first = 0, last = 0;
+  for (int i = 0; i < steps; ++i) {
+    opt.zero_grad();
+    std::vector<StreamOutput> coarse;
+    const auto out = model.forward_sequence(batch.frames, &coarse);
+    const long3r::LossTerms t =
+        long3r::sequence_loss(out, coarse, batch.pts, batch.valid, LossConfig{});
+    t.total.backward();
+    opt.step();
+    if (i == 0) first = t.regression;
+    last = t.regression;
+  }
+  return {first, last};
+}
 
 // A configuration small enough for a unit test: long3r_tiny at 64 x 64.
 long3r::TrainConfig tiny_config() {
@@ -330,20 +353,7 @@ TEST(TrainOptim, FewStepsOverfitAFixedBatch) {
   dc.synth.train_scenes = 1;
   dc.synth.trajectory_frames = 20;
   long3r::SequenceSampler sampler(dc, 64, 3);
-  const long3r::Batch batch = long3r::collate({sampler.sample(3)});
-  torch::optim::AdamW opt(model.module().parameters(), torch::optim::AdamWOptions(2e-3));
-  LossConfig cfg;
-  double first = 0, last = 0;
-  for (int i = 0; i < 25; ++i) {
-    opt.zero_grad();
-    std::vector<StreamOutput> coarse;
-    const auto out = model.forward_sequence(batch.frames, &coarse);
-    const long3r::LossTerms t = long3r::sequence_loss(out, coarse, batch.pts, batch.valid, cfg);
-    t.total.backward();
-    opt.step();
-    if (i == 0) first = t.regression;
-    last = t.regression;
-  }
+  const auto [first, last] = overfit(model, long3r::collate({sampler.sample(3)}), 25);
   EXPECT_LT(last, 0.6 * first) << "first " << first << " last " << last;
 }
 
@@ -764,7 +774,8 @@ TEST(TrainLog, CsvColumnsAreReadBackByName) {
             "step,stage,loss,conf_loss,scale_loss,regression,lr,grad_norm,step_s,data_s,wall_s,"
             "val_loss,val_regression,val_pointmap_err_m,val_acc_mean_m,val_acc_median_m,"
             "val_comp_mean_m,val_comp_median_m,val_nc_mean,val_nc_median,val_ate_rmse_m,"
-            "val_registered");
+            "val_registered,val_blind_ratio,val_reg_true,val_reg_blind,val_rot_err_deg,"
+            "val_rot_true_deg,val_completion_true,val_completion_shuffled");
   auto expect_rows = [&](const std::vector<long3r::LogRow>& got) {
     ASSERT_EQ(got.size(), 2u);
     EXPECT_EQ(got[0].step, 1);
@@ -798,15 +809,27 @@ TEST(TrainLog, CsvColumnsAreReadBackByName) {
   renamed.replace(renamed.find("grad_norm"), 9, "gradnorm");
   EXPECT_THROW(long3r::log_rows_from_csv(renamed), std::runtime_error);
 
-  // A log written before val_registered existed (a resumed older checkpoint).
+  // A log written before val_registered and the blind control's columns
+  // existed (a resumed older checkpoint): its first 21 columns.
   rows[1].val->registered = 0.75;
+  rows[1].val->blind.blind_ratio = 0.5;
+  rows[1].val->completion.loss_shuffled = 1.25;
   std::string older;
   std::istringstream lines(long3r::log_rows_to_csv(rows));
-  while (std::getline(lines, line)) older += line.substr(0, line.rfind(',')) + "\n";
+  while (std::getline(lines, line)) {
+    std::size_t cut = 0;
+    for (int k = 0; k < 21; ++k) cut = line.find(',', cut) + 1;
+    older += line.substr(0, cut - 1) + "\n";
+  }
   const std::vector<long3r::LogRow> read = long3r::log_rows_from_csv(older);
   expect_rows(read);
   EXPECT_TRUE(std::isnan(read[1].val->registered));
-  EXPECT_EQ(long3r::log_rows_from_csv(long3r::log_rows_to_csv(rows))[1].val->registered, 0.75);
+  EXPECT_TRUE(std::isnan(read[1].val->blind.blind_ratio));
+  EXPECT_TRUE(std::isnan(read[1].val->completion.loss_shuffled));
+  const std::vector<long3r::LogRow> now = long3r::log_rows_from_csv(long3r::log_rows_to_csv(rows));
+  EXPECT_EQ(now[1].val->registered, 0.75);
+  EXPECT_EQ(now[1].val->blind.blind_ratio, 0.5);
+  EXPECT_EQ(now[1].val->completion.loss_shuffled, 1.25);
 }
 
 TEST(TrainInit, CopiesMatchingTensorsByNameAndShape) {
@@ -904,7 +927,8 @@ TEST(TrainConfig, EveryCheckedInTrainingConfigParses) {
     long3r::TrainConfig c;
     ASSERT_NO_THROW(c = long3r::parse_train_config(ss.str()));
     EXPECT_FALSE(c.stages.empty());
-    EXPECT_NO_THROW(long3r::resolve_model_config(c.model));
+    EXPECT_NO_THROW(long3r::resolve_model_config(
+        long3r::locate_model_config(c.model, e.path().parent_path().string())));
     ++seen;
   }
   EXPECT_GE(seen, 4);  // default, ship stage 1 and 2, the long-travel experiment
@@ -1057,4 +1081,245 @@ TEST(ModelEval, LossProbeSplitsRegistrationFromShape) {
   long3r::SequencePrediction short_p = still;
   short_p.pts.pop_back();
   EXPECT_THROW(long3r::probe_loss(short_p, s), std::invalid_argument);
+}
+
+// ------------------------------------------------------------ blind control
+
+namespace {
+
+// Held-out sequences of `frames` frames at 64 x 64: one scene, two starts,
+// the given stride.
+std::vector<long3r::SequenceSample> blind_set(int64_t frames, int64_t stride) {
+  long3r::DataConfig dc;
+  dc.synth.val_seed_begin = 2000000;
+  dc.synth.train_scenes = 0;
+  dc.synth.trajectory_frames = 120;
+  long3r::SequenceSampler sampler(dc, 64, 0, 1);
+  long3r::ValidationConfig vc;
+  vc.blind_scenes = 1;
+  vc.blind_starts = 2;
+  vc.blind_strides = {stride};
+  vc.blind_frames = frames;
+  return sampler.blind_sequences(vc);
+}
+
+}  // namespace
+
+// Registration by construction: the ground truth (at any scale) scores 0;
+// each frame left in its own camera scores as the blind prediction does,
+// ratio 1, and applies no rotation.
+TEST(TrainBlind, OraclesScoreZeroAndOne) {
+  const std::vector<long3r::SequenceSample> seqs = blind_set(3, 6);
+  ASSERT_EQ(seqs.size(), 2u);
+  EXPECT_EQ(seqs[1].source, "val:2000000@107+6");  // the last start that fits
+  std::vector<long3r::SequencePrediction> exact, still;
+  for (const long3r::SequenceSample& s : seqs) {
+    long3r::SequencePrediction e;
+    for (int64_t i = 0; i < 3; ++i) e.pts.push_back((s.pts[i] * 2.5f).contiguous());
+    exact.push_back(e);
+    still.push_back(long3r::true_depth_no_motion_prediction(s));
+  }
+  const long3r::BlindControl perfect = long3r::score_blind_control(seqs, exact, still);
+  EXPECT_EQ(perfect.frames, 4);
+  EXPECT_EQ(perfect.unplaced, 0);
+  EXPECT_LT(perfect.reg_true, 1e-5);
+  EXPECT_GT(perfect.reg_blind, 1e-3);
+  EXPECT_LT(perfect.blind_ratio, 1e-3);
+  EXPECT_LT(perfect.rot_err_deg, 0.05);
+  EXPECT_GT(perfect.rot_true_deg, 0.1);
+  EXPECT_GT(perfect.motion_px, 0.5);
+
+  const long3r::BlindControl none = long3r::score_blind_control(seqs, still, still);
+  EXPECT_DOUBLE_EQ(none.blind_ratio, 1.0);
+  EXPECT_DOUBLE_EQ(none.reg_true, perfect.reg_blind);
+  EXPECT_NEAR(none.rot_err_deg, none.rot_true_deg, 0.05);
+
+  // Wider strides move the points further across the image.
+  const std::vector<long3r::SequenceSample> wide = blind_set(3, 18);
+  std::vector<long3r::SequencePrediction> wide_still;
+  for (const long3r::SequenceSample& s : wide) {
+    wide_still.push_back(long3r::true_depth_no_motion_prediction(s));
+  }
+  EXPECT_GT(long3r::score_blind_control(wide, wide_still, wide_still).motion_px,
+            1.5 * none.motion_px);
+
+  // A frame that cannot be placed is counted, not scored.
+  std::vector<long3r::SequencePrediction> broken = exact;
+  broken[0].pts[1] = at::full({64, 64, 3}, std::numeric_limits<float>::quiet_NaN());
+  const long3r::BlindControl b = long3r::score_blind_control(seqs, broken, still);
+  EXPECT_EQ(b.frames, 3);
+  EXPECT_EQ(b.unplaced, 1);
+  EXPECT_THROW(long3r::score_blind_control(seqs, exact, {still[0]}), std::invalid_argument);
+}
+
+// The model's run: batched, in inference mode, the mode restored after; the
+// same figures as predicting each sequence on its own.
+TEST(TrainBlind, ModelRunMatchesPerSequencePredictions) {
+  at::manual_seed(11);
+  long3r::Long3rModel model(long3r::test::tiny_long3r_config());
+  model.set_training(true);
+  const std::vector<long3r::SequenceSample> seqs = blind_set(3, 6);
+  const long3r::BlindControl b = long3r::blind_control(model, seqs);
+  EXPECT_TRUE(model.training());
+  EXPECT_EQ(b.frames, 4);
+  EXPECT_TRUE(std::isfinite(b.blind_ratio));
+  std::vector<long3r::SequencePrediction> truth, blind;
+  for (const long3r::SequenceSample& s : seqs) {
+    truth.push_back(long3r::predict_sequence(model, s));
+    long3r::SequencePrediction own;
+    own.pts.push_back(truth.back().pts[0]);
+    for (int64_t k = 1; k < 3; ++k) {
+      long3r::SequenceSample pair;
+      pair.images = {s.images[k], s.images[k]};
+      own.pts.push_back(long3r::predict_sequence(model, pair).pts[1]);
+    }
+    blind.push_back(own);
+  }
+  // Batched streams run the padded attention path: equal to float rounding.
+  const long3r::BlindControl one = long3r::score_blind_control(seqs, truth, blind);
+  EXPECT_NEAR(b.reg_true, one.reg_true, 1e-4 * one.reg_true);
+  EXPECT_NEAR(b.reg_blind, one.reg_blind, 1e-4 * one.reg_blind);
+  EXPECT_DOUBLE_EQ(b.rot_true_deg, one.rot_true_deg);
+  EXPECT_DOUBLE_EQ(b.motion_px, one.motion_px);
+}
+
+// The completion stage's control: the same hidden patches for both
+// references, torch's default generator untouched, repeatable.
+TEST(TrainBlind, CompletionControlComparesTrueAndShuffledReferences) {
+  at::manual_seed(12);
+  long3r::Long3rModel model(long3r::test::tiny_long3r_config());
+  const int64_t p = model.config().dust3r.patch_size;
+  torch::nn::Linear head(model.config().dust3r.dec_embed_dim, p * p * 3);
+  const std::vector<long3r::SequenceSample> pairs = blind_set(2, 6);
+  at::manual_seed(5);
+  const double expected_draw = at::rand({1}).item<double>();
+  at::manual_seed(5);
+  const long3r::CompletionControl c = long3r::completion_control(model, head, pairs, 0.75, 3);
+  EXPECT_EQ(at::rand({1}).item<double>(), expected_draw);
+  EXPECT_TRUE(std::isfinite(c.loss_true));
+  EXPECT_TRUE(std::isfinite(c.loss_shuffled));
+  EXPECT_NE(c.loss_true, c.loss_shuffled);
+  const long3r::CompletionControl again = long3r::completion_control(model, head, pairs, 0.75, 3);
+  EXPECT_EQ(again.loss_true, c.loss_true);
+  EXPECT_THROW(long3r::completion_control(model, head, {pairs[0]}, 0.75), std::invalid_argument);
+}
+
+// ------------------------------------------- the fast pair configuration
+
+// CroCo's initialisation: linear layers xavier-uniform with zero biases,
+// unit LayerNorms, mask_token drawn, the DPT heads untouched.
+TEST(TrainInit, CrocoInitialisation) {
+  at::manual_seed(13);
+  long3r::Long3rModel model(long3r::test::tiny_long3r_config());
+  std::map<std::string, at::Tensor> before;
+  for (const auto& kv : model.module().named_parameters()) before[kv.key()] = kv.value().clone();
+  long3r::init_croco_weights(model);
+  int linears = 0, heads = 0;
+  for (const auto& item : model.module().named_modules()) {
+    const std::string& name = item.key();
+    torch::nn::Module& m = *item.value();
+    if (name.find("downstream_head") != std::string::npos) {
+      for (const auto& kv : m.named_parameters(/*recurse=*/false)) {
+        EXPECT_TRUE(at::equal(kv.value(), before.at(name + "." + kv.key()))) << name;
+        ++heads;
+      }
+      continue;
+    }
+    if (auto* l = m.as<torch::nn::LinearImpl>()) {
+      const double bound = std::sqrt(6.0 / static_cast<double>(l->weight.size(0) +
+                                                               l->weight.size(1)));
+      EXPECT_LE(l->weight.abs().max().item<double>(), bound) << name;
+      EXPECT_GT(l->weight.abs().max().item<double>(), 0.5 * bound) << name;
+      if (l->bias.defined()) {
+        EXPECT_EQ(l->bias.abs().max().item<double>(), 0.0) << name;
+      }
+      ++linears;
+    } else if (auto* n = m.as<torch::nn::LayerNormImpl>()) {
+      if (!n->weight.defined()) continue;
+      EXPECT_TRUE(at::equal(n->weight, at::ones_like(n->weight))) << name;
+      EXPECT_TRUE(at::equal(n->bias, at::zeros_like(n->bias))) << name;
+    }
+  }
+  EXPECT_GT(linears, 10);
+  EXPECT_GT(heads, 0);
+  const at::Tensor mask = model.module().named_parameters()["dust3r.mask_token"];
+  EXPECT_GT(mask.abs().max().item<double>(), 0.0);
+  EXPECT_LT(mask.abs().max().item<double>(), 0.2);
+}
+
+// Crops centred on the principal point keep it at the model input's centre
+// whatever the crop's size; reversed sequences say so in their source.
+TEST(TrainData, CropAtThePrincipalPointAndReversedSequences) {
+  long3r::DataConfig dc;
+  dc.synth.train_scenes = 3;
+  dc.synth.trajectory_frames = 30;
+  dc.synth.render_size = 96;
+  dc.augment.max_crop = 0.4;
+  dc.augment.crop_at_principal_point = true;
+  dc.reverse_fraction = 1.0;
+  long3r::SequenceSampler sampler(dc, 64, 4);
+  for (int i = 0; i < 4; ++i) {
+    const long3r::SequenceSample s = sampler.sample(2);
+    // Integer crop offsets: within half a source pixel, scaled up to 64 / 57.
+    EXPECT_NEAR(s.intrinsics[0].cx, 31.5, 0.6) << s.source;
+    EXPECT_NEAR(s.intrinsics[0].cy, 31.5, 0.6) << s.source;
+    EXPECT_EQ(s.source.back(), 'r');
+  }
+  dc.reverse_fraction = 0.0;
+  long3r::SequenceSampler forward(dc, 64, 4);
+  EXPECT_NE(forward.sample(2).source.back(), 'r');
+}
+
+// DUSt3R's linear head in the LONG3R trainer path: the fast pair model
+// (patch 8) overfits a fixed pair.
+TEST(TrainOptim, LinearHeadModelFitsAFixedPair) {
+  at::manual_seed(14);
+  long3r::ModelConfig mc = long3r::test::tiny_long3r_config();
+  mc.dust3r.head_type = long3r::HeadType::kLinear;
+  mc.dust3r.patch_size = 8;
+  long3r::Long3rModel model(mc);
+  const auto params = model.module().named_parameters();
+  ASSERT_TRUE(params.contains("dust3r.downstream_head1.proj.weight"));
+  EXPECT_EQ(params["dust3r.downstream_head1.proj.weight"].sizes(),
+            (at::IntArrayRef{4 * 8 * 8, mc.dust3r.dec_embed_dim}));
+  EXPECT_FALSE(params.contains("dust3r.downstream_head1.dpt.head.0.weight"));
+  long3r::init_croco_weights(model);
+  model.set_training(true);
+  long3r::DataConfig dc;
+  dc.synth.train_scenes = 1;
+  dc.synth.trajectory_frames = 20;
+  long3r::SequenceSampler sampler(dc, 64, 3);
+  const long3r::Batch batch = long3r::collate({sampler.sample(2)});
+  {
+    const long3r::TrainingModeGuard inference(model, false);
+    EXPECT_EQ(model.forward_sequence(batch.frames)[1].pts3d.sizes(),
+              (at::IntArrayRef{1, 64, 64, 3}));
+  }
+  const auto [first, last] = overfit(model, batch, 25);
+  EXPECT_LT(last, 0.6 * first) << "first " << first << " last " << last;
+}
+
+TEST(TrainConfig, BlindControlAndPairFieldsAreChecked) {
+  const std::string base = R"({"model": "long3r_tiny", "image_size": 64,
+    "stages": [{"steps": 1, "frames": 2}], "data": {"synth": {"val_scenes": 4}}, )";
+  const long3r::TrainConfig ok = long3r::parse_train_config(
+      base + R"("weight_init": "croco", "validation": {"blind_scenes": 4, "blind_strides": [4, 8]}})");
+  EXPECT_EQ(ok.weight_init, "croco");
+  EXPECT_EQ(ok.validation.blind_strides, (std::vector<int64_t>{4, 8}));
+  auto error = [&](const std::string& tail) {
+    try {
+      long3r::parse_train_config(base + tail);
+    } catch (const std::invalid_argument& e) {
+      return std::string(e.what());
+    }
+    return std::string("parsed");
+  };
+  EXPECT_NE(error(R"("weight_init": "xavier"})").find("weight_init"), std::string::npos);
+  EXPECT_NE(error(R"("validation": {"blind_scenes": 5}})").find("blind_scenes"), std::string::npos);
+  EXPECT_NE(error(R"("validation": {"blind_scenes": 2, "blind_strides": [300]}})")
+                .find("blind_strides"),
+            std::string::npos);
+  EXPECT_THROW(long3r::parse_train_config(R"({"stages": [{"steps": 1, "frames": 2}],
+    "data": {"reverse_fraction": 1.5}})"),
+               std::invalid_argument);
 }

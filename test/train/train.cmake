@@ -1,11 +1,13 @@
 # End-to-end test of long3r_train (python driver): every curriculum stage of
-# the tiny model on generated scenes, interruption and --resume, the outputs,
-# and the trained model loaded by long3r_ckpt_info and long3r_reconstruct.
+# the tiny model on generated scenes, interruption and --resume, the outputs
+# (the blind control's columns among them), and the trained model loaded by
+# long3r_ckpt_info, long3r_reconstruct and long3r_model_eval --blind-control.
 if(TARGET app_long3r_train AND TARGET app_long3r_synth AND TARGET app_long3r_reconstruct
-   AND TARGET app_long3r_ckpt_info)
+   AND TARGET app_long3r_ckpt_info AND TARGET app_long3r_model_eval)
   add_test(NAME train_cli
     COMMAND /usr/bin/python3 ${PROJECT_SOURCE_DIR}/test/train/train_cli_test.py
       --train $<TARGET_FILE:app_long3r_train>
+      --model-eval $<TARGET_FILE:app_long3r_model_eval>
       --synth $<TARGET_FILE:app_long3r_synth>
       --reconstruct $<TARGET_FILE:app_long3r_reconstruct>
       --ckpt-info $<TARGET_FILE:app_long3r_ckpt_info>

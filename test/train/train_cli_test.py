@@ -33,7 +33,8 @@ CONFIG = {
     ],
     "data": {"synth": {"train_scenes": 4, "val_scenes": 1, "trajectory_frames": 30},
              "max_stride": 3},
-    "validation": {"every": 3, "sequences": 1, "frames": 5, "stride": 2},
+    "validation": {"every": 3, "sequences": 1, "frames": 5, "stride": 2,
+                   "blind_scenes": 1, "blind_starts": 2, "blind_strides": [2]},
     "checkpoint_every": 2,
 }
 
@@ -43,6 +44,7 @@ def main():
     ap.add_argument("--train", required=True)
     ap.add_argument("--synth", required=True)
     ap.add_argument("--reconstruct", required=True)
+    ap.add_argument("--model-eval", required=True)
     ap.add_argument("--ckpt-info", required=True)
     ap.add_argument("--workdir", required=True)
     a = ap.parse_args()
@@ -75,6 +77,15 @@ def main():
     for r in val:
         check(float(r["val_acc_mean_m"]) > 0 and float(r["val_comp_mean_m"]) > 0,
               "validation metrics: %s" % r)
+        ratio, true, blind = (float(r[k]) for k in ["val_blind_ratio", "val_reg_true",
+                                                    "val_reg_blind"])
+        check(ratio > 0 and abs(ratio - true / blind) < 1e-6 * ratio,
+              "blind control in validation: %s" % r)
+        check(float(r["val_rot_true_deg"]) > 0, "relative rotation readout: %s" % r)
+    check(all(r["val_completion_true"] == "nan" for r in rows),
+          "no completion control without a completion stage")
+    vj = json.load(open(os.path.join(out, "validation.json")))
+    check(vj["blind_frames"] == 2 and vj["blind_ratio"] > 0, "validation.json: %s" % vj)
     ckpts = sorted(d for d in os.listdir(os.path.join(out, "checkpoint")) if d.startswith("step_"))
     check(ckpts == ["step_00000004.pt", "step_00000006.pt"], "kept checkpoints: %s" % ckpts)
     # One bundle per checkpoint (a libtorch zip archive) with every part of the state.
@@ -95,6 +106,22 @@ def main():
     rc, log = run([a.reconstruct, "--model", model, "--out", os.path.join(a.workdir, "rec"),
                    "--threads", "2", "--img-size", "64", "--conf-threshold", "1", seq])
     check(rc == 0 and "summary: 5 frames used" in log, "reconstruct with the trained model: " + log)
+
+    # The blind control of the trained model, per length and stride.
+    bj = os.path.join(a.workdir, "blind.json")
+    rc, log = run([a.model_eval, "--model", model, "--blind-control", "--img-size", "64",
+                   "--sequences", "1", "--blind-starts", "2", "--blind-stride", "2",
+                   "--blind-stride", "6", "--blind-frames", "2", "--blind-frames", "3",
+                   "--threads", "2", "--json", bj])
+    check(rc == 0 and "blind_ratio" in log, "model_eval --blind-control: " + log)
+    rows_b = json.load(open(bj))["blind_control"]
+    check([(r["frames"], r["stride"], r["scored"]) for r in rows_b] ==
+          [(2, 2, 2), (2, 6, 2), (3, 2, 4), (3, 6, 4)], "blind control rows: %s" % rows_b)
+    for r in rows_b:
+        check(r["blind_ratio"] > 0 and r["motion_tokens"] > 0, "blind control row: %s" % r)
+    check(rows_b[1]["motion_px"] > rows_b[0]["motion_px"], "motion grows with the stride")
+    rc, log = run([a.model_eval, "--baseline", "constant-depth", "--blind-control"])
+    check(rc == 1 and "needs --model" in log, "blind control of a baseline: " + log)
 
     # Bad usage is refused.
     rc, log = run([a.train, "--config", cfg, "--out", os.path.join(a.workdir, "x"), "--resume"])

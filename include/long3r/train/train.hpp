@@ -22,6 +22,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <map>
 #include <memory>
 #include <optional>
@@ -136,7 +137,12 @@ class SequenceSampler {
 
   // Held-out scenes val_seed_begin + i, frames from 0 with a fixed stride, no
   // augmentation.
-  SequenceSample validation_sequence(int64_t index, int64_t frames, int64_t stride);
+  SequenceSample validation_sequence(int64_t index, int64_t frames, int64_t stride,
+                                     int64_t start = 0);
+  // The blind control's sequences of a validation configuration (scenes x
+  // evenly spaced starts x strides), in that order; `stride` >= 1 picks one
+  // of them, 0 all.
+  std::vector<SequenceSample> blind_sequences(const ValidationConfig& config, int64_t stride = 0);
 
   // Raw frames of a generated scene (start, stride) without preprocessing.
   std::vector<RawFrame> synth_frames(uint64_t scene_seed, int64_t start, int64_t stride,
@@ -215,6 +221,21 @@ at::Tensor draw_visible_patches(int64_t n, double mask_ratio);
 // normalised by its own mean and variance (norm_pix_loss). Float32.
 at::Tensor completion_loss(const at::Tensor& pred, const at::Tensor& target_patches,
                            const at::Tensor& visible);
+// The completion stage's blind control: completion_loss of frame 1 of each
+// pair completed from its true reference (frame 0), and from the reference of
+// another pair of the batch (the batch rolled by one), same hidden patches
+// (drawn from their own generator seeded with `seed`, torch's default
+// generator untouched). A true / shuffled ratio near 1: the other view is not
+// used. Inference; `head` is the stage's pixel head. Pairs: sequences of 2
+// frames, at least 2 of them.
+struct CompletionControl {
+  double loss_true = std::numeric_limits<double>::quiet_NaN();
+  double loss_shuffled = std::numeric_limits<double>::quiet_NaN();
+};
+
+CompletionControl completion_control(Long3rModel& model, torch::nn::Linear& head,
+                                     const std::vector<SequenceSample>& pairs, double mask_ratio,
+                                     uint64_t seed = 0);
 
 // ============================================================ initialisation
 
@@ -229,6 +250,15 @@ struct InitReport {
 // checkpoint whose name (as is, or with "dust3r." prepended) and shape match a
 // parameter or buffer of the model; the rest of the model keeps its values.
 InitReport init_from_checkpoint(Long3rModel& model, const std::string& path);
+
+// CroCo's initialisation (CroCoNet.initialize_weights, which DUSt3R
+// inherits) for a model trained from scratch: every linear layer outside the
+// downstream heads xavier-uniform with zero bias, the patch embedding's kernel
+// xavier-uniform as a linear map of its patch, LayerNorms 1 / 0, mask_token
+// normal with std 0.02. The DPT heads keep libtorch's defaults, as DUSt3R's
+// (attached after CroCo's initialisation) keep PyTorch's. Draws from torch's
+// default generator.
+void init_croco_weights(Long3rModel& model);
 
 // True for the encoder's parameters (dust3r.patch_embed, dust3r.enc_blocks,
 // dust3r.enc_norm), which stage 2 freezes.
@@ -248,6 +278,18 @@ struct PredictionMetrics {
   int64_t frames = 0, posed = 0;
 };
 
+// What blind_control (below) measures.
+struct BlindControl {
+  static constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+  double reg_true = kNaN, reg_blind = kNaN;  // means over the frames scored
+  double blind_ratio = kNaN;                 // reg_true / reg_blind
+  double rot_err_deg = kNaN;   // mean angle between applied and true relative rotation
+  double rot_true_deg = kNaN;  // mean true relative rotation (a model that never turns scores this)
+  double motion_px = kNaN;     // mean image motion of the frames' points, pixels of the model input
+  int64_t frames = 0;       // frames scored
+  int64_t unplaced = 0;     // frames left out: a non-finite or collapsed prediction
+};
+
 struct ValidationMetrics {
   double loss = 0, regression = 0;  // sequence_loss over the sequences, averaged
   // probe_loss's `registered` (shape error left once every frame is placed
@@ -259,6 +301,10 @@ struct ValidationMetrics {
   // frames and posed are totals.
   PredictionMetrics prediction;
   int64_t sequences = 0;
+  // The blind control over validation.blind_* (NaN figures when not run).
+  BlindControl blind;
+  // In a cross_view_completion stage, its control on the same pairs.
+  CompletionControl completion;
 };
 
 // Switches a model to training or inference for a scope and restores the
@@ -333,6 +379,36 @@ struct LossProbe {
   double registered = 0;
 };
 LossProbe probe_loss(const SequencePrediction& prediction, const SequenceSample& sample);
+
+// The blind control: does the model place a frame using its reference view?
+// For every frame k >= 1 of each sequence, the placement error of frame k in
+// the reference's (camera 0's) coordinates (frame_placement_error) when the
+// model runs on the true sequence (reg_true), and when it is given frame k
+// itself as its reference, i.e. the pair (frame k, frame k), whose second
+// view is placed by the head that places a pair's second view (reg_blind).
+// blind_ratio = reg_true / reg_blind: about 1 for a model that does not
+// register (it predicts each frame in its own camera, wherever the reference
+// was), 0 for perfect registration. Also the rotation the true run applies to
+// each frame (Umeyama of the frame's ground-truth points in its own camera
+// onto its prediction) against the true relative rotation, and the mean image
+// motion of the frames' points relative to camera 0 (ground truth).
+//
+// Sequences of one length >= 2 (e.g. validation_sequence); runs in inference
+// mode (switched and switched back), batched.
+BlindControl blind_control(Long3rModel& model, const std::vector<SequenceSample>& sequences);
+// The scoring half of blind_control, for any predictor: truth[s] and blind[s]
+// hold the N pointmaps of sequence s in camera 0's frame, from the true
+// sequence and from each frame given itself as its reference (frame 0's
+// blind entry is not read).
+BlindControl score_blind_control(const std::vector<SequenceSample>& sequences,
+                                 const std::vector<SequencePrediction>& truth,
+                                 const std::vector<SequencePrediction>& blind);
+// mean over valid pixels of || p / z_p - g / z_g ||, p the predicted and g the
+// true pointmap of one frame ([H, W, 3], same coordinates), each divided by
+// the mean distance of its own valid points to the origin, so that only where
+// the frame is placed and shaped counts, not its scale. NaN when either has
+// no extent or the prediction is not finite.
+double frame_placement_error(const at::Tensor& pred, const at::Tensor& gt, const at::Tensor& valid);
 
 // =================================================================== trainer
 
@@ -439,6 +515,7 @@ class Trainer {
   std::unique_ptr<Prefetch> prefetch_;
   std::string stop_reason_;
   std::vector<SequenceSample> val_sequences_;
+  std::vector<SequenceSample> blind_sequences_;  // validation.blind_*
   std::vector<LogRow> log_;
   std::optional<InitReport> init_report_;
   int64_t step_ = 0;

@@ -43,6 +43,10 @@ struct LossConfig {
 struct AugmentConfig {
   double color_jitter = 0.1;  // brightness / contrast / saturation factors in [1-j, 1+j]
   double max_crop = 0.1;      // crop side shrinks by a factor in [1 - max_crop, 1]
+  // Where the crop sits: false, anywhere in the image (a random position);
+  // true, centred on the principal point (as DUSt3R's crops are), so that the
+  // model input's principal point stays at its centre whatever the crop.
+  bool crop_at_principal_point = false;
 };
 
 struct SynthDataConfig {
@@ -62,6 +66,9 @@ struct DataConfig {
   std::vector<std::string> tum_dirs;  // TUM-layout folders (depth, groundtruth, calibration)
   double tum_fraction = 0.5;          // share of TUM sequences when both sources exist
   int64_t min_stride = 1, max_stride = 4;
+  // Share of the sequences played backwards (last frame first), so that every
+  // motion is also seen reversed, as DUSt3R's pairs come in both orders.
+  double reverse_fraction = 0.0;
   AugmentConfig augment;
 };
 
@@ -72,6 +79,16 @@ struct ValidationConfig {
   int64_t stride = 3;
   int pixel_step = 2;   // subsampling of the clouds for Acc / Comp / NC
   bool normals = true;  // NC (costs a k-NN normal estimate)
+  // The blind control (blind_control in train.hpp): how much better the model
+  // places a frame given its true reference than given the frame itself as
+  // its own reference. Held-out scenes val_seed_begin + i for i <
+  // blind_scenes, blind_starts evenly spaced start frames per scene, each
+  // stride of blind_strides (path frames), sequences of blind_frames frames
+  // (2: pairs). blind_scenes 0: not run.
+  int64_t blind_scenes = 0;
+  int64_t blind_starts = 4;
+  std::vector<int64_t> blind_strides = {8};
+  int64_t blind_frames = 2;
 };
 
 struct TrainConfig {
@@ -87,6 +104,11 @@ struct TrainConfig {
   // CPU without native bfloat16 needs allow_emulated_precision); "auto": on
   // CUDA only; "off": float32 throughout.
   std::string amp = "auto";
+  // Initial weights of a model trained from scratch: "torch" (libtorch's
+  // module defaults) or "croco" (CroCo's / DUSt3R's: xavier-uniform linear
+  // layers and patch embedding with zero biases, unit LayerNorms, mask_token
+  // normal with std 0.02). An --init-dust3r checkpoint overrides both.
+  std::string weight_init = "torch";
   bool allow_emulated_precision = false;  // "bf16" on a CPU that only emulates it (slow)
   DataConfig data;
   ValidationConfig validation;
@@ -122,6 +144,7 @@ template <class S, class V>
 config::FieldsOf<S, AugmentConfig> visit_fields(S& s, V& v) {
   v("color_jitter", s.color_jitter);
   v("max_crop", s.max_crop);
+  v("crop_at_principal_point", s.crop_at_principal_point);
 }
 template <class S, class V>
 config::FieldsOf<S, SynthDataConfig> visit_fields(S& s, V& v) {
@@ -143,6 +166,7 @@ config::FieldsOf<S, DataConfig> visit_fields(S& s, V& v) {
   v("tum_fraction", s.tum_fraction);
   v("min_stride", s.min_stride);
   v("max_stride", s.max_stride);
+  v("reverse_fraction", s.reverse_fraction);
   v("augment", s.augment);
 }
 template <class S, class V>
@@ -153,6 +177,10 @@ config::FieldsOf<S, ValidationConfig> visit_fields(S& s, V& v) {
   v("stride", s.stride);
   v("pixel_step", s.pixel_step);
   v("normals", s.normals);
+  v("blind_scenes", s.blind_scenes);
+  v("blind_starts", s.blind_starts);
+  v("blind_strides", s.blind_strides);
+  v("blind_frames", s.blind_frames);
 }
 template <class S, class V>
 config::FieldsOf<S, TrainConfig> visit_fields(S& s, V& v) {
@@ -167,6 +195,7 @@ config::FieldsOf<S, TrainConfig> visit_fields(S& s, V& v) {
     o("grad_clip", s.grad_clip);
   });
   v("amp", s.amp);
+  v("weight_init", s.weight_init);
   v("allow_emulated_precision", s.allow_emulated_precision);
   v("data", s.data);
   v("validation", s.validation);
@@ -184,5 +213,11 @@ void validate_train_config(const TrainConfig& config);
 std::string train_config_to_json(const TrainConfig& config);
 // A model configuration by name (named_model_config) or from a JSON file path.
 ModelConfig resolve_model_config(const std::string& name_or_path);
+// The `model` of a training configuration read from a file in `config_dir`:
+// a JSON path that is not a file as given (relative to the working
+// directory) but is one relative to config_dir is returned joined to it, so
+// that a configuration names the model file beside it wherever it is run
+// from; anything else is returned unchanged.
+std::string locate_model_config(const std::string& model, const std::string& config_dir);
 
 }  // namespace long3r

@@ -1,6 +1,8 @@
 // Cross-view completion, the pretext task of a "cross_view_completion" stage
 // (include/long3r/train/train.hpp): patches, the visible set, the loss.
 #include <ATen/ATen.h>
+#include <ATen/CPUGeneratorImpl.h>
+#include <c10/core/InferenceMode.h>
 
 #include <algorithm>
 #include <cmath>
@@ -47,6 +49,44 @@ at::Tensor completion_loss(const at::Tensor& pred, const at::Tensor& target_patc
   const at::Tensor var = target.var(-1, /*unbiased=*/true, /*keepdim=*/true);
   const at::Tensor normalised = (target - mean) / (var + 1e-6).sqrt();
   return (pred.to(at::kFloat).index_select(1, hidden_index) - normalised).pow(2).mean();
+}
+
+CompletionControl completion_control(Long3rModel& model, torch::nn::Linear& head,
+                                     const std::vector<SequenceSample>& pairs, double mask_ratio,
+                                     uint64_t seed) {
+  if (pairs.size() < 2) throw std::invalid_argument("completion_control: need at least 2 pairs");
+  for (const SequenceSample& p : pairs) {
+    if (p.images.size() != 2) throw std::invalid_argument("completion_control: pairs only");
+  }
+  const TrainingModeGuard inference(model, false);
+  const bool head_was_training = head->is_training();
+  head->eval();
+  c10::InferenceMode guard;
+  const int64_t patch = model.config().dust3r.patch_size;
+  const at::Device device = model.device();
+  auto stack = [&](std::size_t frame) {
+    std::vector<at::Tensor> v;
+    for (const SequenceSample& p : pairs) v.push_back(p.images[frame]);
+    return at::stack(v).to(device);
+  };
+  const at::Tensor reference = stack(0), masked = stack(1);
+  const int64_t n = (masked.size(2) / patch) * (masked.size(3) / patch);
+  at::Generator gen = at::make_generator<at::CPUGeneratorImpl>(seed);
+  const int64_t v = std::max<int64_t>(
+      1, static_cast<int64_t>(std::llround(static_cast<double>(n) * (1.0 - mask_ratio))));
+  const at::Tensor visible =
+      std::get<0>(at::randperm(n, gen, at::TensorOptions().dtype(at::kLong)).narrow(0, 0, v).sort());
+  const at::Tensor target = patchify(masked, patch);
+  auto loss = [&](const at::Tensor& ref) {
+    return completion_loss(head(model.complete_view(masked, ref, visible)).to(at::kFloat), target,
+                           visible)
+        .item<double>();
+  };
+  CompletionControl c;
+  c.loss_true = loss(reference);
+  c.loss_shuffled = loss(reference.roll(1, 0));
+  if (head_was_training) head->train();
+  return c;
 }
 
 }  // namespace long3r

@@ -52,6 +52,9 @@ void validate_train_config(const TrainConfig& c) {
   if (c.amp != "auto" && c.amp != "bf16" && c.amp != "off") {
     fail("amp must be \"auto\", \"bf16\" or \"off\"");
   }
+  if (c.weight_init != "torch" && c.weight_init != "croco") {
+    fail("weight_init must be \"torch\" or \"croco\"");
+  }
   if (!(c.loss.alpha > 0.0)) fail("loss.alpha must be > 0");
   if (c.loss.scale_weight < 0.0) fail("loss.scale_weight must be >= 0");
   if (c.weight_decay < 0.0) fail("optimizer.weight_decay must be >= 0");
@@ -63,6 +66,9 @@ void validate_train_config(const TrainConfig& c) {
   if (d.min_stride < 1 || d.max_stride < d.min_stride)
     fail("data: need 1 <= min_stride <= max_stride");
   if (d.tum_fraction < 0.0 || d.tum_fraction > 1.0) fail("data.tum_fraction must be in [0, 1]");
+  if (d.reverse_fraction < 0.0 || d.reverse_fraction > 1.0) {
+    fail("data.reverse_fraction must be in [0, 1]");
+  }
   if (d.augment.color_jitter < 0.0 || d.augment.color_jitter >= 1.0) {
     fail("data.augment.color_jitter must be in [0, 1)");
   }
@@ -105,6 +111,22 @@ void validate_train_config(const TrainConfig& c) {
       fail("validation: frames x stride exceeds data.synth.trajectory_frames");
     }
   }
+  if (v.blind_scenes < 0) fail("validation.blind_scenes must be >= 0");
+  if (v.blind_scenes > 0) {
+    if (v.sequences < 1) fail("validation.blind_scenes runs with validation: sequences must be >= 1");
+    if (v.blind_starts < 1) fail("validation.blind_starts must be >= 1");
+    if (v.blind_frames < 2) fail("validation.blind_frames must be >= 2");
+    if (v.blind_strides.empty()) fail("validation.blind_strides: at least one stride");
+    if (!s.enabled || v.blind_scenes > s.val_scenes) {
+      fail("validation.blind_scenes needs synth data with at least that many val_scenes");
+    }
+    for (const int64_t stride : v.blind_strides) {
+      if (stride < 1 || (v.blind_frames - 1) * stride + 1 > s.trajectory_frames) {
+        fail("validation.blind_strides: each stride must be >= 1 and fit blind_frames into "
+             "data.synth.trajectory_frames");
+      }
+    }
+  }
   if (c.checkpoint_every < 0 || c.log_every < 1 || c.keep_checkpoints < 1) {
     fail("checkpoint_every >= 0, log_every >= 1, keep_checkpoints >= 1");
   }
@@ -120,6 +142,15 @@ ModelConfig resolve_model_config(const std::string& name_or_path) {
     return parse_model_config(ss.str());
   }
   return named_model_config(name_or_path);
+}
+
+std::string locate_model_config(const std::string& model, const std::string& config_dir) {
+  namespace fs = std::filesystem;
+  if (config_dir.empty() || fs::path(model).is_absolute() || fs::is_regular_file(model)) {
+    return model;
+  }
+  const fs::path beside = fs::path(config_dir) / model;
+  return fs::is_regular_file(beside) ? beside.string() : model;
 }
 
 StagePosition stage_at(const TrainConfig& config, int64_t step) {

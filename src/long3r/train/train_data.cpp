@@ -147,7 +147,13 @@ SequenceSample prepare_sequence(const std::vector<RawFrame>& frames, int size,
   const double shrink = rng != nullptr ? uniform01(*rng) * augment.max_crop : 0.0;
   const int side = std::max(1, static_cast<int>(std::lround(base * (1.0 - shrink))));
   int x0 = (w - side) / 2, y0 = (h - side) / 2;
-  if (rng != nullptr) {
+  if (augment.crop_at_principal_point) {
+    // The crop's centre ((x0 + side / 2) - 0.5 in pixel coordinates) as close
+    // to (cx, cy) as the image allows.
+    const PinholeIntrinsics& k = frames[0].intrinsics;
+    x0 = std::clamp(static_cast<int>(std::lround(k.cx + 0.5 - side / 2.0)), 0, w - side);
+    y0 = std::clamp(static_cast<int>(std::lround(k.cy + 0.5 - side / 2.0)), 0, h - side);
+  } else if (rng != nullptr) {
     x0 = static_cast<int>(uniform_int(*rng, 0, w - side));
     y0 = static_cast<int>(uniform_int(*rng, 0, h - side));
   }
@@ -301,6 +307,11 @@ SequenceSample SequenceSampler::sample(int64_t frames) {
     raw = synth_frames(seed, start, stride, frames);
     source << "synth:" << seed << "@" << start << "+" << stride;
   }
+  // Drawn only when asked for, so that runs without it draw what they drew.
+  if (config_.reverse_fraction > 0.0 && draw_uniform() < config_.reverse_fraction) {
+    std::reverse(raw.begin(), raw.end());
+    source << "r";
+  }
   return prepare_sequence(raw, image_size_, config_.augment, &rng_, source.str());
 }
 
@@ -310,12 +321,30 @@ Batch SequenceSampler::sample_batch(int64_t batch_size, int64_t frames) {
   return collate(samples);
 }
 
-SequenceSample SequenceSampler::validation_sequence(int64_t index, int64_t frames, int64_t stride) {
+SequenceSample SequenceSampler::validation_sequence(int64_t index, int64_t frames, int64_t stride,
+                                                    int64_t start) {
   const uint64_t seed = config_.synth.val_seed_begin + static_cast<uint64_t>(index);
   std::ostringstream source;
-  source << "val:" << seed << "@0+" << stride;
-  return prepare_sequence(synth_frames(seed, 0, stride, frames), image_size_, config_.augment,
+  source << "val:" << seed << "@" << start << "+" << stride;
+  return prepare_sequence(synth_frames(seed, start, stride, frames), image_size_, config_.augment,
                           nullptr, source.str());
+}
+
+std::vector<SequenceSample> SequenceSampler::blind_sequences(const ValidationConfig& config,
+                                                             int64_t stride) {
+  std::vector<SequenceSample> out;
+  for (int64_t scene = 0; scene < config.blind_scenes; ++scene) {
+    for (int64_t i = 0; i < config.blind_starts; ++i) {
+      for (const int64_t s : config.blind_strides) {
+        if (stride > 0 && s != stride) continue;
+        const int64_t span = (config.blind_frames - 1) * s + 1;
+        const int64_t room = std::max<int64_t>(0, config_.synth.trajectory_frames - span);
+        const int64_t start = config.blind_starts > 1 ? room * i / (config.blind_starts - 1) : 0;
+        out.push_back(validation_sequence(scene, config.blind_frames, s, start));
+      }
+    }
+  }
+  return out;
 }
 
 std::string SequenceSampler::rng_state() const {

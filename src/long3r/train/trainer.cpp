@@ -102,6 +102,16 @@ const ValColumn kValColumns[] = {
     {"val_nc_median", [](ValidationMetrics& v) -> double& { return v.prediction.nc_median; }},
     {"val_ate_rmse_m", [](ValidationMetrics& v) -> double& { return v.prediction.ate_rmse; }},
     {"val_registered", [](ValidationMetrics& v) -> double& { return v.registered; }, true},
+    {"val_blind_ratio", [](ValidationMetrics& v) -> double& { return v.blind.blind_ratio; }, true},
+    {"val_reg_true", [](ValidationMetrics& v) -> double& { return v.blind.reg_true; }, true},
+    {"val_reg_blind", [](ValidationMetrics& v) -> double& { return v.blind.reg_blind; }, true},
+    {"val_rot_err_deg", [](ValidationMetrics& v) -> double& { return v.blind.rot_err_deg; }, true},
+    {"val_rot_true_deg", [](ValidationMetrics& v) -> double& { return v.blind.rot_true_deg; },
+     true},
+    {"val_completion_true",
+     [](ValidationMetrics& v) -> double& { return v.completion.loss_true; }, true},
+    {"val_completion_shuffled",
+     [](ValidationMetrics& v) -> double& { return v.completion.loss_shuffled; }, true},
 };
 
 std::vector<std::string> split_csv_line(const std::string& line) {
@@ -219,6 +229,7 @@ Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
   if (config_.image_size % model_->config().dust3r.patch_size != 0) {
     throw std::invalid_argument("image_size must be a multiple of the model's patch size");
   }
+  if (config_.weight_init == "croco") init_croco_weights(*model_);
   if (!options_.init_checkpoint.empty()) {
     init_report_ = init_from_checkpoint(*model_, options_.init_checkpoint);
   }
@@ -278,6 +289,9 @@ Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
   for (int64_t i = 0; i < config_.validation.sequences; ++i) {
     val_sequences_.push_back(
         sampler_->validation_sequence(i, config_.validation.frames, config_.validation.stride));
+  }
+  if (config_.validation.blind_scenes > 0) {
+    blind_sequences_ = sampler_->blind_sequences(config_.validation);
   }
   sampler_state_ = sampler_->rng_state();
   if (options_.resume) {
@@ -442,6 +456,15 @@ LogRow Trainer::step() {
 ValidationMetrics Trainer::run_validation() {
   ValidationMetrics v = validate(*model_, val_sequences_, config_.loss, config_.validation,
                                  options_.extensions.score);
+  if (!blind_sequences_.empty()) {
+    v.blind = blind_control(*model_, blind_sequences_);
+    const TrainStage& stage = stage_of_step(std::max<int64_t>(0, step_ - 1));
+    if (stage.task == kTaskCrossViewCompletion && config_.validation.blind_frames == 2 &&
+        blind_sequences_.size() >= 2) {
+      v.completion = completion_control(*model_, completion_head_, blind_sequences_,
+                                        stage.mask_ratio);
+    }
+  }
   // set_training() re-enabled every parameter: re-apply the stage's freeze.
   applied_stage_ = -1;
   return v;
@@ -568,6 +591,14 @@ void Trainer::write_outputs() {
     j["loss"] = v.loss;
     j["regression"] = v.regression;
     j["registered"] = v.registered;
+    j["blind_ratio"] = v.blind.blind_ratio;
+    j["reg_true"] = v.blind.reg_true;
+    j["reg_blind"] = v.blind.reg_blind;
+    j["rot_err_deg"] = v.blind.rot_err_deg;
+    j["rot_true_deg"] = v.blind.rot_true_deg;
+    j["blind_frames"] = v.blind.frames;
+    j["completion_true"] = v.completion.loss_true;
+    j["completion_shuffled"] = v.completion.loss_shuffled;
     j["pointmap_err_m"] = p.pointmap_error;
     j["acc_mean_m"] = p.acc_mean;
     j["comp_mean_m"] = p.comp_mean;
@@ -672,6 +703,14 @@ void Trainer::run() {
                     r.val->loss, r.val->prediction.pointmap_error, r.val->prediction.acc_mean,
                     r.val->prediction.comp_mean, r.val->prediction.nc_mean,
                     r.val->prediction.ate_rmse);
+        if (r.val->blind.frames > 0) {
+          std::printf("  blind ratio %.3f (rot err %.2f of %.2f deg)", r.val->blind.blind_ratio,
+                      r.val->blind.rot_err_deg, r.val->blind.rot_true_deg);
+        }
+        if (std::isfinite(r.val->completion.loss_true)) {
+          std::printf("  completion %.4f (shuffled reference %.4f)", r.val->completion.loss_true,
+                      r.val->completion.loss_shuffled);
+        }
       }
       std::printf("\n");
       std::fflush(stdout);
