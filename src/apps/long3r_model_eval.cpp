@@ -181,8 +181,7 @@ int main(int argc, char** argv) {
                                         " frames at stride " + std::to_string(d) +
                                         " do not fit a 240-frame path");
           }
-          const long3r::BlindControl b =
-              long3r::blind_control(*model, sampler.blind_sequences(vc));
+          const long3r::BlindControl b = long3r::blind_control(*model, sampler.blind_sequences(vc));
           const double tokens = b.motion_px / static_cast<double>(patch);
           std::printf("%6lld %6lld %6lld %9.2f %9.2f %9.4f %9.4f %11.3f %10.2f %11.2f\n",
                       static_cast<long long>(n), static_cast<long long>(d),

@@ -137,7 +137,8 @@ TEST(ModelConfig, ErrorsNameTheField) {
       {{"dust3r", "enc_depth"}, "2.5", "dust3r.enc_depth: expected an integer"},
       {{"dust3r", "enc_depth"}, "0", "dust3r.enc_depth: must be at least 1"},
       {{"dust3r", "enc_embed_dims"}, "32", "unknown field(s) \"enc_embed_dims\""},
-      {{"dust3r", "head_type"}, "\"conv\"",
+      {{"dust3r", "head_type"},
+       "\"conv\"",
        "dust3r.head_type: must be \"dpt\" or \"linear\", got \"conv\""},
       // A linear head takes no DPT arguments: a dpt_head section is a mistake.
       {{"dust3r", "head_type"}, "\"linear\"", "unknown field(s) \"dpt_head\""},

@@ -1226,8 +1226,8 @@ TEST(TrainInit, CrocoInitialisation) {
       continue;
     }
     if (auto* l = m.as<torch::nn::LinearImpl>()) {
-      const double bound = std::sqrt(6.0 / static_cast<double>(l->weight.size(0) +
-                                                               l->weight.size(1)));
+      const double bound =
+          std::sqrt(6.0 / static_cast<double>(l->weight.size(0) + l->weight.size(1)));
       EXPECT_LE(l->weight.abs().max().item<double>(), bound) << name;
       EXPECT_GT(l->weight.abs().max().item<double>(), 0.5 * bound) << name;
       if (l->bias.defined()) {
@@ -1303,7 +1303,8 @@ TEST(TrainConfig, BlindControlAndPairFieldsAreChecked) {
   const std::string base = R"({"model": "long3r_tiny", "image_size": 64,
     "stages": [{"steps": 1, "frames": 2}], "data": {"synth": {"val_scenes": 4}}, )";
   const long3r::TrainConfig ok = long3r::parse_train_config(
-      base + R"("weight_init": "croco", "validation": {"blind_scenes": 4, "blind_strides": [4, 8]}})");
+      base +
+      R"("weight_init": "croco", "validation": {"blind_scenes": 4, "blind_strides": [4, 8]}})");
   EXPECT_EQ(ok.weight_init, "croco");
   EXPECT_EQ(ok.validation.blind_strides, (std::vector<int64_t>{4, 8}));
   auto error = [&](const std::string& tail) {
@@ -1316,9 +1317,9 @@ TEST(TrainConfig, BlindControlAndPairFieldsAreChecked) {
   };
   EXPECT_NE(error(R"("weight_init": "xavier"})").find("weight_init"), std::string::npos);
   EXPECT_NE(error(R"("validation": {"blind_scenes": 5}})").find("blind_scenes"), std::string::npos);
-  EXPECT_NE(error(R"("validation": {"blind_scenes": 2, "blind_strides": [300]}})")
-                .find("blind_strides"),
-            std::string::npos);
+  EXPECT_NE(
+      error(R"("validation": {"blind_scenes": 2, "blind_strides": [300]}})").find("blind_strides"),
+      std::string::npos);
   EXPECT_THROW(long3r::parse_train_config(R"({"stages": [{"steps": 1, "frames": 2}],
     "data": {"reverse_fraction": 1.5}})"),
                std::invalid_argument);

@@ -286,8 +286,8 @@ struct BlindControl {
   double rot_err_deg = kNaN;   // mean angle between applied and true relative rotation
   double rot_true_deg = kNaN;  // mean true relative rotation (a model that never turns scores this)
   double motion_px = kNaN;     // mean image motion of the frames' points, pixels of the model input
-  int64_t frames = 0;       // frames scored
-  int64_t unplaced = 0;     // frames left out: a non-finite or collapsed prediction
+  int64_t frames = 0;          // frames scored
+  int64_t unplaced = 0;        // frames left out: a non-finite or collapsed prediction
 };
 
 struct ValidationMetrics {

@@ -374,8 +374,8 @@ PixelHeadImpl::PixelHeadImpl(const Dust3rConfig& config) : patch(config.patch_si
     dpt = register_module("dpt", DptAdapter(config));
   } else {
     const int64_t channels = config.conf_mode == ConfMode::kNone ? 3 : 4;
-    proj = register_module("proj", torch::nn::Linear(config.dec_embed_dim,
-                                                     channels * patch * patch));
+    proj =
+        register_module("proj", torch::nn::Linear(config.dec_embed_dim, channels * patch * patch));
   }
 }
 
@@ -384,8 +384,8 @@ at::Tensor PixelHeadImpl::forward(const std::vector<at::Tensor>& decout, int64_t
   if (dpt) return dpt(decout, H, W, trace);
   const at::Tensor& tokens = decout.back();  // dec_norm of the last decoder layer
   const int64_t nh = H / patch, nw = W / patch;
-  TORCH_CHECK(tokens.size(1) == nh * nw, "linear head: ", tokens.size(1), " tokens for a ", nh,
-              "x", nw, " patch grid");
+  TORCH_CHECK(tokens.size(1) == nh * nw, "linear head: ", tokens.size(1), " tokens for a ", nh, "x",
+              nw, " patch grid");
   // 'b (nh nw) (c p p) -> b c (nh p) (nw p)', as the official transpose, view
   // and pixel_shuffle.
   const at::Tensor feat = proj(tokens).transpose(1, 2).reshape({tokens.size(0), -1, nh, nw});

@@ -236,7 +236,7 @@ class PixelHeadImpl : public torch::nn::Module {
   // outputs of an H x W image. Records the DPT intermediates and raw.
   at::Tensor forward(const std::vector<at::Tensor>& decout, int64_t H, int64_t W,
                      const Trace& trace);
-  DptAdapter dpt{nullptr};       // head_type dpt
+  DptAdapter dpt{nullptr};          // head_type dpt
   torch::nn::Linear proj{nullptr};  // head_type linear
   int64_t patch = 16;
 };

@@ -28,7 +28,8 @@ double rotation_angle_deg(const Eigen::Matrix3d& R) {
 
 // Pointmaps [B, H, W, 3] (CPU float32) of frame `index` of forward passes
 // over `frames` (each [B, 3, H, W]).
-at::Tensor run_frames(Long3rModel& model, const std::vector<at::Tensor>& frames, std::size_t index) {
+at::Tensor run_frames(Long3rModel& model, const std::vector<at::Tensor>& frames,
+                      std::size_t index) {
   const std::vector<StreamOutput> out = model.forward_sequence(frames);
   return out[index].pts3d.to(at::kCPU, at::kFloat).contiguous();
 }
@@ -58,17 +59,18 @@ double motion_px(const SequenceSample& s, int64_t k) {
   const at::Tensor z = g.select(-1, 2);
   const at::Tensor in_front = s.valid[k] & (z > 1e-6);
   const at::Tensor zs = at::where(in_front, z, at::ones_like(z));
-  const at::Tensor du = g.select(-1, 0) / zs * static_cast<float>(K0.fx) +
-                        static_cast<float>(K0.cx) - u;
-  const at::Tensor dv = g.select(-1, 1) / zs * static_cast<float>(K0.fy) +
-                        static_cast<float>(K0.cy) - v;
+  const at::Tensor du =
+      g.select(-1, 0) / zs * static_cast<float>(K0.fx) + static_cast<float>(K0.cx) - u;
+  const at::Tensor dv =
+      g.select(-1, 1) / zs * static_cast<float>(K0.fy) + static_cast<float>(K0.cy) - v;
   const at::Tensor d = (du * du + dv * dv).sqrt().masked_select(in_front);
   return d.numel() > 0 ? d.mean().item<double>() : std::numeric_limits<double>::quiet_NaN();
 }
 
 }  // namespace
 
-double frame_placement_error(const at::Tensor& pred, const at::Tensor& gt, const at::Tensor& valid) {
+double frame_placement_error(const at::Tensor& pred, const at::Tensor& gt,
+                             const at::Tensor& valid) {
   const double zp = mean_distance(pred, valid), zg = mean_distance(gt, valid);
   if (!(zp > 0.0) || !(zg > 0.0) || !std::isfinite(zp)) {
     return std::numeric_limits<double>::quiet_NaN();
@@ -169,8 +171,7 @@ BlindControl blind_control(Long3rModel& model, const std::vector<SequenceSample>
         const at::Tensor pts = out[k].pts3d.to(at::kCPU, at::kFloat);
         // Blind: frame k given itself as its reference, placed by the head
         // that places a pair's second view (frame 0 has no blind twin).
-        const at::Tensor own =
-            k == 0 ? at::Tensor() : run_frames(model, {frames[k], frames[k]}, 1);
+        const at::Tensor own = k == 0 ? at::Tensor() : run_frames(model, {frames[k], frames[k]}, 1);
         for (std::size_t s = c0; s < c1; ++s) {
           const int64_t b = static_cast<int64_t>(s - c0);
           truth[s].pts.push_back(pts[b].contiguous());

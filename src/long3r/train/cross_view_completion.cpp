@@ -74,8 +74,8 @@ CompletionControl completion_control(Long3rModel& model, torch::nn::Linear& head
   at::Generator gen = at::make_generator<at::CPUGeneratorImpl>(seed);
   const int64_t v = std::max<int64_t>(
       1, static_cast<int64_t>(std::llround(static_cast<double>(n) * (1.0 - mask_ratio))));
-  const at::Tensor visible =
-      std::get<0>(at::randperm(n, gen, at::TensorOptions().dtype(at::kLong)).narrow(0, 0, v).sort());
+  const at::Tensor visible = std::get<0>(
+      at::randperm(n, gen, at::TensorOptions().dtype(at::kLong)).narrow(0, 0, v).sort());
   const at::Tensor target = patchify(masked, patch);
   auto loss = [&](const at::Tensor& ref) {
     return completion_loss(head(model.complete_view(masked, ref, visible)).to(at::kFloat), target,

@@ -113,7 +113,8 @@ void validate_train_config(const TrainConfig& c) {
   }
   if (v.blind_scenes < 0) fail("validation.blind_scenes must be >= 0");
   if (v.blind_scenes > 0) {
-    if (v.sequences < 1) fail("validation.blind_scenes runs with validation: sequences must be >= 1");
+    if (v.sequences < 1)
+      fail("validation.blind_scenes runs with validation: sequences must be >= 1");
     if (v.blind_starts < 1) fail("validation.blind_starts must be >= 1");
     if (v.blind_frames < 2) fail("validation.blind_frames must be >= 2");
     if (v.blind_strides.empty()) fail("validation.blind_strides: at least one stride");
@@ -122,8 +123,9 @@ void validate_train_config(const TrainConfig& c) {
     }
     for (const int64_t stride : v.blind_strides) {
       if (stride < 1 || (v.blind_frames - 1) * stride + 1 > s.trajectory_frames) {
-        fail("validation.blind_strides: each stride must be >= 1 and fit blind_frames into "
-             "data.synth.trajectory_frames");
+        fail(
+            "validation.blind_strides: each stride must be >= 1 and fit blind_frames into "
+            "data.synth.trajectory_frames");
       }
     }
   }

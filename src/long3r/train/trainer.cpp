@@ -108,8 +108,8 @@ const ValColumn kValColumns[] = {
     {"val_rot_err_deg", [](ValidationMetrics& v) -> double& { return v.blind.rot_err_deg; }, true},
     {"val_rot_true_deg", [](ValidationMetrics& v) -> double& { return v.blind.rot_true_deg; },
      true},
-    {"val_completion_true",
-     [](ValidationMetrics& v) -> double& { return v.completion.loss_true; }, true},
+    {"val_completion_true", [](ValidationMetrics& v) -> double& { return v.completion.loss_true; },
+     true},
     {"val_completion_shuffled",
      [](ValidationMetrics& v) -> double& { return v.completion.loss_shuffled; }, true},
 };
@@ -461,8 +461,8 @@ ValidationMetrics Trainer::run_validation() {
     const TrainStage& stage = stage_of_step(std::max<int64_t>(0, step_ - 1));
     if (stage.task == kTaskCrossViewCompletion && config_.validation.blind_frames == 2 &&
         blind_sequences_.size() >= 2) {
-      v.completion = completion_control(*model_, completion_head_, blind_sequences_,
-                                        stage.mask_ratio);
+      v.completion =
+          completion_control(*model_, completion_head_, blind_sequences_, stage.mask_ratio);
     }
   }
   // set_training() re-enabled every parameter: re-apply the stage's freeze.
