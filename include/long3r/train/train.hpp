@@ -285,9 +285,9 @@ struct BlindControl {
   double blind_ratio = kNaN;                 // reg_true / reg_blind
   double rot_err_deg = kNaN;   // mean angle between applied and true relative rotation
   double rot_true_deg = kNaN;  // mean true relative rotation (a model that never turns scores this)
-  double motion_px = kNaN;     // mean image motion of the frames' points, pixels of the model input
-  int64_t frames = 0;          // frames scored
-  int64_t unplaced = 0;        // frames left out: a non-finite or collapsed prediction
+  double motion_px = kNaN;  // mean over frames of the median image motion of their points, pixels
+  int64_t frames = 0;       // frames scored
+  int64_t unplaced = 0;     // frames left out: a non-finite or collapsed prediction
 };
 
 struct ValidationMetrics {
@@ -390,7 +390,7 @@ LossProbe probe_loss(const SequencePrediction& prediction, const SequenceSample&
 // register (it predicts each frame in its own camera, wherever the reference
 // was), 0 for perfect registration. Also the rotation the true run applies to
 // each frame (Umeyama of the frame's ground-truth points in its own camera
-// onto its prediction) against the true relative rotation, and the mean image
+// onto its prediction) against the true relative rotation, and the median image
 // motion of the frames' points relative to camera 0 (ground truth).
 //
 // Sequences of one length >= 2 (e.g. validation_sequence); runs in inference

@@ -49,7 +49,8 @@ double mean_distance(const at::Tensor& pts, const at::Tensor& valid) {
   return d.numel() > 0 ? d.mean().item<double>() : 0.0;
 }
 
-// Image motion of frame k's valid pixels in the reference camera, pixels.
+// Image motion of frame k's valid pixels in the reference camera, pixels
+// (their median).
 double motion_px(const SequenceSample& s, int64_t k) {
   const PinholeIntrinsics& K0 = s.intrinsics[0];
   const at::Tensor g = s.pts[k];
@@ -63,8 +64,10 @@ double motion_px(const SequenceSample& s, int64_t k) {
       g.select(-1, 0) / zs * static_cast<float>(K0.fx) + static_cast<float>(K0.cx) - u;
   const at::Tensor dv =
       g.select(-1, 1) / zs * static_cast<float>(K0.fy) + static_cast<float>(K0.cy) - v;
+  // The median: points that come close to camera 0's image plane project
+  // arbitrarily far and would rule a mean.
   const at::Tensor d = (du * du + dv * dv).sqrt().masked_select(in_front);
-  return d.numel() > 0 ? d.mean().item<double>() : std::numeric_limits<double>::quiet_NaN();
+  return d.numel() > 0 ? d.median().item<double>() : std::numeric_limits<double>::quiet_NaN();
 }
 
 }  // namespace
