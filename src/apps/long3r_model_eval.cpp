@@ -157,7 +157,7 @@ int main(int argc, char** argv) {
       if (blind_lengths.empty()) blind_lengths = {2, 5};
       // The training scenes' path length, so that the strides mean what they
       // mean in training.
-      dc.synth.trajectory_frames = 240;
+      dc.synth.trajectory_frames = long3r::SynthDataConfig{}.trajectory_frames;
       long3r::SequenceSampler sampler(dc, static_cast<int>(img_size), 0,
                                       thread_state.torch_threads);
       const int64_t patch = model->config().dust3r.patch_size;
@@ -179,7 +179,8 @@ int main(int argc, char** argv) {
           if (n < 2 || d < 1 || (n - 1) * d + 1 > dc.synth.trajectory_frames) {
             throw std::invalid_argument("--blind-frames / --blind-stride: " + std::to_string(n) +
                                         " frames at stride " + std::to_string(d) +
-                                        " do not fit a 240-frame path");
+                                        " do not fit a " +
+                                        std::to_string(dc.synth.trajectory_frames) + "-frame path");
           }
           const long3r::BlindControl b = long3r::blind_control(*model, sampler.blind_sequences(vc));
           const double tokens = b.motion_px / static_cast<double>(patch);

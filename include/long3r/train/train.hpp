@@ -140,9 +140,8 @@ class SequenceSampler {
   SequenceSample validation_sequence(int64_t index, int64_t frames, int64_t stride,
                                      int64_t start = 0);
   // The blind control's sequences of a validation configuration (scenes x
-  // evenly spaced starts x strides), in that order; `stride` >= 1 picks one
-  // of them, 0 all.
-  std::vector<SequenceSample> blind_sequences(const ValidationConfig& config, int64_t stride = 0);
+  // evenly spaced starts x strides), in that order.
+  std::vector<SequenceSample> blind_sequences(const ValidationConfig& config);
 
   // Raw frames of a generated scene (start, stride) without preprocessing.
   std::vector<RawFrame> synth_frames(uint64_t scene_seed, int64_t start, int64_t stride,

@@ -330,13 +330,11 @@ SequenceSample SequenceSampler::validation_sequence(int64_t index, int64_t frame
                           nullptr, source.str());
 }
 
-std::vector<SequenceSample> SequenceSampler::blind_sequences(const ValidationConfig& config,
-                                                             int64_t stride) {
+std::vector<SequenceSample> SequenceSampler::blind_sequences(const ValidationConfig& config) {
   std::vector<SequenceSample> out;
   for (int64_t scene = 0; scene < config.blind_scenes; ++scene) {
     for (int64_t i = 0; i < config.blind_starts; ++i) {
       for (const int64_t s : config.blind_strides) {
-        if (stride > 0 && s != stride) continue;
         const int64_t span = (config.blind_frames - 1) * s + 1;
         const int64_t room = std::max<int64_t>(0, config_.synth.trajectory_frames - span);
         const int64_t start = config.blind_starts > 1 ? room * i / (config.blind_starts - 1) : 0;
