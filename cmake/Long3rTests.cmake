@@ -27,7 +27,8 @@ long3r_add_test_support(long3r_test_support
   SOURCES test/support/test_support.cpp LIBS long3r_model)
 if(LONG3R_HAVE_CV)
   long3r_add_test_support(long3r_cv_test_support
-    SOURCES test/support/cv_test_support.cpp LIBS long3r_pipeline long3r_test_support)
+    SOURCES test/support/cv_test_support.cpp LIBS long3r_pipeline long3r_synth_cv
+    long3r_test_support)
 endif()
 
 function(long3r_add_gtest_binary name)
@@ -135,7 +136,8 @@ if(LONG3R_WITH_ROS)
   file(GLOB LONG3R_ROS_UNIT_SRCS CONFIGURE_DEPENDS test/ros/unit_*.cpp)
   if(LONG3R_ROS_UNIT_SRCS)
     add_executable(long3r_ros_unit_tests ${LONG3R_ROS_UNIT_SRCS})
-    target_link_libraries(long3r_ros_unit_tests PRIVATE long3r_nodelet GTest::gtest GTest::gtest_main)
+    target_link_libraries(long3r_ros_unit_tests PRIVATE long3r_nodelet long3r_cv_test_support
+      GTest::gtest GTest::gtest_main)
     target_compile_options(long3r_ros_unit_tests PRIVATE ${LONG3R_WARNINGS})
     gtest_discover_tests(long3r_ros_unit_tests DISCOVERY_TIMEOUT 60 PROPERTIES LABELS "unit;ros")
   endif()

@@ -17,7 +17,15 @@
 #include <opencv2/core/mat.hpp>
 #include <vector>
 
+#include "long3r/pipeline/camera_rectifier.hpp"
+#include "long3r/pipeline/frame_result.hpp"
+#include "long3r_ros/Pointmap.h"
+
 namespace long3r_ros {
+
+// camera_info as the core reads a calibration (the same fields, unvalidated:
+// long3r::CameraRectifier::problem() names what is wrong).
+long3r::CameraModel toCameraModel(const sensor_msgs::CameraInfo& info);
 
 // The depth an RGB-D camera would give: 32FC1, z of points_C (camera frame),
 // NaN where the point is not finite or conf < conf_threshold.
@@ -52,6 +60,12 @@ std::array<double, 36> poseCovarianceInMap(const Eigen::Matrix<double, 6, 6>& co
 // pixels at model resolution).
 sensor_msgs::CameraInfo toCameraInfo(double fx, double fy, double cx, double cy, int width,
                                      int height, const std_msgs::Header& header);
+
+// ~pointmap: the result's points_C and confidence, its pose in map_frame
+// (T_map_cam), intrinsics and scale (the estimate's standard error once metric).
+Pointmap toPointmap(const long3r::FrameResult& r, const std_msgs::Header& header,
+                    const std::string& map_frame, const Eigen::Isometry3d& T_map_cam, bool metric,
+                    double scale_stddev);
 
 // Packs RGB into the float the PCL/rviz "rgb" field expects.
 float packRgb(std::uint8_t r, std::uint8_t g, std::uint8_t b);

@@ -3,15 +3,17 @@
 // Subscribes to `image` (image_transport; or sensor_msgs/CompressedImage on
 // `image/compressed`, decoded here, where the compressed plugin is missing),
 // `camera_info` and, for the depth scale, `depth`; callbacks only enqueue.
-// One worker thread decodes each frame, decides with the StreamMonitor
-// whether it continues the stream, rectifies it with the camera_info matching
-// its stamp (CameraCalibration) and runs the core long3r::Reconstruction on
-// it. Frames (robot_frames.hpp): `~pointmap`, `~depth`, `~frame_cloud` are in
-// the camera optical frame (the image header's frame_id unless `camera_frame`
-// overrides it); the map, `~pose`, `~path`, `~odometry` in `map_frame`, the
-// last three for the body (base_frame, else the camera); the node publishes
-// one transform per frame into the robot's TF tree. Lengths are in metres
-// once a metric scale is in use (metric_scale.hpp), else in model units.
+// One worker thread decodes each frame, pairs it with the camera_info of its
+// stamp and hands it to the core's long3r::LiveSession, which holds the
+// policy (stream continuity, calibration and rectification, tracking loss,
+// metric scale; live_session.hpp) and calls back here for what only ROS
+// knows (TF, depth images) and with each result to publish. Frames
+// (robot_frames.hpp): `~pointmap`, `~depth`, `~frame_cloud` are in the camera
+// optical frame (the image header's frame_id unless `camera_frame` overrides
+// it); the map, `~pose`, `~path`, `~odometry` in `map_frame`, the last three
+// for the body (base_frame, else the camera); the node publishes one
+// transform per frame into the robot's TF tree. Lengths are in metres once a
+// metric scale is in use (metric_scale.hpp), else in model units.
 //
 // The map and the memory are what the user builds: a pause of any length
 // continues the stream (the pending frame is published after
@@ -45,21 +47,18 @@
 #include <thread>
 
 #include "long3r/pipeline/bounded_queue.hpp"
-#include "long3r/pipeline/metric_scale.hpp"
-#include "long3r/pipeline/reconstruction.hpp"
+#include "long3r/pipeline/live_session.hpp"
 #include "long3r_ros/SaveMap.h"
 #include "long3r_ros/SaveTrajectory.h"
-#include "long3r_ros/camera_calibration.hpp"
 #include "long3r_ros/image_input.hpp"
 #include "long3r_ros/log_throttle.hpp"
 #include "long3r_ros/params.hpp"
 #include "long3r_ros/robot_frames.hpp"
-#include "long3r_ros/stream_monitor.hpp"
 #include "long3r_ros/window_stats.hpp"
 
 namespace long3r_ros {
 
-class Long3rNodelet : public nodelet::Nodelet {
+class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient {
  public:
   Long3rNodelet() = default;
   ~Long3rNodelet() override;
@@ -86,23 +85,24 @@ class Long3rNodelet : public nodelet::Nodelet {
   void mapTimerCallback(const ros::WallTimerEvent& event);
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
-  // Worker thread.
+  // Worker thread; session_mutex_ is held around every call into the session,
+  // and so around the LiveSessionClient calls it makes back.
   void workerLoop();
   void handleFrame(const InputFrame& frame);
-  void processFrame(const InputFrame& frame, const DecodedImage& decoded);
-  cv::Mat calibrate(const InputFrame& frame, const cv::Mat& image);  // recon_mutex_ held
   void flushPending();
-  void publishResult(long3r::FrameResult result);
-  void trackLoss(const long3r::FrameResult& result);
-  void updateScale(long3r::FrameResult& result, const std_msgs::Header& header,
-                   const cv::Size& image_size);
-  std::optional<double> depthScaleSample(const long3r::FrameResult& result,
-                                         const std_msgs::Header& header,
-                                         const cv::Size& image_size);
+  std::optional<long3r::CameraModel> cameraFor(const ros::Time& stamp);
+  void copyStatus();  // session_mutex_ held
+
+  // long3r::LiveSessionClient: what the session asks of ROS, and its results.
+  std::optional<Eigen::Isometry3d> place(const long3r::LiveFrame& frame) override;
+  Eigen::Vector3d odometry_camera_position_m(const long3r::LiveResult& result) override;
+  cv::Mat depth(const long3r::LiveResult& result) override;
+  void on_result(long3r::LiveResult& result) override;
+  void on_new_stream(const std::string& why) override;
+  void on_event(const long3r::LiveEvent& event) override;
+
   void publishOutputs(const long3r::FrameResult& r, const std_msgs::Header& header);
-  nav_msgs::Path pathMessage();              // recon_mutex_ held
-  void resetStream(const std::string& why);  // recon_mutex_ held
-  void startStreamScale();                   // recon_mutex_ held
+  nav_msgs::Path pathMessage();  // session_mutex_ held
   void shutdown();
 
   // A warning per kind of problem, throttled per kind (LogThrottle).
@@ -110,8 +110,7 @@ class Long3rNodelet : public nodelet::Nodelet {
 
   NodeletConfig config_;
   FramesConfig frames_config_;
-  long3r::MetricScaleConfig scale_config_;
-  StreamMonitorConfig monitor_config_;
+  long3r::LiveSessionConfig session_config_;
   long3r::ThreadConfig thread_config_;
   long3r::InferenceConfig inference_config_;
   long3r::ReconstructionConfig recon_config_;
@@ -139,29 +138,13 @@ class Long3rNodelet : public nodelet::Nodelet {
   message_filters::Cache<sensor_msgs::CameraInfo> camera_info_cache_{kCacheMargin};
   message_filters::Cache<sensor_msgs::Image> depth_cache_{kCacheMargin};
 
-  // The reconstruction and everything tied to its stream, guarded together:
-  // the worker pushes frames, the services reset and save.
-  std::mutex recon_mutex_;
-  std::unique_ptr<long3r::Reconstruction> recon_;
-  // Frames awaiting their result: header and the size of the image as pushed.
-  struct PendingFrame {
-    std_msgs::Header header;
-    cv::Size size;
-  };
-  std::deque<PendingFrame> pending_;
+  // The session and what is tied to its stream, guarded together: the worker
+  // pushes frames, the services reset and save.
+  std::mutex session_mutex_;
+  std::unique_ptr<long3r::LiveSession> session_;
   std::unique_ptr<RobotFrames> frames_;
-  long3r::ScalePolicy scale_policy_{long3r::MetricScaleConfig()};
-  std::unique_ptr<long3r::OdometryScaleSampler> scale_sampler_;
-  std::optional<geometry_msgs::TransformStamped> last_map_odom_;   // state_mutex_
   std::optional<std::pair<Eigen::Isometry3d, double>> last_body_;  // pose in map, stamp
   std::optional<Eigen::Matrix<double, 6, 6>> last_body_cov_;
-  StreamMonitor monitor_;
-  std::optional<std::pair<InputFrame, DecodedImage>> held_;  // see StreamMonitor::kHold
-  CameraCalibration calibration_;
-  std::string calibration_problem_;  // why the latest camera_info was not used ("" if it was)
-  std::string intrinsics_logged_;    // the intrinsics line last logged
-  int lost_frames_ = 0;              // consecutive frames without a pose
-  double lost_since_stamp_ = 0.0;
 
   std::unique_ptr<long3r::BoundedQueue<InputFrame>> queue_;
   std::thread worker_;
@@ -174,21 +157,17 @@ class Long3rNodelet : public nodelet::Nodelet {
   LogThrottle throttle_{5.0};
   std::atomic<std::uint64_t> frames_received_{0}, frames_processed_{0}, frames_failed_{0};
   std::atomic<std::uint64_t> frames_dropped_paused_{0}, frames_dropped_input_{0};
-  std::atomic<std::uint64_t> queue_dropped_seen_{0};
   std::atomic<double> last_input_wall_s_{0.0};  // wall clock of the newest image; 0 = none yet
-  std::atomic<std::int64_t> mem_short_{0}, mem_long_{0}, mem_relevant_{-1};
-  std::atomic<std::int64_t> stream_frames_{0};
-  std::atomic<int> lost_frames_diag_{0};
-  std::atomic<double> lost_for_s_{0.0};
-  // What the timers and diagnostics read, copied here so that they never wait
-  // for recon_mutex_ (held by the worker for a whole model step).
+  // What the timers and diagnostics read, one snapshot under one lock, so
+  // that they never wait for session_mutex_ (held for a whole model step).
+  struct State {
+    long3r::LiveStatus session;
+    std::string frames = "not started";
+    Eigen::Isometry3d T_map_W = Eigen::Isometry3d::Identity();
+    std::optional<geometry_msgs::TransformStamped> map_to_odom;
+  };
   std::mutex state_mutex_;
-  std::string tracking_text_ = "not started", calibration_text_ = "none",
-              frames_text_ = "not started";
-  Eigen::Isometry3d T_map_W_ = Eigen::Isometry3d::Identity();
-  long3r::ScaleEstimate scale_estimate_;
-  double scale_in_use_ = 1.0;
-  bool scale_metric_ = false;
+  State state_;
   ros::WallTime started_;
 };
 

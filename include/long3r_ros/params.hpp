@@ -15,10 +15,10 @@
 
 #include "long3r/model/inference_config.hpp"
 #include "long3r/model/threads.hpp"
+#include "long3r/pipeline/live_session.hpp"
 #include "long3r/pipeline/metric_scale.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 #include "long3r_ros/robot_frames.hpp"
-#include "long3r_ros/stream_monitor.hpp"
 
 namespace long3r_ros {
 
@@ -43,13 +43,11 @@ struct NodeletConfig {
   bool publish_tf = true;  // broadcast the one transform (robot_frames.hpp)
   PoseSource pose_source = PoseSource::kModel;
   bool use_camera_info = true;          // use camera_info intrinsics when published
-  bool image_is_rectified = false;      // false: rectify with camera_info's distortion
   std::string image_transport = "raw";  // raw, compressed, ...
   int max_image_pixels = 4096 * 4096;   // larger frames are dropped
   int queue_size = 1;                   // bounded input queue; newest frame wins
   double flush_after_s = 1.0;           // publish the pending frame after this silence
   double map_publish_period_s = 1.0;    // republish the map (if changed) this often
-  int lost_reset_frames = 0;            // new stream after this many unposed frames; 0 = never
   double no_input_warn_s = 5.0;         // diagnostics warn after this long without images
   double max_latency_s = 5.0;           // diagnostics: stamp delay beyond this is an error
 };
@@ -58,9 +56,11 @@ NodeletConfig readNodeletConfig(const ros::NodeHandle& pnh);
 // map_frame, odom_frame, base_frame, camera_frame, tf_timeout_s. The old name
 // world_frame is read as map_frame.
 FramesConfig readFramesConfig(const ros::NodeHandle& pnh);
-StreamMonitorConfig readStreamMonitorConfig(const ros::NodeHandle& pnh);
+long3r::StreamMonitorConfig readStreamMonitorConfig(const ros::NodeHandle& pnh);
 // scale_source, scale, scale_min_baseline_m, ... (metric_scale.hpp).
 long3r::MetricScaleConfig readMetricScaleConfig(const ros::NodeHandle& pnh);
+// The two above, lost_reset_frames and image_is_rectified.
+long3r::LiveSessionConfig readLiveSessionConfig(const ros::NodeHandle& pnh);
 long3r::ThreadConfig readThreadConfig(const ros::NodeHandle& pnh);
 long3r::InferenceConfig readInferenceConfig(const ros::NodeHandle& pnh);
 long3r::ReconstructionConfig readReconstructionConfig(const ros::NodeHandle& pnh);
@@ -68,7 +68,8 @@ long3r::ReconstructionConfig readReconstructionConfig(const ros::NodeHandle& pnh
 // One line per parameter, for the start-up log.
 std::string describe(const NodeletConfig& config);
 std::string describe(const FramesConfig& config);
-std::string describe(const StreamMonitorConfig& config);
+std::string describe(const long3r::StreamMonitorConfig& config);
+std::string describe(const long3r::LiveSessionConfig& config);
 std::string describe(const long3r::MetricScaleConfig& config);
 std::string describe(const long3r::ThreadConfig& config);
 std::string describe(const long3r::InferenceConfig& config);

@@ -1,19 +1,29 @@
 // long3r_reconstruct: offline streaming reconstruction of an image folder, a
 // video file or a TUM RGB-D folder (rgb.txt) with a LONG3R or Spann3R checkpoint.
 //
+// The frames go through the core's LiveSession, as the ROS node's do: the
+// same stream continuity, calibration checks, rectification of distorted
+// cameras and metric scale (--scale-source: a TUM folder's depth images or
+// its groundtruth.txt standing in for odometry).
+//
 // Outputs in --out: map.ply (fused voxel map, world = camera 0), trajectory.txt
 // (TUM "t tx ty tz qx qy qz qw", frames with a good pose), frames.csv (per
-// frame timings, memory tokens, PnP status, RSS); a summary on stdout.
+// frame timings, memory tokens, PnP status, scale, RSS); a summary on stdout.
+// Lengths in metres once a metric scale is known, else in model units.
 // Calibration: --calib fx fy cx cy (source pixels) wins; else a TUM folder's
-// calibration.txt; else the focal length is estimated from frame 0.
+// calibration.txt (lens distortion included: the images are rectified);
+// else the focal length is estimated from frame 0.
 #include <unistd.h>
 
 #include <algorithm>
+#include <any>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
+#include <map>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/videoio.hpp>
 #include <string>
@@ -25,7 +35,7 @@
 #include "long3r/model/inference_config.hpp"
 #include "long3r/model/safetensors.hpp"
 #include "long3r/model/threads.hpp"
-#include "long3r/pipeline/reconstruction.hpp"
+#include "long3r/pipeline/live_session.hpp"
 
 namespace fs = std::filesystem;
 using namespace long3r;
@@ -48,7 +58,63 @@ struct Source {
   cv::VideoCapture video;
   bool is_video = false;
   double fps = 30.0;
-  std::optional<PinholeIntrinsics> calib;
+  std::optional<TumDataset> tum;
+  std::optional<CameraModel> camera;  // calibration.txt or --calib
+};
+
+// The dataset's answers to the session, and the session's outputs: results
+// to `record`, messages to stderr (each kind of warning at most
+// kWarningsPerKind times, then counted).
+class Client : public LiveSessionClient {
+ public:
+  static constexpr int kWarningsPerKind = 3;
+  Client(const Source& src, std::function<void(const FrameResult&)> record)
+      : src_(src), record_(std::move(record)) {}
+
+  Eigen::Vector3d odometry_camera_position_m(const LiveResult& r) override {
+    const std::size_t i = std::any_cast<std::size_t>(r.tag);
+    if (!src_.tum || !src_.tum->frame(i).pose) {
+      throw Unavailable("odometry missing", "frame " + std::to_string(i) +
+                                                " has no groundtruth.txt pose (scale_source "
+                                                "odometry)");
+    }
+    return src_.tum->frame(i).pose->translation();
+  }
+  cv::Mat depth(const LiveResult& r) override {
+    const std::size_t i = std::any_cast<std::size_t>(r.tag);
+    if (!src_.tum || src_.tum->frame(i).depth_path.empty()) {
+      throw Unavailable("depth missing",
+                        "frame " + std::to_string(i) + " has no depth image (scale_source depth)");
+    }
+    try {
+      return src_.tum->load_depth(i);
+    } catch (const std::exception& e) {
+      throw Unavailable("depth unreadable", e.what());
+    }
+  }
+  void on_result(LiveResult& r) override { record_(r.frame); }
+  void on_event(const LiveEvent& e) override {
+    if (e.level == LiveEvent::Level::kInfo) {
+      std::fprintf(stderr, "\nlong3r_reconstruct: %s\n", e.message.c_str());
+    } else if (!e.throttle || ++warnings_[e.kind] <= kWarningsPerKind) {
+      std::fprintf(stderr, "\nlong3r_reconstruct: warning: %s\n", e.message.c_str());
+    }
+  }
+  // "kind: N more" for the warnings not shown.
+  std::string suppressed() const {
+    std::string s;
+    for (const auto& [kind, n] : warnings_) {
+      if (n > kWarningsPerKind) {
+        s += (s.empty() ? "" : ", ") + kind + ": " + std::to_string(n - kWarningsPerKind) + " more";
+      }
+    }
+    return s;
+  }
+
+ private:
+  const Source& src_;
+  std::function<void(const FrameResult&)> record_;
+  std::map<std::string, int> warnings_;
 };
 
 }  // namespace
@@ -59,6 +125,9 @@ int main(int argc, char** argv) {
   ThreadConfig threads;
   long max_frames = -1;
   ReconstructionConfig cfg;
+  LiveSessionConfig session_cfg;
+  session_cfg.calibration_source = "calibration";
+  session_cfg.stream.drop_zero_stamps = false;  // recorded clocks may start at 0
   std::optional<PinholeIntrinsics> calib;
   CliOptions cli("long3r_reconstruct");
   cli.positional("INPUT", &input,
@@ -74,6 +143,24 @@ int main(int argc, char** argv) {
       .shown_default("1: every pixel");
   cli.option("--voxel-size", "M", &cfg.map.voxel_size_m, "map voxel size");
   cli.option("--img-size", "N", &img, "model input size N x N");
+  cli.custom(
+         "--scale-source", {"S"},
+         [&](const std::vector<std::string>& v) {
+           if (!config::enum_from_name(v[0], &session_cfg.scale.source)) {
+             throw UsageError("must be " + config::enum_choices<ScaleSource>() + " (got \"" + v[0] +
+                              "\")");
+           }
+         },
+         "metric scale: depth (a TUM folder's depth images), odometry (its groundtruth.txt "
+         "positions), fixed (--scale) or none (model units)")
+      .shown_default("none");
+  cli.option("--scale", "M", &session_cfg.scale.fixed_scale,
+             "metres per model unit, --scale-source fixed");
+  cli.option("--scale-min-baseline", "M", &session_cfg.scale.min_baseline_m,
+             "camera travel per odometry scale sample");
+  cli.option("--lost-reset-frames", "N", &session_cfg.lost_reset_frames,
+             "start a new stream after N consecutive frames without a pose")
+      .shown_default("0: never");
   add_thread_options(cli, &threads);
   InferenceConfig inference;
   add_inference_options(cli, &inference);
@@ -94,15 +181,21 @@ int main(int argc, char** argv) {
   try {
     if (!fs::exists(model_path)) throw std::runtime_error("model file not found: " + model_path);
     if (!fs::exists(input)) throw std::runtime_error("input not found: " + input);
+    session_cfg.validate(config::FieldCheck{"long3r_reconstruct", ""});
     Source src;
     if (fs::is_directory(input)) {
       if (fs::exists(fs::path(input) / "rgb.txt")) {
-        const TumDataset ds = TumDataset::open(input);
-        for (const TumFrame& f : ds.frames()) {
+        TumDatasetOptions options;
+        options.allow_distortion = true;  // rectified by the session
+        src.tum = TumDataset::open(input, options);
+        for (const TumFrame& f : src.tum->frames()) {
           src.paths.push_back(f.rgb_path);
           src.stamps.push_back(f.stamp);
         }
-        src.calib = ds.calibration();
+        if (const auto& c = src.tum->camera()) {
+          src.camera = camera_model(c->intrinsics, c->distortion_model, c->distortion);
+          session_cfg.calibration_source = "calibration.txt";
+        }
       } else {
         const ImageFolder folder = ImageFolder::open(input);
         src.paths = folder.paths();
@@ -117,7 +210,16 @@ int main(int argc, char** argv) {
       const double fps = src.video.get(cv::CAP_PROP_FPS);
       if (fps > 0) src.fps = fps;
     }
-    if (!calib) calib = src.calib;
+    if (calib) {
+      src.camera = camera_model(*calib);
+      session_cfg.calibration_source = "--calib";
+    }
+    const ScaleSource scale_source = session_cfg.scale.source;
+    if ((scale_source == ScaleSource::kDepth || scale_source == ScaleSource::kOdometry) &&
+        !src.tum) {
+      throw std::runtime_error(std::string("--scale-source ") + config::enum_name(scale_source) +
+                               " needs a TUM folder (depth.txt, groundtruth.txt)");
+    }
 
     const auto metadata = read_safetensors_metadata(model_path);
     const bool random = has_random_weights(metadata);
@@ -130,14 +232,12 @@ int main(int argc, char** argv) {
     }
     const ThreadState thread_state = apply_thread_config(threads);
     cfg.preprocess.width = cfg.preprocess.height = img;
-    Reconstruction rec(make_streaming_model(model_path, inference), cfg);
-    rec.set_calibration(calib);
     fs::create_directories(out_dir);
     AtomicFile csv((fs::path(out_dir) / "frames.csv").string());  // appears at the end, whole
     csv.write(
         "frame,stamp,preprocess_ms,model_ms,encode_ms,decode_ms,memory_ms,intrinsics_ms,"
         "pose_ms,map_ms,total_ms,mem_short,mem_long,mem_relevant,pnp_status,pnp_inliers,"
-        "added_to_map,map_points,rss_kb\n");
+        "added_to_map,map_points,scale,rss_kb\n");
     const bool tty = isatty(fileno(stdout));
     std::vector<double> frame_ms;
     long peak_rss = 0;
@@ -151,12 +251,12 @@ int main(int argc, char** argv) {
       std::snprintf(
           line, sizeof line,
           "%lld,%.6f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%lld,%lld,%lld,%s,%d,%d,"
-          "%zu,%ld\n",
+          "%zu,%.9g,%ld\n",
           static_cast<long long>(r.frame_index), r.stamp, t.preprocess_ms, t.model_ms, m.encode_ms,
           m.decode_ms, m.memory_ms, t.intrinsics_ms, t.pose_ms, t.map_ms, t.total_ms,
           static_cast<long long>(m.mem_short_tokens), static_cast<long long>(m.mem_long_tokens),
           static_cast<long long>(m.relevant_tokens), to_string(r.pose.status), r.pose.inliers,
-          r.added_to_map ? 1 : 0, r.map_points, rss);
+          r.added_to_map ? 1 : 0, r.map_points, r.scale, rss);
       csv.write(line);
       const double fps = t.total_ms > 0 ? 1000.0 / t.total_ms : 0.0;
       if (tty) {
@@ -170,6 +270,8 @@ int main(int argc, char** argv) {
                     r.pose.inliers, r.map_points);
       }
     };
+    Client client(src, record);
+    LiveSession session(make_streaming_model(model_path, inference), cfg, session_cfg, client);
 
     long used = 0, skipped = 0;
     for (size_t i = 0;; ++i) {
@@ -193,13 +295,29 @@ int main(int argc, char** argv) {
       }
       if (src.is_video && i % stride != 0) continue;
       ++used;
-      if (auto r = rec.push(bgr, "bgr8", stamp)) record(*r);
+      LiveFrame f;
+      f.image = bgr;
+      f.encoding = "bgr8";
+      f.stamp_s = stamp;
+      f.clock_s = stamp;  // recorded data: the stamps are the clock
+      if (src.camera) {
+        f.camera = src.camera;
+        // A calibration without its image size is of these images.
+        if (f.camera->width == 0 && f.camera->height == 0) {
+          f.camera->width = bgr.cols;
+          f.camera->height = bgr.rows;
+        }
+      }
+      f.tag = i;
+      session.push(std::move(f));
     }
-    if (auto r = rec.flush()) record(*r);
+    session.flush();
     if (tty) std::printf("\n");
     if (used == 0) throw std::runtime_error("no readable frames in " + input);
     csv.commit();
 
+    const Reconstruction& rec = session.reconstruction();
+    const LiveStatus status = session.status();
     rec.map().save((fs::path(out_dir) / "map.ply").string());
     PoseTrajectory traj;
     for (const auto& [t, T] : rec.trajectory()) {
@@ -207,7 +325,8 @@ int main(int argc, char** argv) {
       traj.poses.push_back(T);
     }
     write_tum_trajectory((fs::path(out_dir) / "trajectory.txt").string(), traj,
-                         "long3r_reconstruct: T_W_C, world = camera 0");
+                         std::string("long3r_reconstruct: T_W_C, world = camera 0, ") +
+                             (status.scale_metric ? "metres" : "model units"));
 
     std::vector<double> sorted = frame_ms;
     std::sort(sorted.begin(), sorted.end());
@@ -219,10 +338,16 @@ int main(int argc, char** argv) {
         "summary: %ld frames used (%ld unreadable skipped), %zu results, %zu with a good pose, "
         "map %zu points\n"
         "         mean %.2f FPS, median %.2f FPS, peak RSS %.1f MiB, %s, %s %s\n"
+        "         scale %.6g m per model unit (%s), %llu stream(s)\n"
         "         outputs in %s\n",
         used, skipped, frame_ms.size(), traj.size(), rec.map().size(), mean_fps,
         median_ms > 0 ? 1000.0 / median_ms : 0.0, peak_rss / 1024.0, describe(thread_state).c_str(),
-        inference.device.c_str(), config::enum_name(inference.precision), out_dir.c_str());
+        inference.device.c_str(), config::enum_name(inference.precision), status.scale,
+        status.scale_metric ? "metric" : "model units",
+        static_cast<unsigned long long>(status.streams), out_dir.c_str());
+    if (!client.suppressed().empty()) {
+      std::printf("warnings not repeated: %s\n", client.suppressed().c_str());
+    }
     if (random)
       std::printf("WARNING: the model has RANDOM weights; the results are meaningless.\n");
   } catch (const std::exception& e) {

@@ -4,8 +4,10 @@
 #include <image_geometry/pinhole_camera_model.h>
 #include <sensor_msgs/image_encodings.h>
 #include <sensor_msgs/point_cloud2_iterator.h>
+#include <tf2_eigen/tf2_eigen.h>
 #include <boost/make_shared.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -144,6 +146,49 @@ sensor_msgs::CameraInfo toCameraInfo(double fx, double fy, double cx, double cy,
   info.R = {1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0};
   info.P = {fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0};
   return info;
+}
+
+long3r::CameraModel toCameraModel(const sensor_msgs::CameraInfo& info) {
+  long3r::CameraModel c;
+  c.width = info.width;
+  c.height = info.height;
+  c.distortion_model = info.distortion_model;
+  c.D = info.D;
+  std::copy(info.K.begin(), info.K.end(), c.K.begin());
+  std::copy(info.R.begin(), info.R.end(), c.R.begin());
+  std::copy(info.P.begin(), info.P.end(), c.P.begin());
+  c.binning_x = info.binning_x;
+  c.binning_y = info.binning_y;
+  c.roi.x_offset = info.roi.x_offset;
+  c.roi.y_offset = info.roi.y_offset;
+  c.roi.width = info.roi.width;
+  c.roi.height = info.roi.height;
+  return c;
+}
+
+Pointmap toPointmap(const long3r::FrameResult& r, const std_msgs::Header& header,
+                    const std::string& map_frame, const Eigen::Isometry3d& T_map_cam, bool metric,
+                    double scale_stddev) {
+  const int h = r.conf.rows, w = r.conf.cols;
+  Pointmap pm;
+  pm.header = header;
+  pm.height = static_cast<std::uint32_t>(h);
+  pm.width = static_cast<std::uint32_t>(w);
+  pm.frame_index = static_cast<std::uint32_t>(r.frame_index);
+  const cv::Mat pts = r.points_C.isContinuous() ? r.points_C : r.points_C.clone();
+  const cv::Mat conf = r.conf.isContinuous() ? r.conf : r.conf.clone();
+  pm.points.assign(pts.ptr<float>(), pts.ptr<float>() + static_cast<std::size_t>(h) * w * 3);
+  pm.confidence.assign(conf.ptr<float>(), conf.ptr<float>() + static_cast<std::size_t>(h) * w);
+  pm.map_frame_id = map_frame;
+  pm.T_W_C = tf2::toMsg(T_map_cam);
+  pm.fx = r.intrinsics.fx;
+  pm.fy = r.intrinsics.fy;
+  pm.cx = r.intrinsics.cx;
+  pm.cy = r.intrinsics.cy;
+  pm.scale = r.scale;
+  pm.scale_stddev = metric ? scale_stddev : 0.0;
+  pm.metric = metric;
+  return pm;
 }
 
 }  // namespace long3r_ros

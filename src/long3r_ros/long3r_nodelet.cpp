@@ -16,7 +16,6 @@
 #include "long3r/dataset/tum_dataset.hpp"
 #include "long3r/model/inference.hpp"
 #include "long3r/model/safetensors.hpp"
-#include "long3r_ros/Pointmap.h"
 #include "long3r_ros/conversions.hpp"
 
 namespace long3r_ros {
@@ -61,14 +60,14 @@ void Long3rNodelet::onInit() {
   try {
     config_ = readNodeletConfig(pnh);
     frames_config_ = readFramesConfig(pnh);
-    scale_config_ = readMetricScaleConfig(pnh);
-    monitor_config_ = readStreamMonitorConfig(pnh);
+    session_config_ = readLiveSessionConfig(pnh);
+    session_config_.calibration_source = "camera_info";
     if (config_.pose_source == PoseSource::kOdometry &&
         (frames_config_.odom_frame.empty() || frames_config_.base_frame.empty())) {
       throw ParamError("parameter " + pnh.resolveName("pose_source") +
                        " odometry needs odom_frame and base_frame");
     }
-    if (scale_config_.source == long3r::ScaleSource::kOdometry &&
+    if (session_config_.scale.source == long3r::ScaleSource::kOdometry &&
         (frames_config_.odom_frame.empty() || frames_config_.base_frame.empty())) {
       throw ParamError("parameter " + pnh.resolveName("scale_source") +
                        " odometry needs odom_frame and base_frame");
@@ -84,7 +83,7 @@ void Long3rNodelet::onInit() {
     NODELET_WARN("~world_frame is the old name of ~map_frame; please rename it");
   }
   if (config_.pose_source == PoseSource::kOdometry &&
-      scale_config_.source == long3r::ScaleSource::kNone) {
+      session_config_.scale.source == long3r::ScaleSource::kNone) {
     NODELET_WARN(
         "pose_source odometry places frames in metres but scale_source is none: frames "
         "are not mapped until a metric scale is set (scale_source odometry, depth or "
@@ -93,21 +92,13 @@ void Long3rNodelet::onInit() {
   NODELET_INFO_STREAM("configuration:\n"
                       << describe(config_) << "\n"
                       << describe(frames_config_) << "\n"
-                      << describe(scale_config_) << "\n"
-                      << describe(monitor_config_) << "\n"
+                      << describe(session_config_) << "\n"
                       << describe(thread_config_) << "\n"
                       << describe(inference_config_) << "\n"
                       << describe(recon_config_));
-  loadModel();
-  monitor_ = StreamMonitor(monitor_config_);
   tf_listener_ = std::make_unique<tf2_ros::TransformListener>(tf_buffer_, getNodeHandle());
   frames_ = std::make_unique<RobotFrames>(frames_config_, tf_buffer_);
-  scale_policy_ = long3r::ScalePolicy(scale_config_);
-  scale_sampler_ = std::make_unique<long3r::OdometryScaleSampler>(scale_config_);
-  {
-    std::lock_guard<std::mutex> lock(recon_mutex_);
-    startStreamScale();
-  }
+  loadModel();
   advertise();
   queue_ = std::make_unique<long3r::BoundedQueue<InputFrame>>(
       static_cast<std::size_t>(config_.queue_size));
@@ -129,8 +120,10 @@ void Long3rNodelet::loadModel() {
       NODELET_WARN("%s holds RANDOM weights (long3r_make_random_model): its maps are meaningless",
                    path.c_str());
     }
-    recon_ = std::make_unique<long3r::Reconstruction>(
-        long3r::make_streaming_model(path, inference_config_), recon_config_);
+    long3r::LiveSessionClient& client = *this;
+    session_ =
+        std::make_unique<long3r::LiveSession>(long3r::make_streaming_model(path, inference_config_),
+                                              recon_config_, session_config_, client);
   } catch (const long3r::InferenceUnsupportedError& e) {
     const std::string what =
         "cannot run " + path + " as configured (~device, ~precision): " + e.what();
@@ -196,7 +189,7 @@ void Long3rNodelet::subscribe() {
   if (config_.use_camera_info) {
     camera_info_sub_ = nh.subscribe("camera_info", 10, &Long3rNodelet::cameraInfoCallback, this);
   }
-  if (scale_config_.source == long3r::ScaleSource::kDepth) {
+  if (session_config_.scale.source == long3r::ScaleSource::kDepth) {
     depth_sub_ = nh.subscribe("depth", kSubscriberQueue, &Long3rNodelet::depthCallback, this);
     NODELET_INFO("metric scale from the depth images on %s", depth_sub_.getTopic().c_str());
   }
@@ -269,7 +262,7 @@ void Long3rNodelet::tfTimerCallback(const ros::TimerEvent&) {
   std::optional<geometry_msgs::TransformStamped> t;
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
-    t = last_map_odom_;
+    t = state_.map_to_odom;
   }
   if (!t) return;
   // map -> odom is a slowly changing correction: kept valid at the current
@@ -306,133 +299,36 @@ void Long3rNodelet::workerLoop() {
 }
 
 void Long3rNodelet::handleFrame(const InputFrame& frame) {
-  const double stamp_s = frame.header().stamp.toSec();
+  const std_msgs::Header& header = frame.header();
   DecodedImage decoded;
   try {
     decoded = decodeInput(frame, static_cast<std::uint64_t>(config_.max_image_pixels));
   } catch (const InputError& e) {
     ++frames_dropped_input_;
     window_.failed();
-    warnThrottled(e.kind(), format("frame at t=%.3f skipped: ", stamp_s) + e.what());
+    warnThrottled(e.kind(), format("frame at t=%.3f skipped: ", header.stamp.toSec()) + e.what());
     return;
   }
-
-  StreamMonitor::Decision d;
-  std::optional<std::pair<InputFrame, DecodedImage>> held;
-  {
-    std::lock_guard<std::mutex> lock(recon_mutex_);
-    d = monitor_.check(stamp_s, frame.arrival.toSec(), decoded.image.cols, decoded.image.rows);
-    if (d.held != StreamMonitor::Held::kNone) held.swap(held_);
-    if (d.action == StreamMonitor::Action::kHold) held_.emplace(frame, decoded);
+  long3r::LiveFrame f;
+  f.image = decoded.image;
+  f.encoding = decoded.encoding;
+  f.stamp_s = header.stamp.toSec();
+  f.clock_s = frame.arrival.toSec();
+  if (config_.use_camera_info) f.camera = cameraFor(header.stamp);
+  f.tag = header;
+  std::lock_guard<std::mutex> lock(session_mutex_);
+  try {
+    session_->push(std::move(f));
+  } catch (...) {
+    copyStatus();
+    throw;
   }
-  if (held && d.held == StreamMonitor::Held::kProcess) {
-    processFrame(held->first, held->second);
-  } else if (held) {
-    ++frames_dropped_input_;
-    window_.dropped();
-    warnThrottled("outlier stamp", format("frame at t=%.3f dropped: its stamp was far ahead of the "
-                                          "frames around it (max_stamp_jump_s)",
-                                          held->first.header().stamp.toSec()));
-  }
-
-  using A = StreamMonitor::Action;
-  switch (d.action) {
-    case A::kProcess:
-      processFrame(frame, decoded);
-      return;
-    case A::kNewStreamTimeBackwards:
-    case A::kNewStreamSizeChanged:
-      flushPending();  // the old stream's last frame is published, not lost
-      {
-        std::lock_guard<std::mutex> lock(recon_mutex_);
-        resetStream(format("frame at t=%.3f: ", stamp_s) + StreamMonitor::describe(d.action));
-      }
-      processFrame(frame, decoded);
-      return;
-    case A::kHold:
-      warnThrottled("stamp jump",
-                    format("frame at t=%.3f: its stamp ran ahead of the clock by more than "
-                           "max_stamp_jump_s (%.1f s); held until the next frame shows whether "
-                           "time moved on",
-                           stamp_s, monitor_config_.max_stamp_jump_s));
-      return;
-    case A::kDropZeroStamp:
-    case A::kDropOutOfOrder:
-    case A::kDropStraySize:
-      ++frames_dropped_input_;
-      window_.dropped();
-      warnThrottled(
-          StreamMonitor::describe(d.action),
-          format("frame at t=%.3f dropped: ", stamp_s) + StreamMonitor::describe(d.action) +
-              (d.action == A::kDropStraySize ? " (" + std::to_string(decoded.image.cols) + "x" +
-                                                   std::to_string(decoded.image.rows) + ")"
-                                             : std::string()));
-      return;
-  }
+  copyStatus();
 }
 
-void Long3rNodelet::processFrame(const InputFrame& frame, const DecodedImage& decoded) {
-  std::optional<long3r::FrameResult> result;
-  {
-    std::lock_guard<std::mutex> lock(recon_mutex_);
-    const cv::Mat image = calibrate(frame, decoded.image);
-    const std_msgs::Header& header = frame.header();
-    // Where the stream sits in the robot's TF tree, fixed by its first frame.
-    try {
-      if (!frames_->started()) {
-        frames_->startStream(header.frame_id, header.stamp);
-        NODELET_INFO("frames: %s", frames_->describe().c_str());
-      } else if (frames_->followRoot()) {
-        NODELET_WARN("frames: the camera frame gained a parent in TF: %s",
-                     frames_->describe().c_str());
-      }
-    } catch (const TfUnavailable& e) {
-      ++frames_dropped_input_;
-      window_.dropped();
-      warnThrottled("tf start", format("frame at t=%.3f skipped: ", header.stamp.toSec()) +
-                                    e.what() + "; the stream starts once TF has it");
-      return;
-    }
-    {
-      std::lock_guard<std::mutex> state_lock(state_mutex_);
-      frames_text_ = frames_->describe();
-      T_map_W_ = frames_->T_map_W();
-    }
-    std::optional<Eigen::Isometry3d> T_W_C;
-    if (config_.pose_source == PoseSource::kOdometry) {
-      try {
-        T_W_C = frames_->cameraFromOdometry(header.stamp);
-      } catch (const TfUnavailable& e) {
-        ++frames_dropped_input_;
-        window_.dropped();
-        warnThrottled("tf odometry", format("frame at t=%.3f skipped (pose_source odometry): ",
-                                            header.stamp.toSec()) +
-                                         e.what());
-        return;
-      }
-      // Odometry places frames in metres: mapping waits for a metric scale.
-      recon_->set_mapping(scale_policy_.metric());
-    }
-    result = recon_->push(image, decoded.encoding, header.stamp.toSec(), T_W_C);
-    // Only a frame the model accepted awaits a result.
-    pending_.push_back({header, cv::Size(image.cols, image.rows)});
-    stream_frames_ = recon_->frames_pushed();
-  }
-  if (result) publishResult(std::move(*result));
-}
-
-// The calibration of this frame: the camera_info with its stamp (else the
-// latest before it, else the first after it), validated against the image;
-// a valid new one applies from this frame on. Returns the image the model
-// sees (rectified when the calibration has distortion).
-cv::Mat Long3rNodelet::calibrate(const InputFrame& frame, const cv::Mat& image) {
-  if (!config_.use_camera_info) return image;
-  if (calibration_.valid() && (calibration_.intrinsics().width != image.cols ||
-                               calibration_.intrinsics().height != image.rows)) {
-    calibration_ = CameraCalibration();  // of another image size: a new stream began
-    recon_->set_calibration(std::nullopt);
-  }
-  const ros::Time stamp = frame.header().stamp;
+// The camera_info of this stamp, else the latest before it, else the first
+// after it (the session validates it against the image).
+std::optional<long3r::CameraModel> Long3rNodelet::cameraFor(const ros::Time& stamp) {
   sensor_msgs::CameraInfoConstPtr info;
   const auto exact = camera_info_cache_.getInterval(stamp, stamp);
   if (!exact.empty()) {
@@ -440,85 +336,131 @@ cv::Mat Long3rNodelet::calibrate(const InputFrame& frame, const cv::Mat& image) 
   } else if (!(info = camera_info_cache_.getElemBeforeTime(stamp))) {
     info = camera_info_cache_.getElemAfterTime(stamp);
   }
-  if (info) {
-    const std::string problem = CameraCalibration::problem(*info, image.cols, image.rows);
-    if (!problem.empty()) {
-      calibration_problem_ = problem;
-      warnThrottled(
-          "camera_info " + problem,
-          "camera_info not used: " + problem +
-              (calibration_.valid() ? "; keeping the last valid calibration"
-                                    : "; the focal length is estimated from the images instead"));
-    } else {
-      calibration_problem_.clear();
-      const bool first = !calibration_.valid();
-      if (calibration_.set(*info, config_.image_is_rectified)) {
-        NODELET_INFO("camera calibration %s: %s", first ? "from camera_info" : "changed",
-                     calibration_.describe().c_str());
-        recon_->set_calibration(calibration_.intrinsics());
-      }
-    }
-  }
-  {
-    std::lock_guard<std::mutex> lock(state_mutex_);
-    calibration_text_ = calibration_problem_.empty()
-                            ? calibration_.describe()
-                            : "camera_info not used: " + calibration_problem_;
-  }
-  return calibration_.prepare(image);
+  if (!info) return std::nullopt;
+  return toCameraModel(*info);
 }
 
 void Long3rNodelet::flushPending() {
-  std::optional<long3r::FrameResult> result;
-  {
-    std::lock_guard<std::mutex> lock(recon_mutex_);
-    if (pending_.empty()) return;
-    try {
-      result = recon_->flush();
-    } catch (const std::exception& e) {
-      ++frames_failed_;
-      window_.failed();
-      NODELET_ERROR("publishing the pending frame failed: %s", e.what());
-      return;
-    }
+  std::lock_guard<std::mutex> lock(session_mutex_);
+  try {
+    session_->flush();
+  } catch (const std::exception& e) {
+    ++frames_failed_;
+    window_.failed();
+    NODELET_ERROR("publishing the pending frame failed: %s", e.what());
   }
-  if (result) publishResult(std::move(*result));
+  copyStatus();
 }
 
-void Long3rNodelet::resetStream(const std::string& why) {
-  NODELET_WARN("%s: starting a new stream (memory, map and path cleared)", why.c_str());
-  recon_->reset();
-  pending_.clear();
-  held_.reset();
-  lost_frames_ = 0;
-  lost_frames_diag_ = 0;
-  lost_for_s_ = 0.0;
+void Long3rNodelet::copyStatus() {
+  const long3r::LiveStatus status = session_->status();
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  state_.session = status;
+  if (frames_->started()) {
+    state_.frames = frames_->describe();
+    state_.T_map_W = frames_->T_map_W();
+  }
+}
+
+// ---------------------------------------------------------------- session client
+
+// Where the stream sits in the robot's TF tree, fixed by its first frame; with
+// pose_source odometry, the frame's pose from the odometry.
+std::optional<Eigen::Isometry3d> Long3rNodelet::place(const long3r::LiveFrame& frame) {
+  const auto& header = std::any_cast<const std_msgs::Header&>(frame.tag);
+  try {
+    if (!frames_->started()) {
+      frames_->startStream(header.frame_id, header.stamp);
+      NODELET_INFO("frames: %s", frames_->describe().c_str());
+    } else if (frames_->followRoot()) {
+      NODELET_WARN("frames: the camera frame gained a parent in TF: %s",
+                   frames_->describe().c_str());
+    }
+  } catch (const TfUnavailable& e) {
+    throw Unavailable("tf start", format("frame at t=%.3f skipped: ", header.stamp.toSec()) +
+                                      e.what() + "; the stream starts once TF has it");
+  }
+  {
+    std::lock_guard<std::mutex> state_lock(state_mutex_);
+    state_.frames = frames_->describe();
+    state_.T_map_W = frames_->T_map_W();
+  }
+  if (config_.pose_source != PoseSource::kOdometry) return std::nullopt;
+  try {
+    return frames_->cameraFromOdometry(header.stamp);
+  } catch (const TfUnavailable& e) {
+    throw Unavailable("tf odometry", format("frame at t=%.3f skipped (pose_source odometry): ",
+                                            header.stamp.toSec()) +
+                                         e.what());
+  }
+}
+
+Eigen::Vector3d Long3rNodelet::odometry_camera_position_m(const long3r::LiveResult& result) {
+  try {
+    const auto& header = std::any_cast<const std_msgs::Header&>(result.tag);
+    return frames_->cameraInOdom(header.stamp).translation();
+  } catch (const TfUnavailable& e) {
+    throw Unavailable("tf scale", std::string("odometry scale: ") + e.what());
+  }
+}
+
+// The depth image of the result's stamp (exact, else within 20 ms).
+cv::Mat Long3rNodelet::depth(const long3r::LiveResult& result) {
+  const auto& header = std::any_cast<const std_msgs::Header&>(result.tag);
+  sensor_msgs::ImageConstPtr depth;
+  for (const auto& d : depth_cache_.getSurroundingInterval(header.stamp, header.stamp)) {
+    if (std::abs((d->header.stamp - header.stamp).toSec()) <= 0.02 &&
+        (!depth || std::abs((d->header.stamp - header.stamp).toSec()) <
+                       std::abs((depth->header.stamp - header.stamp).toSec()))) {
+      depth = d;
+    }
+  }
+  if (!depth) {
+    throw Unavailable("depth missing", format("no depth image within 20 ms of the frame at t=%.3f "
+                                              "(scale_source depth)",
+                                              header.stamp.toSec()));
+  }
+  namespace enc = sensor_msgs::image_encodings;
+  if (depth->encoding != enc::TYPE_16UC1 && depth->encoding != enc::TYPE_32FC1) {
+    throw Unavailable("depth encoding", "depth image not used: encoding '" + depth->encoding +
+                                            "' (16UC1 mm or 32FC1 m)");
+  }
+  try {
+    return cv_bridge::toCvShare(depth)->image;
+  } catch (const std::exception& e) {
+    throw Unavailable("depth encoding", std::string("depth image not used: ") + e.what());
+  }
+}
+
+void Long3rNodelet::on_event(const long3r::LiveEvent& e) {
+  if (e.frame_dropped) {
+    ++frames_dropped_input_;
+    window_.dropped();
+  }
+  if (e.level == long3r::LiveEvent::Level::kInfo) {
+    NODELET_INFO("%s", e.message.c_str());
+  } else if (e.throttle) {
+    warnThrottled(e.kind, e.message);
+  } else {
+    NODELET_WARN("%s", e.message.c_str());
+  }
+}
+
+void Long3rNodelet::on_new_stream(const std::string&) {
   frames_->reset();
   {
     std::lock_guard<std::mutex> state_lock(state_mutex_);
-    last_map_odom_.reset();
+    state_.map_to_odom.reset();
   }
   last_body_.reset();
   last_body_cov_.reset();
-  startStreamScale();
   path_pub_.publish(pathMessage());
-}
-
-void Long3rNodelet::startStreamScale() {
-  scale_policy_.reset();
-  scale_sampler_->reset();
-  recon_->set_scale(scale_policy_.applied());  // fixed: the given scale; otherwise 1
-  recon_->set_mapping(true);
-  std::lock_guard<std::mutex> state_lock(state_mutex_);
-  scale_estimate_ = scale_policy_.estimate();
-  scale_in_use_ = scale_policy_.applied();
-  scale_metric_ = scale_policy_.metric();
 }
 
 nav_msgs::Path Long3rNodelet::pathMessage() {
   nav_msgs::Path path;
   path.header.frame_id = frames_config_.map_frame;
-  for (const auto& [stamp, T_W_C] : recon_->trajectory()) {
+  for (const auto& [stamp, T_W_C] : session_->reconstruction().trajectory()) {
     geometry_msgs::PoseStamped p;
     p.header.stamp = ros::Time(stamp);
     p.header.frame_id = frames_config_.map_frame;
@@ -531,167 +473,17 @@ nav_msgs::Path Long3rNodelet::pathMessage() {
 
 // ---------------------------------------------------------------- outputs
 
-void Long3rNodelet::trackLoss(const long3r::FrameResult& r) {
-  std::lock_guard<std::mutex> lock(recon_mutex_);
-  if (r.pose.ok()) {
-    if (lost_frames_ > 0) {
-      NODELET_INFO("tracking recovered at frame %ld after %d unposed frame(s)",
-                   static_cast<long>(r.frame_index), lost_frames_);
-    }
-    lost_frames_ = 0;
-  } else {
-    if (lost_frames_++ == 0) lost_since_stamp_ = r.stamp;
-    warnThrottled("pose", "frame " + std::to_string(r.frame_index) + ": pose estimation failed (" +
-                              r.pose.message + "); not added to the map (tracking lost for " +
-                              std::to_string(lost_frames_) + " frame(s))");
-    if (config_.lost_reset_frames > 0 && lost_frames_ >= config_.lost_reset_frames) {
-      resetStream("tracking lost for " + std::to_string(lost_frames_) +
-                  " consecutive frames (lost_reset_frames)");
-    }
-  }
-  lost_frames_diag_ = lost_frames_;
-  lost_for_s_ = lost_frames_ > 0 ? r.stamp - lost_since_stamp_ : 0.0;
-  std::lock_guard<std::mutex> text_lock(state_mutex_);
-  tracking_text_ = lost_frames_ > 0 ? "lost" : "ok";
-}
-
-void Long3rNodelet::publishResult(long3r::FrameResult r) {
+void Long3rNodelet::on_result(long3r::LiveResult& r) {
   // A frame that finishes while the node shuts down has no one to go to, and
   // ROS's publishers may already be torn down.
   if (!running_ || !ros::ok()) return;
-  std_msgs::Header header;
-  cv::Size pushed_size;
-  {
-    std::lock_guard<std::mutex> lock(recon_mutex_);
-    // Results come back in push order: the oldest pending frame is this one.
-    if (pending_.empty()) return;
-    header = pending_.front().header;
-    pushed_size = pending_.front().size;
-    pending_.pop_front();
-  }
+  std_msgs::Header header = std::any_cast<const std_msgs::Header&>(r.tag);
   if (!frames_config_.camera_frame.empty()) header.frame_id = frames_config_.camera_frame;
   ++frames_processed_;
   window_.processed((ros::Time::now() - header.stamp).toSec());
   output_diagnostic_->tick(header.stamp);
-  mem_short_ = r.model.mem_short_tokens;
-  mem_long_ = r.model.mem_long_tokens;
-  mem_relevant_ = r.model.relevant_tokens;
-
-  if (r.intrinsics.fx > 0.0) {
-    const std::string line =
-        r.intrinsics_source == long3r::IntrinsicsSource::kCalibration
-            ? format("from camera_info: fx %.2f, fy %.2f px", r.intrinsics.fx, r.intrinsics.fy) +
-                  format(", cx %.2f, cy %.2f at model resolution", r.intrinsics.cx, r.intrinsics.cy)
-            : format(
-                  "estimated from the first frame (no usable camera_info): focal %.2f px at "
-                  "model resolution",
-                  r.intrinsics.fx);
-    if (line != intrinsics_logged_) {
-      NODELET_INFO("intrinsics in use %s", line.c_str());
-      intrinsics_logged_ = line;
-    }
-  }
-  trackLoss(r);
-  if (r.pose.ok()) updateScale(r, header, pushed_size);
-  publishOutputs(r, header);
-}
-
-// This frame's sample of the metric scale, and the scale itself when the
-// policy applies one: the stream is rescaled, and so is this result.
-void Long3rNodelet::updateScale(long3r::FrameResult& r, const std_msgs::Header& header,
-                                const cv::Size& image_size) {
-  std::optional<double> sample;
-  if (scale_config_.source == long3r::ScaleSource::kDepth) {
-    sample = depthScaleSample(r, header, image_size);
-  } else if (scale_config_.source == long3r::ScaleSource::kOdometry) {
-    try {
-      const Eigen::Vector3d odom = frames_->cameraInOdom(header.stamp).translation();
-      const Eigen::Vector3d model = r.model_T_W_C.translation() / r.scale;
-      sample = scale_sampler_->add(odom, model);
-    } catch (const TfUnavailable& e) {
-      warnThrottled("tf scale", std::string("odometry scale: ") + e.what());
-    }
-  }
-  std::optional<double> scale;
-  long3r::ScaleEstimate e;
-  {
-    std::lock_guard<std::mutex> lock(recon_mutex_);
-    if (sample) scale_policy_.add_sample(*sample);
-    scale = scale_policy_.scale_to_apply();
-    e = scale_policy_.estimate();
-    if (scale) {
-      recon_->set_scale(*scale);
-      recon_->set_mapping(true);
-    }
-    std::lock_guard<std::mutex> state_lock(state_mutex_);
-    scale_estimate_ = e;
-    scale_in_use_ = scale_policy_.applied();
-    scale_metric_ = scale_policy_.metric();
-  }
-  if (!scale) return;
-  NODELET_INFO(
-      "metric scale %.4f +- %.4f m per model unit from %d samples (%s, %d rejected): "
-      "map and path rescaled",
-      e.scale, e.stddev, e.samples, long3r::config::enum_name(scale_config_.source), e.rejected);
-  long3r::Reconstruction::rescale(r, *scale);
-  last_body_.reset();  // the previous pose was in the old scale
-}
-
-// measured / predicted depth for this frame (metric_scale.hpp), with the
-// depth image of its stamp (exact, else within 20 ms).
-std::optional<double> Long3rNodelet::depthScaleSample(const long3r::FrameResult& r,
-                                                      const std_msgs::Header& header,
-                                                      const cv::Size& image_size) {
-  sensor_msgs::ImageConstPtr depth;
-  for (const auto& d : depth_cache_.getSurroundingInterval(header.stamp, header.stamp)) {
-    if (std::abs((d->header.stamp - header.stamp).toSec()) <= 0.02 &&
-        (!depth || std::abs((d->header.stamp - header.stamp).toSec()) <
-                       std::abs((depth->header.stamp - header.stamp).toSec()))) {
-      depth = d;
-    }
-  }
-  if (!depth) {
-    warnThrottled("depth missing", format("no depth image within 20 ms of the frame at t=%.3f "
-                                          "(scale_source depth)",
-                                          header.stamp.toSec()));
-    return std::nullopt;
-  }
-  cv::Mat metres;
-  try {
-    const cv_bridge::CvImageConstPtr d = cv_bridge::toCvShare(depth);
-    if (depth->encoding == sensor_msgs::image_encodings::TYPE_16UC1) {
-      d->image.convertTo(metres, CV_32FC1, 0.001);  // millimetres, as RGB-D drivers publish
-      metres.setTo(std::numeric_limits<float>::quiet_NaN(), d->image == 0);
-    } else if (depth->encoding == sensor_msgs::image_encodings::TYPE_32FC1) {
-      metres = d->image;
-    } else {
-      throw std::invalid_argument("encoding '" + depth->encoding + "' (16UC1 mm or 32FC1 m)");
-    }
-  } catch (const std::exception& e) {
-    warnThrottled("depth encoding", std::string("depth image not used: ") + e.what());
-    return std::nullopt;
-  }
-  if (metres.size() == image_size) {
-    std::lock_guard<std::mutex> lock(recon_mutex_);
-    // Registered to the raw image: rectified as the image was, without blending depths.
-    if (calibration_.rectifies()) metres = calibration_.prepare(metres, cv::INTER_NEAREST);
-  }
-  if (metres.size() != image_size) {
-    warnThrottled("depth size", "depth image of " + std::to_string(metres.cols) + "x" +
-                                    std::to_string(metres.rows) +
-                                    " is not registered to the images (" +
-                                    std::to_string(image_size.width) + "x" +
-                                    std::to_string(image_size.height) + ")");
-    return std::nullopt;
-  }
-  const long3r::ResizeCropPlan plan =
-      long3r::plan_resize_crop(metres.cols, metres.rows, recon_config_.preprocess);
-  const cv::Mat measured =
-      long3r::depth_at_model_pixels(metres, plan.model_to_source, r.conf.cols, r.conf.rows);
-  std::vector<cv::Mat> xyz;
-  cv::split(r.points_C, xyz);
-  const cv::Mat predicted = xyz[2] / r.scale;  // model units
-  return long3r::depth_scale_sample(predicted, measured, r.conf, recon_config_.conf_threshold);
+  if (r.scale_changed) last_body_.reset();  // the previous pose was in the old scale
+  publishOutputs(r.frame, header);
 }
 
 void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs::Header& header) {
@@ -705,7 +497,7 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
   const Eigen::Isometry3d& T_map_W = frames_->T_map_W();
   const Eigen::Isometry3d T_map_cam = T_map_W * r.pose.T_W_C;
   const Eigen::Isometry3d T_map_body = frames_->bodyInMap(r.pose.T_W_C);
-  const bool metric = scale_policy_.metric();
+  const long3r::LiveStatus status = session_->status();
   if (depth_pub_.getNumSubscribers() > 0 || frame_cloud_pub_.getNumSubscribers() > 0) {
     const sensor_msgs::ImagePtr depth =
         toDepthImage(r.points_C, r.conf, recon_config_.conf_threshold, header);
@@ -715,25 +507,8 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
     }
   }
   if (pointmap_pub_.getNumSubscribers() > 0) {
-    Pointmap pm;
-    pm.header = header;
-    pm.height = static_cast<std::uint32_t>(h);
-    pm.width = static_cast<std::uint32_t>(w);
-    pm.frame_index = static_cast<std::uint32_t>(r.frame_index);
-    const cv::Mat pts = r.points_C.isContinuous() ? r.points_C : r.points_C.clone();
-    const cv::Mat conf = r.conf.isContinuous() ? r.conf : r.conf.clone();
-    pm.points.assign(pts.ptr<float>(), pts.ptr<float>() + static_cast<std::size_t>(h) * w * 3);
-    pm.confidence.assign(conf.ptr<float>(), conf.ptr<float>() + static_cast<std::size_t>(h) * w);
-    pm.map_frame_id = frames_config_.map_frame;
-    pm.T_W_C = tf2::toMsg(T_map_cam);
-    pm.fx = r.intrinsics.fx;
-    pm.fy = r.intrinsics.fy;
-    pm.cx = r.intrinsics.cx;
-    pm.cy = r.intrinsics.cy;
-    pm.scale = r.scale;
-    pm.scale_stddev = metric ? scale_policy_.estimate().stddev : 0.0;
-    pm.metric = metric;
-    pointmap_pub_.publish(pm);
+    pointmap_pub_.publish(toPointmap(r, header, frames_config_.map_frame, T_map_cam,
+                                     status.scale_metric, status.scale_estimate.stddev));
   }
 
   geometry_msgs::PoseStamped pose;
@@ -754,35 +529,21 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
     cov_map =
         Eigen::Map<const Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(odom.pose.covariance.data());
   }
-  if (last_body_ && last_body_cov_ && cov_map && header.stamp.toSec() > last_body_->second) {
-    // Twist in the body frame by finite difference; its covariance from the
-    // two poses' (taken as independent), rotated into the body frame.
-    const double dt = header.stamp.toSec() - last_body_->second;
-    const Eigen::Isometry3d delta = last_body_->first.inverse() * T_map_body;
-    const Eigen::AngleAxisd aa(delta.rotation());
-    const Eigen::Vector3d v = delta.translation() / dt, wv = aa.angle() * aa.axis() / dt;
-    tf2::toMsg(v, odom.twist.twist.linear);
-    odom.twist.twist.angular.x = wv.x();
-    odom.twist.twist.angular.y = wv.y();
-    odom.twist.twist.angular.z = wv.z();
-    Eigen::Matrix<double, 6, 6> R = Eigen::Matrix<double, 6, 6>::Zero();
-    R.topLeftCorner<3, 3>() = T_map_body.linear().transpose();
-    R.bottomRightCorner<3, 3>() = T_map_body.linear().transpose();
-    const Eigen::Matrix<double, 6, 6> tc =
-        R * (*cov_map + *last_body_cov_) * R.transpose() / (dt * dt);
-    Eigen::Map<Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(odom.twist.covariance.data()) =
-        0.5 * (tc + tc.transpose());
+  if (last_body_ && last_body_cov_ && cov_map) {
+    if (const auto twist =
+            long3r::finite_difference_twist(last_body_->first, *last_body_cov_, last_body_->second,
+                                            T_map_body, *cov_map, header.stamp.toSec())) {
+      tf2::toMsg(twist->linear, odom.twist.twist.linear);
+      tf2::toMsg(twist->angular, odom.twist.twist.angular);
+      Eigen::Map<Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(odom.twist.covariance.data()) =
+          twist->covariance;
+    }
   }
   if (cov_map) odometry_pub_.publish(odom);
   last_body_ = std::make_pair(T_map_body, header.stamp.toSec());
   last_body_cov_ = cov_map;
 
-  nav_msgs::Path path;
-  {
-    std::lock_guard<std::mutex> lock(recon_mutex_);
-    path = pathMessage();
-  }
-  path_pub_.publish(path);
+  path_pub_.publish(pathMessage());
 
   if (config_.publish_tf) {
     try {
@@ -790,7 +551,7 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
         tf_broadcaster_.sendTransform(*t);
         if (frames_->mode() == RobotFrames::Mode::kMapToOdom) {
           std::lock_guard<std::mutex> lock(state_mutex_);
-          last_map_odom_ = *t;
+          state_.map_to_odom = *t;
         }
       } else {
         warnThrottled("tf conflict", "no TF published: " + frames_->conflict());
@@ -804,15 +565,17 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
 
 void Long3rNodelet::mapTimerCallback(const ros::WallTimerEvent&) {
   if (diagnostics_) diagnostics_->update();
-  if (!recon_) return;
-  const std::uint64_t revision = recon_->map().revision();
+  if (!session_) return;
+  // The map locks itself: no wait for the model step.
+  const long3r::VoxelMap& map = session_->reconstruction().map();
+  const std::uint64_t revision = map.revision();
   if (revision == last_map_revision_) return;  // republish only when the map changed
   last_map_revision_ = revision;
-  long3r::MapSnapshot snap = recon_->map().snapshot();
+  long3r::MapSnapshot snap = map.snapshot();
   Eigen::Isometry3f T_map_W;
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
-    T_map_W = T_map_W_.cast<float>();
+    T_map_W = state_.T_map_W.cast<float>();
   }
   for (Eigen::Vector3f& p : snap.points) p = T_map_W * p;
   std_msgs::Header header;
@@ -825,9 +588,9 @@ void Long3rNodelet::mapTimerCallback(const ros::WallTimerEvent&) {
 
 bool Long3rNodelet::resetService(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
   {
-    std::lock_guard<std::mutex> lock(recon_mutex_);
-    monitor_.reset();
-    resetStream("reset requested");
+    std::lock_guard<std::mutex> lock(session_mutex_);
+    session_->reset("reset requested");
+    copyStatus();
   }
   queue_->clear();
   res.success = true;
@@ -857,11 +620,11 @@ bool Long3rNodelet::resumeService(std_srvs::Trigger::Request&, std_srvs::Trigger
 
 bool Long3rNodelet::saveMapService(SaveMap::Request& req, SaveMap::Response& res) {
   try {
-    long3r::MapSnapshot snap = recon_->map().snapshot();  // the map locks itself
+    long3r::MapSnapshot snap = session_->reconstruction().map().snapshot();  // locks itself
     Eigen::Isometry3f T_map_W;
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
-      T_map_W = T_map_W_.cast<float>();
+      T_map_W = state_.T_map_W.cast<float>();
     }
     for (Eigen::Vector3f& p : snap.points) p = T_map_W * p;          // as ~map shows it
     long3r::save_colored_cloud(req.path, snap.points, snap.colors);  // atomic
@@ -880,8 +643,8 @@ bool Long3rNodelet::saveTrajectoryService(SaveTrajectory::Request& req,
   long3r::PoseTrajectory trajectory;
   std::string what;
   {
-    std::lock_guard<std::mutex> lock(recon_mutex_);
-    for (const auto& [stamp, T_W_C] : recon_->trajectory()) {
+    std::lock_guard<std::mutex> lock(session_mutex_);
+    for (const auto& [stamp, T_W_C] : session_->reconstruction().trajectory()) {
       trajectory.stamps.push_back(stamp);
       trajectory.poses.push_back(frames_->bodyInMap(T_W_C));
     }
@@ -917,23 +680,25 @@ void Long3rNodelet::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) 
   window_.rotate();
   const double last_input = last_input_wall_s_;
   const double quiet_s = wallNow() - (last_input > 0.0 ? last_input : started_.toSec());
-  std::string tracking, calibration;
+  State state;
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
-    tracking = tracking_text_;
-    calibration = calibration_text_;
+    state = state_;
   }
-  const int lost = lost_frames_diag_;
+  const long3r::LiveStatus& s = state.session;
 
   if (paused_) {
     stat.summary(S::OK, "paused (~resume to continue)");
   } else if (quiet_s > config_.no_input_warn_s) {
     stat.summaryf(S::WARN, last_input > 0.0 ? "no input for %.0f s" : "no image received in %.0f s",
                   quiet_s);
-  } else if (lost > 0) {
-    stat.summaryf(S::WARN, "tracking lost for %d frame(s) (%.1f s)", lost, lost_for_s_.load());
-  } else if (calibration.rfind("camera_info not used", 0) == 0) {
-    stat.summary(S::WARN, calibration);
+  } else if (s.lost_frames > 0) {
+    stat.summaryf(S::WARN, "tracking lost for %d frame(s) (%.1f s)", s.lost_frames, s.lost_for_s);
+  } else if (s.mapping_held) {
+    stat.summaryf(S::WARN, "map held until the metric scale is known (%d samples so far)",
+                  s.scale_estimate.samples);
+  } else if (s.calibration_refused) {
+    stat.summary(S::WARN, s.calibration);
   } else if (w.dropped + w.failed > 0) {
     stat.summaryf(S::WARN, "dropped %lu and failed %lu frame(s) in the window",
                   static_cast<unsigned long>(w.dropped), static_cast<unsigned long>(w.failed));
@@ -952,28 +717,24 @@ void Long3rNodelet::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) 
   }
   stat.addf("seconds since the last image", "%.1f", quiet_s);
   stat.add("paused", static_cast<bool>(paused_));
-  stat.add("tracking", tracking);
-  stat.add("tracking lost (frames)", lost);
-  stat.addf("tracking lost (s)", "%.1f", lost_for_s_.load());
-  stat.add("calibration", calibration);
-  {
-    std::lock_guard<std::mutex> lock(state_mutex_);
-    stat.add("frames", frames_text_);
-  }
-  {
-    std::lock_guard<std::mutex> lock(state_mutex_);
-    const long3r::ScaleEstimate& e = scale_estimate_;
-    stat.add("scale source", long3r::config::enum_name(scale_config_.source));
-    stat.addf("scale in use (m per model unit)", "%.6g", scale_in_use_);
-    stat.add("scale metric", scale_metric_);
-    stat.addf("scale estimate", "%.6g +- %.3g (%d samples, %d rejected)", e.scale, e.stddev,
-              e.samples, e.rejected);
-  }
-  stat.add("stream frames", stream_frames_.load());
-  stat.add("memory tokens short", mem_short_.load());
-  stat.add("memory tokens long", mem_long_.load());
-  stat.add("relevant tokens", mem_relevant_.load());
-  stat.add("map points", recon_ ? recon_->map().size() : 0);
+  stat.add("tracking", s.tracking);
+  stat.add("tracking lost (frames)", s.lost_frames);
+  stat.addf("tracking lost (s)", "%.1f", s.lost_for_s);
+  stat.add("calibration", s.calibration);
+  stat.add("frames", state.frames);
+  const long3r::ScaleEstimate& e = s.scale_estimate;
+  stat.add("scale source", long3r::config::enum_name(session_config_.scale.source));
+  stat.addf("scale in use (m per model unit)", "%.6g", s.scale);
+  stat.add("scale metric", s.scale_metric);
+  stat.add("map held for the scale", s.mapping_held);
+  stat.addf("scale estimate", "%.6g +- %.3g (%d samples, %d rejected)", e.scale, e.stddev,
+            e.samples, e.rejected);
+  stat.add("stream frames", s.stream_frames);
+  stat.add("streams started", s.streams);
+  stat.add("memory tokens short", s.mem_short_tokens);
+  stat.add("memory tokens long", s.mem_long_tokens);
+  stat.add("relevant tokens", s.relevant_tokens);
+  stat.add("map points", session_ ? session_->reconstruction().map().size() : 0);
   stat.add("frames received (total)", frames_received_.load());
   stat.add("frames processed (total)", frames_processed_.load());
   stat.add("frames failed (total)", frames_failed_.load());

@@ -19,13 +19,11 @@ long3r::config::FieldsOf<S, NodeletConfig> ros_fields(S& c, V& v) {
   v("publish_tf", c.publish_tf);
   v("pose_source", c.pose_source);
   v("use_camera_info", c.use_camera_info);
-  v("image_is_rectified", c.image_is_rectified);
   v("image_transport", c.image_transport);
   v("max_image_pixels", c.max_image_pixels);
   v("queue_size", c.queue_size);
   v("flush_after_s", c.flush_after_s);
   v("map_publish_period_s", c.map_publish_period_s);
-  v("lost_reset_frames", c.lost_reset_frames, "(never)");
   v("no_input_warn_s", c.no_input_warn_s);
   v("max_latency_s", c.max_latency_s);
 }
@@ -51,10 +49,17 @@ long3r::config::FieldsOf<S, long3r::MetricScaleConfig> ros_fields(S& c, V& v) {
 }
 
 template <class S, class V>
-long3r::config::FieldsOf<S, StreamMonitorConfig> ros_fields(S& c, V& v) {
+long3r::config::FieldsOf<S, long3r::StreamMonitorConfig> ros_fields(S& c, V& v) {
   v("max_backward_jump_s", c.max_backward_jump_s);
   v("max_stamp_jump_s", c.max_stamp_jump_s);
   v("size_change_frames", c.size_change_frames);
+}
+
+// The session's own fields; its stream and scale structs are read by theirs.
+template <class S, class V>
+long3r::config::FieldsOf<S, long3r::LiveSessionConfig> ros_fields(S& c, V& v) {
+  v("image_is_rectified", c.image_is_rectified);
+  v("lost_reset_frames", c.lost_reset_frames, "(never)");
 }
 
 template <class S, class V>
@@ -188,7 +193,6 @@ NodeletConfig readNodeletConfig(const ros::NodeHandle& pnh) {
   require(c.flush_after_s > 0.0, pnh, "flush_after_s", "must be > 0");
   require(c.map_publish_period_s > 0.0, pnh, "map_publish_period_s", "must be > 0");
   require(c.max_image_pixels >= 16 * 16, pnh, "max_image_pixels", "must be >= 256");
-  require(c.lost_reset_frames >= 0, pnh, "lost_reset_frames", "must be >= 0 (0 = never)");
   require(c.no_input_warn_s > 0.0, pnh, "no_input_warn_s", "must be > 0");
   require(c.max_latency_s > 0.0, pnh, "max_latency_s", "must be > 0");
   return c;
@@ -230,11 +234,19 @@ long3r::MetricScaleConfig readMetricScaleConfig(const ros::NodeHandle& pnh) {
   return c;
 }
 
-StreamMonitorConfig readStreamMonitorConfig(const ros::NodeHandle& pnh) {
-  const StreamMonitorConfig c = read_all<StreamMonitorConfig>(pnh);
+long3r::StreamMonitorConfig readStreamMonitorConfig(const ros::NodeHandle& pnh) {
+  const long3r::StreamMonitorConfig c = read_all<long3r::StreamMonitorConfig>(pnh);
   require(c.max_backward_jump_s >= 0.0, pnh, "max_backward_jump_s", "must be >= 0");
   require(c.max_stamp_jump_s > 0.0, pnh, "max_stamp_jump_s", "must be > 0");
   require(c.size_change_frames >= 1, pnh, "size_change_frames", "must be >= 1");
+  return c;
+}
+
+long3r::LiveSessionConfig readLiveSessionConfig(const ros::NodeHandle& pnh) {
+  long3r::LiveSessionConfig c = read_all<long3r::LiveSessionConfig>(pnh);
+  require(c.lost_reset_frames >= 0, pnh, "lost_reset_frames", "must be >= 0 (0 = never)");
+  c.stream = readStreamMonitorConfig(pnh);
+  c.scale = readMetricScaleConfig(pnh);
   return c;
 }
 
@@ -281,7 +293,10 @@ long3r::ReconstructionConfig readReconstructionConfig(const ros::NodeHandle& pnh
 std::string describe(const NodeletConfig& c) { return describe_all(c); }
 std::string describe(const FramesConfig& c) { return describe_all(c); }
 std::string describe(const long3r::MetricScaleConfig& c) { return describe_all(c); }
-std::string describe(const StreamMonitorConfig& c) { return describe_all(c); }
+std::string describe(const long3r::StreamMonitorConfig& c) { return describe_all(c); }
+std::string describe(const long3r::LiveSessionConfig& c) {
+  return describe_all(c) + "\n" + describe_all(c.stream) + "\n" + describe_all(c.scale);
+}
 std::string describe(const long3r::ThreadConfig& c) { return describe_all(c); }
 std::string describe(const long3r::InferenceConfig& c) { return describe_all(c); }
 std::string describe(const long3r::ReconstructionConfig& c) { return describe_all(c); }

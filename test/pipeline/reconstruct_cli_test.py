@@ -56,6 +56,54 @@ def main():
     check(len(traj) == good and all(len(t) == 8 for t in traj), "trajectory.txt rows")
     check(float(traj[0][0]) == 0.0, "trajectory starts at frame 0")
 
+    check("1 stream(s)" in log and "(model units)" in log, "scale line: " + log)
+
+    # The node's session: a fixed metric scale reaches every result; the
+    # dataset's depth images and groundtruth.txt serve as scale sources.
+    out_fixed = os.path.join(a.workdir, "out_fixed")
+    rc, log = run([a.reconstruct, "--model", model, "--out", out_fixed, "--img-size", "64",
+                   "--scale-source", "fixed", "--scale", "2.5", seq])
+    check(rc == 0 and "scale 2.5 m per model unit (metric)" in log, "fixed scale: " + log)
+    rows = list(csv.DictReader(open(os.path.join(out_fixed, "frames.csv"))))
+    check(rows and all(float(r["scale"]) == 2.5 for r in rows), "frames.csv scale column")
+    check("metres" in open(os.path.join(out_fixed, "trajectory.txt")).readline(),
+          "trajectory.txt header names its units")
+    for source in ("depth", "odometry"):
+        rc, log = run([a.reconstruct, "--model", model, "--out", os.path.join(a.workdir, source),
+                       "--img-size", "64", "--scale-source", source, seq])
+        check(rc == 0 and "summary: 6 frames used" in log, source + " scale: " + log)
+    rc, log = run([a.reconstruct, "--model", model, "--out", out, "--scale-source", "sonar", seq])
+    check(rc != 0 and '"odometry"' in log, "bad scale source: " + log)
+    folder_only = os.path.join(a.workdir, "rgb_only")
+    shutil.copytree(os.path.join(seq, "rgb"), folder_only)
+    rc, log = run([a.reconstruct, "--model", model, "--out", out, "--scale-source", "depth",
+                   folder_only])
+    check(rc != 0 and "needs a TUM folder" in log, "depth scale without depth: " + log)
+
+    # A camera with lens distortion (calibration.txt with plumb_bob) is
+    # rectified, as the node rectifies camera_info's.
+    lens = os.path.join(a.workdir, "lens")
+    rc, log = run([a.synth, "--out", lens, "--frames", "4", "--width", "96", "--height", "64",
+                   "--distortion", "-0.2", "0.05", "0", "0", "0", "--quiet"])
+    check(rc == 0, "long3r_synth --distortion: " + log)
+    rc, log = run([a.reconstruct, "--model", model, "--out", os.path.join(a.workdir, "lens_out"),
+                   "--img-size", "64", lens])
+    check(rc == 0 and "camera calibration from calibration.txt" in log and
+          "images rectified" in log, "distorted calibration: " + log)
+
+    # Continuity: a stamp jumping far back starts a new stream, named.
+    jump = os.path.join(a.workdir, "jump")
+    shutil.copytree(seq, jump)
+    lines = open(os.path.join(jump, "rgb.txt")).read().splitlines()
+    data = [l for l in lines if l and not l.startswith("#")]
+    t, path = data[4].split()
+    data[4] = "%.6f %s" % (float(t) - 100.0, path)
+    data[5] = "%.6f %s" % (float(data[5].split()[0]) - 100.0, data[5].split()[1])
+    open(os.path.join(jump, "rgb.txt"), "w").write("\n".join(data) + "\n")
+    rc, log = run([a.reconstruct, "--model", model, "--out", os.path.join(a.workdir, "jump_out"),
+                   "--img-size", "64", jump])
+    check(rc == 0 and "time jumped back" in log and "2 stream(s)" in log, "time jump: " + log)
+
     # Error cases.
     rc, log = run([a.reconstruct, "--out", out, seq])
     check(rc != 0 and "--model" in log, "missing --model: %d %s" % (rc, log))

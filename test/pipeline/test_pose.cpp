@@ -185,5 +185,33 @@ TEST(Pose, PointsInCameraFrame) {
   EXPECT_TRUE(std::isnan(pc.at<cv::Vec3f>(3, 4)[0]));
 }
 
+// A body turning at a constant rate while it drives forward: the finite
+// difference gives its velocities in its own frame; the covariance is the
+// two poses' summed, rotated into the body, over dt^2.
+TEST(Pose, FiniteDifferenceTwist) {
+  Eigen::Isometry3d a = Eigen::Isometry3d::Identity();
+  a.linear() = Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  a.translation() = Eigen::Vector3d(1.0, 2.0, 0.5);
+  Eigen::Isometry3d step = Eigen::Isometry3d::Identity();
+  step.linear() = Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  step.translation() = Eigen::Vector3d(0.2, 0.0, 0.0);
+  const Eigen::Isometry3d b = a * step;
+  Eigen::Matrix<double, 6, 6> cov = Eigen::Matrix<double, 6, 6>::Zero();
+  cov.diagonal() << 1e-4, 4e-4, 9e-4, 1e-6, 1e-6, 1e-6;
+  const auto t = finite_difference_twist(a, cov, 10.0, b, cov, 10.5);
+  ASSERT_TRUE(t.has_value());
+  EXPECT_TRUE(t->linear.isApprox(Eigen::Vector3d(0.4, 0.0, 0.0), 1e-12));
+  EXPECT_TRUE(t->angular.isApprox(Eigen::Vector3d(0.0, 0.0, 0.1), 1e-12));
+  // x and y of the position variance swap roles under the body's yaw.
+  const Eigen::Matrix3d Rb = b.linear();
+  const Eigen::Matrix3d expected =
+      Rb.transpose() * (2.0 * cov.topLeftCorner<3, 3>()) * Rb / (0.5 * 0.5);
+  const Eigen::Matrix3d position_cov = t->covariance.topLeftCorner(3, 3);
+  EXPECT_TRUE(position_cov.isApprox(expected, 1e-12));
+  EXPECT_TRUE(t->covariance.isApprox(t->covariance.transpose()));
+  EXPECT_FALSE(finite_difference_twist(a, cov, 10.0, b, cov, 10.0).has_value());
+  EXPECT_FALSE(finite_difference_twist(a, cov, 10.0, b, cov, 9.0).has_value());
+}
+
 }  // namespace
 }  // namespace long3r

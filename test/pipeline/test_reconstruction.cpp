@@ -20,85 +20,14 @@
 namespace long3r {
 namespace {
 
-constexpr int kSize = 64;
-
-struct GtSequence {
-  synth::Sequence seq;
-  std::vector<cv::Mat> bgr;
-  std::vector<cv::Mat> pts_W0;  // CV_32FC3 in camera 0's frame
-  std::vector<Eigen::Isometry3d> T_0_k;
-};
-
-GtSequence make_sequence(int frames) {
-  synth::SequenceConfig c;
-  c.seed = 3;
-  c.trajectory.frames = frames;
-  c.trajectory.speed = 0.05;
-  c.intrinsics = PinholeIntrinsics::from_hfov(kSize, kSize, 70.0);
-  GtSequence g;
-  g.seq = synth::generate_sequence(c);
-  for (int k = 0; k < frames; ++k) {
-    const synth::RenderedFrame f = synth::render_frame(g.seq.scene, g.seq.poses[k], c.intrinsics);
-    const Eigen::Isometry3d T = g.seq.poses[0].inverse() * g.seq.poses[k];
-    g.bgr.push_back(synth::bgr_image(f));
-    const cv::Mat depth = synth::depth_image(f);
-    g.pts_W0.push_back(test::pointmap_from_depth(
-        c.intrinsics, T, [&](int u, int v) { return depth.at<float>(v, u); }));
-    g.T_0_k.push_back(T);
-  }
-  return g;
-}
-
-// Returns ground-truth pointmaps with the models' one-frame latency.
-class FakeModel : public StreamingModel {
- public:
-  explicit FakeModel(const std::vector<cv::Mat>* pts) : pts_(pts) {}
-  std::optional<StreamOutput> push(const at::Tensor& image) override {
-    EXPECT_EQ(image.dim(), 4);
-    EXPECT_EQ(image.size(2), kSize);
-    EXPECT_EQ(image.size(3), kSize);
-    const int64_t k = n_++;
-    if (k == 0) return std::nullopt;
-    return output(k - 1, false);
-  }
-  std::optional<StreamOutput> peek_last() override {
-    if (n_ == 0) return std::nullopt;
-    return output(n_ - 1, true);
-  }
-  void reset() override { n_ = 0; }
-  int64_t frames_pushed() const override { return n_; }
-  std::string variant() const override { return "fake"; }
-
- private:
-  StreamOutput output(int64_t k, bool coarse) {
-    StreamOutput o;
-    o.frame_index = k;
-    o.from_coarse_head = coarse;
-    cv::Mat p = (*pts_)[k].clone();
-    cv::Mat conf(kSize, kSize, CV_32FC1);
-    for (int i = 0; i < kSize * kSize; ++i) {
-      conf.at<float>(i) = std::isfinite(p.at<cv::Vec3f>(i)[2]) ? 10.f : 1.f;
-    }
-    o.pts3d = at::from_blob(p.data, {1, kSize, kSize, 3}, at::kFloat).clone();
-    o.conf = at::from_blob(conf.data, {1, kSize, kSize}, at::kFloat).clone();
-    o.stats.mem_short_tokens = 7;
-    return o;
-  }
-  const std::vector<cv::Mat>* pts_;
-  int64_t n_ = 0;
-};
-
-ReconstructionConfig small_config() {
-  ReconstructionConfig c;
-  c.preprocess.width = c.preprocess.height = kSize;
-  c.pnp.min_inliers = 30;
-  c.map.voxel_size_m = 0.05;
-  return c;
-}
+constexpr int kSize = test::kGtSize;
+using test::FakeModel;
+using test::GtSequence;
+using test::make_sequence;
 
 TEST(Reconstruction, FakeModelPosesMatchGroundTruth) {
   const GtSequence g = make_sequence(6);
-  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), small_config());
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config());
   rec.set_calibration(g.seq.config.intrinsics);
   std::vector<FrameResult> results;
   for (size_t k = 0; k < g.bgr.size(); ++k) {
@@ -138,7 +67,7 @@ TEST(Reconstruction, FakeModelPosesMatchGroundTruth) {
 // after the pause continue the same stream (world frame, map, trajectory).
 TEST(Reconstruction, FlushIsAPauseNotAnEnd) {
   const GtSequence g = make_sequence(7);
-  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), small_config());
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config());
   rec.set_calibration(g.seq.config.intrinsics);
   std::vector<FrameResult> results;
   auto take = [&](std::optional<FrameResult> r) {
@@ -173,7 +102,7 @@ TEST(Reconstruction, FlushIsAPauseNotAnEnd) {
 // comes after is in the new scale; the stream stays one.
 TEST(Reconstruction, SetScaleRescalesTheStream) {
   const GtSequence g = make_sequence(6);
-  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), small_config());
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config());
   rec.set_calibration(g.seq.config.intrinsics);
   std::vector<FrameResult> results;
   for (int k = 0; k < 3; ++k) {
@@ -207,7 +136,7 @@ TEST(Reconstruction, SetScaleRescalesTheStream) {
 // rescale() brings one result to a scale as set_scale() brings the stream.
 TEST(Reconstruction, RescaleBringsOneResultToAScale) {
   const GtSequence g = make_sequence(3);
-  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), small_config());
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config());
   rec.set_calibration(g.seq.config.intrinsics);
   rec.push(g.bgr[0], "bgr8", 0.0);
   rec.push(g.bgr[1], "bgr8", 0.1);  // frame 0: identity pose, no covariance needed
@@ -239,7 +168,7 @@ TEST(Reconstruction, RescaleBringsOneResultToAScale) {
 // A pose given to push() places the frame's own geometry (pose from odometry).
 TEST(Reconstruction, GivenPosePlacesTheFrame) {
   const GtSequence g = make_sequence(6);
-  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), small_config());
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config());
   rec.set_calibration(g.seq.config.intrinsics);
   Eigen::Isometry3d shift = Eigen::Isometry3d::Identity();
   shift.translation() = Eigen::Vector3d(0.5, 0.0, 0.0);
@@ -277,7 +206,7 @@ TEST(Reconstruction, GivenPosePlacesTheFrame) {
 
 TEST(Reconstruction, EstimatesIntrinsicsWithoutCalibration) {
   const GtSequence g = make_sequence(3);
-  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), small_config());
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config());
   rec.push(g.bgr[0], "bgr8", 0.0);
   auto r = rec.push(g.bgr[1], "bgr8", 0.1);
   ASSERT_TRUE(r.has_value());
@@ -287,7 +216,7 @@ TEST(Reconstruction, EstimatesIntrinsicsWithoutCalibration) {
 
 TEST(Reconstruction, ResetRestartsAndSizeChangeThrows) {
   const GtSequence g = make_sequence(3);
-  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), small_config());
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config());
   rec.set_calibration(g.seq.config.intrinsics);
   rec.push(g.bgr[0], "bgr8", 0.0);
   rec.push(g.bgr[1], "bgr8", 0.1);
@@ -316,7 +245,7 @@ TEST(Reconstruction, RandomSpann3rRunsEndToEnd) {
       "spann3r": {"value_encoder": {"depth": 1, "embed_dim": 32, "num_heads": 2, "out_dim": 32}},
       "spatial_memory": {"long_mem_size": 200, "top_k": 200, "work_mem_size": 3}})";
   const GtSequence g = make_sequence(4);
-  ReconstructionConfig cfg = small_config();
+  ReconstructionConfig cfg = test::gt_reconstruction_config();
   cfg.conf_threshold = 1.0f;  // random confidences: let every pixel through
   Reconstruction rec(std::make_unique<Spann3rModel>(parse_model_config(json)), cfg);
   int64_t expected = 0;

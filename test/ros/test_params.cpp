@@ -8,6 +8,7 @@
 using long3r_ros::ParamError;
 using long3r_ros::readFramesConfig;
 using long3r_ros::readInferenceConfig;
+using long3r_ros::readLiveSessionConfig;
 using long3r_ros::readMetricScaleConfig;
 using long3r_ros::readNodeletConfig;
 using long3r_ros::readReconstructionConfig;
@@ -27,8 +28,7 @@ class ParamsTest : public ::testing::Test {
     try {
       readNodeletConfig(pnh_);
       readFramesConfig(pnh_);
-      readMetricScaleConfig(pnh_);
-      readStreamMonitorConfig(pnh_);
+      readLiveSessionConfig(pnh_);
       readThreadConfig(pnh_);
       readInferenceConfig(pnh_);
       readReconstructionConfig(pnh_);
@@ -67,9 +67,10 @@ TEST_F(ParamsTest, ReadsValidValues) {
 
 TEST_F(ParamsTest, InputAndContinuityDefaultsAndValues) {
   const auto c = readNodeletConfig(pnh_);
-  EXPECT_FALSE(c.image_is_rectified);
   EXPECT_EQ(c.max_image_pixels, 4096 * 4096);
-  EXPECT_EQ(c.lost_reset_frames, 0);
+  const auto s = readLiveSessionConfig(pnh_);
+  EXPECT_FALSE(s.image_is_rectified);
+  EXPECT_EQ(s.lost_reset_frames, 0);
   const auto m = readStreamMonitorConfig(pnh_);
   EXPECT_DOUBLE_EQ(m.max_backward_jump_s, 1.0);
   EXPECT_DOUBLE_EQ(m.max_stamp_jump_s, 5.0);
@@ -78,8 +79,9 @@ TEST_F(ParamsTest, InputAndContinuityDefaultsAndValues) {
   pnh_.setParam("lost_reset_frames", 30);
   pnh_.setParam("max_backward_jump_s", 0.2);
   pnh_.setParam("size_change_frames", 1);
-  EXPECT_TRUE(readNodeletConfig(pnh_).image_is_rectified);
-  EXPECT_EQ(readNodeletConfig(pnh_).lost_reset_frames, 30);
+  EXPECT_TRUE(readLiveSessionConfig(pnh_).image_is_rectified);
+  EXPECT_EQ(readLiveSessionConfig(pnh_).lost_reset_frames, 30);
+  EXPECT_EQ(readLiveSessionConfig(pnh_).stream.size_change_frames, 1);
   EXPECT_DOUBLE_EQ(readStreamMonitorConfig(pnh_).max_backward_jump_s, 0.2);
   EXPECT_EQ(readStreamMonitorConfig(pnh_).size_change_frames, 1);
   EXPECT_NE(long3r_ros::describe(readStreamMonitorConfig(pnh_)).find("size_change_frames: 1"),

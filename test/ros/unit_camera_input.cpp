@@ -1,6 +1,6 @@
-// The node's input side without a master: camera_info validation and
-// rectification (CameraCalibration), image decoding (decodeInput), per-kind
-// log throttling and the diagnostics' sliding window.
+// The node's input side without a master: camera_info into the core's
+// calibration (toCameraModel), image decoding (decodeInput), per-kind log
+// throttling and the diagnostics' sliding window.
 #include <gtest/gtest.h>
 
 #include <sensor_msgs/distortion_models.h>
@@ -9,14 +9,15 @@
 
 #include <cmath>
 #include <limits>
-#include <opencv2/calib3d.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "long3r_ros/camera_calibration.hpp"
+#include "long3r/pipeline/camera_rectifier.hpp"
+#include "long3r_ros/conversions.hpp"
 #include "long3r_ros/image_input.hpp"
 #include "long3r_ros/log_throttle.hpp"
 #include "long3r_ros/window_stats.hpp"
+#include "support/cv_test_support.hpp"
 
 using namespace long3r_ros;
 
@@ -37,180 +38,40 @@ sensor_msgs::CameraInfo info(double fx = 120.0, double fy = 121.0, double cx = 7
   return m;
 }
 
-// A test image: two gradients and, in the third channel, a smooth egg-crate
-// pattern (period 24 px) whose steep slopes make a shift of a pixel visible
-// while bilinear resampling stays nearly exact.
-cv::Mat pattern(int w = kW, int h = kH) {
-  cv::Mat img(h, w, CV_8UC3);
-  for (int v = 0; v < h; ++v)
-    for (int u = 0; u < w; ++u) {
-      const double waves = std::sin(2.0 * M_PI * u / 24.0) * std::sin(2.0 * M_PI * v / 24.0);
-      img.at<cv::Vec3b>(v, u) =
-          cv::Vec3b(static_cast<uchar>(u * 255 / w), static_cast<uchar>(v * 255 / h),
-                    cv::saturate_cast<uchar>(128.0 + 110.0 * waves));
-    }
-  return img;
-}
-
-std::string problem(const sensor_msgs::CameraInfo& m, int w = kW, int h = kH) {
-  return CameraCalibration::problem(m, w, h);
-}
-
 }  // namespace
 
-TEST(CameraCalibration, AcceptsAGoodCalibrationAndUsesP) {
+TEST(CameraInfo, EveryFieldReachesTheCoreCalibration) {
   sensor_msgs::CameraInfo m = info();
-  EXPECT_EQ(problem(m), "");
-  m.P[0] = 118.0;  // rectified image's own focal length
-  CameraCalibration c;
-  EXPECT_TRUE(c.set(m, false));
-  EXPECT_FALSE(c.set(m, false));  // unchanged
-  EXPECT_FALSE(c.rectifies());    // no distortion: nothing to remap
-  const long3r::PinholeIntrinsics k = c.intrinsics();
-  EXPECT_DOUBLE_EQ(k.fx, 118.0);
-  EXPECT_DOUBLE_EQ(k.fy, 121.0);
-  EXPECT_EQ(k.width, kW);
-  const cv::Mat img = pattern();
-  EXPECT_EQ(c.prepare(img).data, img.data);  // the same image, not a copy
-}
-
-TEST(CameraCalibration, NamesEveryBadField) {
-  const double nan = std::numeric_limits<double>::quiet_NaN();
-  const double inf = std::numeric_limits<double>::infinity();
-  auto with = [](auto edit) {
-    sensor_msgs::CameraInfo m = info();
-    edit(m);
-    return m;
-  };
-  EXPECT_EQ(problem(with([&](auto& m) { m.K[0] = nan; })), "K[0] (fx) is nan");
-  EXPECT_EQ(problem(with([&](auto& m) { m.K[2] = inf; })), "K[2] (cx) is inf");
-  EXPECT_EQ(problem(with([&](auto& m) { m.K[5] = -inf; })), "K[5] (cy) is -inf");
-  EXPECT_EQ(problem(with([&](auto& m) { m.K[4] = -3.0; })), "K[4] (fy) is -3, not positive");
-  EXPECT_EQ(problem(with([&](auto& m) { m.K[2] = 500.0; })),
-            "K[2] (cx) = 500 is outside the image (width 160)");
-  EXPECT_EQ(problem(with([&](auto& m) {
-              m.D = {0.1, 0.0, 0.0};
-            })),
-            "D has 3 coefficients, plumb_bob takes 4, 5 or 8");
-  EXPECT_EQ(problem(with([&](auto& m) { m.D[1] = nan; })), "D[1] is nan");
-  EXPECT_EQ(problem(with([&](auto& m) { m.distortion_model = "fisheye62"; })),
-            "distortion_model 'fisheye62' is not supported (plumb_bob, rational_polynomial, "
-            "equidistant)");
-  EXPECT_EQ(problem(with([&](auto& m) { m.R[0] = 2.0; })), "R is not a rotation");
-  EXPECT_EQ(problem(with([&](auto& m) { m.P[5] = 0.0; })), "P[5] (fy') is 0, not positive");
-  EXPECT_EQ(problem(with([&](auto& m) { m.width = 0; })), "width x height is 0x120");
-  EXPECT_EQ(problem(with([&](auto& m) { m.width = 320; })),
-            "width x height 320x120 gives 320x120 images, but they are 160x120");
-  EXPECT_NE(problem(with([&](auto& m) {
-              m.roi.x_offset = 100;
-              m.roi.width = 100;
-              m.roi.height = 50;
-            })).find("does not lie inside"),
-            std::string::npos);
-}
-
-TEST(CameraCalibration, ReadsEmptyFieldsAsDriversMeanThem) {
-  sensor_msgs::CameraInfo m = info();
-  m.P.fill(0.0);
-  m.R.fill(0.0);
-  m.distortion_model.clear();
-  m.D.clear();
-  EXPECT_EQ(problem(m), "");
-  CameraCalibration c;
-  c.set(m, false);
-  EXPECT_DOUBLE_EQ(c.intrinsics().fx, 120.0);  // P taken as [K | 0]
-  EXPECT_FALSE(c.rectifies());
-}
-
-TEST(CameraCalibration, BinningAndRoiGiveTheIntrinsicsOfTheImage) {
-  sensor_msgs::CameraInfo m = info();
-  m.width = 2 * kW;
-  m.height = 2 * kH;
-  m.K = {240, 0, 159.5, 0, 242, 119.5, 0, 0, 1};
-  m.P = {240, 0, 159.5, 0, 0, 242, 119.5, 0, 0, 0, 1, 0};
-  m.binning_x = m.binning_y = 2;
-  ASSERT_EQ(problem(m), "");
-  CameraCalibration c;
-  c.set(m, false);
-  EXPECT_NEAR(c.intrinsics().fx, 120.0, 1e-12);
-  EXPECT_EQ(c.intrinsics().width, kW);
-  // A 160x120 window at (40, 30) of the 320x240 sensor, unbinned.
-  sensor_msgs::CameraInfo r = m;
-  r.binning_x = r.binning_y = 0;
-  r.roi.x_offset = 40;
-  r.roi.y_offset = 30;
-  r.roi.width = kW;
-  r.roi.height = kH;
-  ASSERT_EQ(problem(r), "");
-  c.set(r, false);
-  EXPECT_NEAR(c.intrinsics().cx, 159.5 - 40, 1e-12);
-  EXPECT_NEAR(c.intrinsics().cy, 119.5 - 30, 1e-12);
-  EXPECT_EQ(c.intrinsics().height, kH);
-}
-
-// A distorted image rectified by the node matches the undistorted render:
-// distort a pattern with OpenCV's model, rectify it back, compare inside.
-TEST(CameraCalibration, RectifiesEachDistortionModel) {
-  const cv::Matx33d K(120, 0, 79.5, 0, 121, 59.5, 0, 0, 1);
-  struct Case {
-    std::string model;
-    std::vector<double> D;
-  };
-  for (const Case& cs : {Case{"plumb_bob", {-0.12, 0.03, 0.001, -0.001, 0.0}},
-                         Case{"rational_polynomial", {-0.1, 0.02, 0.0, 0.0, 0.0, 0.01, 0.0, 0.0}},
-                         Case{"equidistant", {0.05, -0.01, 0.002, 0.0}}}) {
-    SCOPED_TRACE(cs.model);
-    const cv::Mat undistorted = pattern();
-    // The distorted image: each raw pixel looks up where its ray lands undistorted.
-    cv::Mat map_x(kH, kW, CV_32FC1), map_y(kH, kW, CV_32FC1);
-    std::vector<cv::Point2f> raw, ideal;
-    for (int v = 0; v < kH; ++v)
-      for (int u = 0; u < kW; ++u) raw.emplace_back(u, v);
-    if (cs.model == "equidistant") {
-      cv::fisheye::undistortPoints(raw, ideal, K, cs.D, cv::noArray(), K);
-    } else {  // iterated to convergence: the default 5 iterations leave a visible error
-      cv::undistortPoints(
-          raw, ideal, K, cs.D, cv::noArray(), K,
-          cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 100, 1e-9));
-    }
-    for (int i = 0; i < kW * kH; ++i) {
-      map_x.at<float>(i) = ideal[i].x;
-      map_y.at<float>(i) = ideal[i].y;
-    }
-    cv::Mat distorted;
-    cv::remap(undistorted, distorted, map_x, map_y, cv::INTER_LINEAR);
-
-    sensor_msgs::CameraInfo m = info(120, 121, 79.5, 59.5);
-    m.distortion_model = cs.model;
-    m.D = cs.D;
-    ASSERT_EQ(problem(m), "");
-    CameraCalibration c;
-    c.set(m, false);
-    ASSERT_TRUE(c.rectifies());
-    const cv::Mat rectified = c.prepare(distorted);
-    ASSERT_EQ(rectified.size(), undistorted.size());
-    // On the egg-crate channel, away from the border: the distortion moves
-    // the pattern visibly; after rectification only the rounding of two
-    // bilinear resamplings is left.
-    const cv::Rect inner(20, 15, kW - 40, kH - 30);
-    auto pattern_error = [&](const cv::Mat& img) {
-      cv::Mat diff;
-      cv::absdiff(img(inner), undistorted(inner), diff);
-      return cv::mean(diff)[2];
-    };
-    const double before = pattern_error(distorted), after = pattern_error(rectified);
-    EXPECT_GT(before, 5.0);  // grey levels: the distortion is visible
-    EXPECT_LT(after, 0.2 * before) << before;
-
-    // Rectified input is used as it is.
-    CameraCalibration as_is;
-    as_is.set(m, true);
-    EXPECT_FALSE(as_is.rectifies());
-  }
+  m.distortion_model = sensor_msgs::distortion_models::EQUIDISTANT;
+  m.D = {0.05, -0.01, 0.002, 0.0};
+  m.binning_x = 2;
+  m.binning_y = 3;
+  m.roi.x_offset = 4;
+  m.roi.y_offset = 5;
+  m.roi.width = 6;
+  m.roi.height = 7;
+  m.R = {0, -1, 0, 1, 0, 0, 0, 0, 1};
+  const long3r::CameraModel c = toCameraModel(m);
+  EXPECT_EQ(c.width, kW);
+  EXPECT_EQ(c.height, kH);
+  EXPECT_EQ(c.distortion_model, "equidistant");
+  EXPECT_EQ(c.D, m.D);
+  for (int i = 0; i < 9; ++i) EXPECT_EQ(c.K[i], m.K[i]) << i;
+  for (int i = 0; i < 9; ++i) EXPECT_EQ(c.R[i], m.R[i]) << i;
+  for (int i = 0; i < 12; ++i) EXPECT_EQ(c.P[i], m.P[i]) << i;
+  EXPECT_EQ(c.binning_x, 2);
+  EXPECT_EQ(c.binning_y, 3);
+  EXPECT_EQ(c.roi.x_offset, 4);
+  EXPECT_EQ(c.roi.y_offset, 5);
+  EXPECT_EQ(c.roi.width, 6);
+  EXPECT_EQ(c.roi.height, 7);
+  // A camera_info the core refuses is named in camera_info's terms.
+  m.K[0] = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_EQ(long3r::CameraRectifier::problem(toCameraModel(m), 3, 2), "K[0] (fx) is nan");
 }
 
 TEST(ImageInput, DecodesRawConvertibleAndCompressedImages) {
-  const cv::Mat bgr = pattern();
+  const cv::Mat bgr = long3r::test::egg_crate_image(kW, kH);
   auto raw = [&](const std::string& enc, const cv::Mat& m) {
     auto msg = boost::make_shared<sensor_msgs::Image>();
     msg->width = static_cast<std::uint32_t>(m.cols);

@@ -123,4 +123,20 @@ inline cv::Mat points_in_camera(const cv::Mat& pts3d_W, const Eigen::Isometry3d&
   return transform_points(pts3d_W, T_W_C.inverse());
 }
 
+// A body's velocity between two of its poses T_map_body (a, then b) by
+// finite difference: linear = the translation of T_a^-1 T_b over dt, angular
+// = its rotation vector over dt (both in the body frame at a), with the
+// covariance ([linear, angular]) from the two pose covariances ([t, r] in
+// map, taken as independent) rotated into the body frame at b and divided by
+// dt^2. nullopt unless t_b > t_a.
+struct Twist {
+  Eigen::Vector3d linear = Eigen::Vector3d::Zero();
+  Eigen::Vector3d angular = Eigen::Vector3d::Zero();
+  Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
+};
+std::optional<Twist> finite_difference_twist(const Eigen::Isometry3d& T_map_a,
+                                             const Eigen::Matrix<double, 6, 6>& cov_a, double t_a,
+                                             const Eigen::Isometry3d& T_map_b,
+                                             const Eigen::Matrix<double, 6, 6>& cov_b, double t_b);
+
 }  // namespace long3r

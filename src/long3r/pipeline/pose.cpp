@@ -310,4 +310,23 @@ cv::Mat transform_points(const cv::Mat& points, const Eigen::Isometry3d& T) {
   return out;
 }
 
+std::optional<Twist> finite_difference_twist(const Eigen::Isometry3d& T_map_a,
+                                             const Eigen::Matrix<double, 6, 6>& cov_a, double t_a,
+                                             const Eigen::Isometry3d& T_map_b,
+                                             const Eigen::Matrix<double, 6, 6>& cov_b, double t_b) {
+  if (!(t_b > t_a)) return std::nullopt;
+  const double dt = t_b - t_a;
+  const Eigen::Isometry3d delta = T_map_a.inverse() * T_map_b;
+  const Eigen::AngleAxisd aa(delta.rotation());
+  Twist twist;
+  twist.linear = delta.translation() / dt;
+  twist.angular = aa.angle() * aa.axis() / dt;
+  Eigen::Matrix<double, 6, 6> R = Eigen::Matrix<double, 6, 6>::Zero();
+  R.topLeftCorner<3, 3>() = T_map_b.linear().transpose();
+  R.bottomRightCorner<3, 3>() = T_map_b.linear().transpose();
+  const Eigen::Matrix<double, 6, 6> c = R * (cov_a + cov_b) * R.transpose() / (dt * dt);
+  twist.covariance = 0.5 * (c + c.transpose());
+  return twist;
+}
+
 }  // namespace long3r

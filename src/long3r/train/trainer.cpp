@@ -4,7 +4,6 @@
 #include <ATen/CPUGeneratorImpl.h>
 #include <ATen/Parallel.h>
 #include <ATen/core/Generator.h>
-#include <torch/cuda.h>
 #include <torch/nn/module.h>
 #include <torch/nn/utils/clip_grad.h>
 #include <torch/optim/adamw.h>
@@ -122,13 +121,12 @@ std::vector<std::string> split_csv_line(const std::string& line) {
   return cells;
 }
 
-at::Device parse_device(const std::string& name) {
-  if (name == "cuda" || name.rfind("cuda:", 0) == 0) {
-    if (!torch::cuda::is_available()) {
-      throw std::runtime_error("--device " + name + ": this libtorch has no usable CUDA device");
-    }
-  }
-  return at::Device(name);
+// The training device, checked as inference checks it (a CUDA device that
+// this libtorch or machine lacks is named).
+at::Device training_device(const std::string& name) {
+  InferenceConfig inference;
+  inference.device = name;
+  return resolve_inference_target(inference).device;
 }
 
 }  // namespace
@@ -210,7 +208,7 @@ struct Trainer::Prefetch {
 };
 
 Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
-    : config_(config), options_(options), device_(parse_device(options.device)) {
+    : config_(config), options_(options), device_(training_device(options.device)) {
   validate_train_config(config_);
   if (options_.out_dir.empty()) throw std::invalid_argument("Trainer: out_dir is empty");
   mixed_precision_ = config_.amp == "bf16" || (config_.amp == "auto" && device_.is_cuda());

@@ -1,11 +1,13 @@
 #include <gtest/gtest.h>
 
-#include "long3r_ros/stream_monitor.hpp"
+#include <limits>
+
+#include "long3r/pipeline/stream_monitor.hpp"
 
 namespace {
 
-using long3r_ros::StreamMonitor;
-using long3r_ros::StreamMonitorConfig;
+using long3r::StreamMonitor;
+using long3r::StreamMonitorConfig;
 using A = StreamMonitor::Action;
 using H = StreamMonitor::Held;
 
@@ -47,6 +49,19 @@ TEST(StreamMonitor, DropsZeroStampsDuplicatesAndSmallReorderings) {
   EXPECT_EQ(c.monitor.check(0.0, 20.0, 64, 48).action, A::kDropZeroStamp);
   EXPECT_EQ(c.monitor.check(-1.0, 20.0, 64, 48).action, A::kDropZeroStamp);
   EXPECT_EQ(c.action(10.2), A::kProcess);  // the stream goes on from 10.1
+}
+
+// Recorded data whose clock starts at 0: a zero stamp is a time like any other.
+TEST(StreamMonitor, ZeroStampsCanBeTimes) {
+  StreamMonitorConfig config;
+  config.drop_zero_stamps = false;
+  StreamMonitor m(config);
+  EXPECT_EQ(m.check(0.0, 0.0, 64, 48).action, A::kProcess);
+  EXPECT_EQ(m.check(0.1, 0.1, 64, 48).action, A::kProcess);
+  EXPECT_EQ(m.check(0.1, 0.2, 64, 48).action, A::kDropOutOfOrder);
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_EQ(m.check(nan, 0.3, 64, 48).action, A::kDropZeroStamp);  // still no time
+  EXPECT_EQ(m.check(-5.0, 0.4, 64, 48).action, A::kNewStreamTimeBackwards);
 }
 
 TEST(StreamMonitor, ALoopedBagStartsANewStream) {

@@ -10,7 +10,7 @@
 // or a small reordering, one frame of another size, one stamp far ahead of
 // its neighbours. A pause of any length continues the stream.
 //
-// "Far ahead" is judged against the clock (ros::Time at arrival: simulated
+// "Far ahead" is judged against the clock (the clock at arrival; ROS: simulated
 // time during a bag replay): a stamp that advanced by more than the clock did,
 // plus `max_stamp_jump_s`, is held until the next frame tells whether time
 // really moved on (the next frame continues from it: both are processed) or
@@ -20,7 +20,7 @@
 
 #include <string>
 
-namespace long3r_ros {
+namespace long3r {
 
 struct StreamMonitorConfig {
   // Stamps at most this far behind the newest frame are reorderings or
@@ -31,6 +31,10 @@ struct StreamMonitorConfig {
   // Consecutive frames of a new size before it is a new stream; fewer are
   // stray frames (dropped).
   int size_change_frames = 3;
+  // A stamp of 0 (or less) means "no time", as in ROS, where TF and every
+  // consumer read it so: such frames are dropped. Recorded data whose clock
+  // starts at 0 turns this off.
+  bool drop_zero_stamps = true;
 };
 
 class StreamMonitor {
@@ -79,4 +83,4 @@ class StreamMonitor {
   double held_stamp_s_ = 0.0, held_clock_s_ = 0.0;
 };
 
-}  // namespace long3r_ros
+}  // namespace long3r

@@ -1,8 +1,8 @@
-#include "long3r_ros/stream_monitor.hpp"
+#include "long3r/pipeline/stream_monitor.hpp"
 
 #include <cmath>
 
-namespace long3r_ros {
+namespace long3r {
 
 void StreamMonitor::reset() {
   has_stream_ = false;
@@ -19,7 +19,7 @@ void StreamMonitor::adopt(double stamp_s, double clock_s) {
 StreamMonitor::Decision StreamMonitor::check(double stamp_s, double clock_s, int width,
                                              int height) {
   Decision d;
-  if (!(stamp_s > 0.0) || !std::isfinite(stamp_s)) {
+  if (!std::isfinite(stamp_s) || (config_.drop_zero_stamps && !(stamp_s > 0.0))) {
     d.action = Action::kDropZeroStamp;  // TF and every consumer read 0 as "no time"
     return d;
   }
@@ -102,4 +102,4 @@ const char* StreamMonitor::describe(Action action) {
   return "?";
 }
 
-}  // namespace long3r_ros
+}  // namespace long3r

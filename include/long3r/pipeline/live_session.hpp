@@ -1,0 +1,197 @@
+// LiveSession: a camera stream, live or recorded, turned into one
+// reconstruction, with the policy a robot needs around the model. The ROS
+// node and long3r_reconstruct both run their frames through it.
+//
+// It owns the Reconstruction and decides, frame by frame:
+//   - continuity (StreamMonitor): a pause of any length continues the stream;
+//     single odd frames (no stamp, duplicates, stray sizes, one stamp far
+//     ahead) are dropped; only time jumping far back, a lasting size change,
+//     `lost_reset_frames` unposed frames or reset() start a new stream;
+//   - calibration (CameraRectifier): each frame's calibration is validated
+//     against its image, a valid new one applies from that frame on, an
+//     invalid one is named and the last valid one kept; distorted raw images
+//     are rectified before the model;
+//   - metric scale (metric_scale.hpp): samples from the odometry's camera
+//     displacements or from registered depth images, asked of the client when
+//     a frame's result is known; once the estimate converges the stream is
+//     rescaled, and every result leaves here in the stream's final scale.
+// Each frame carries the caller's tag (a ROS header) back with its result.
+//
+// Frames: W is the camera optical frame of the stream's frame 0 (as in
+// Reconstruction); lengths in metres once the scale is metric, else in
+// model units. Not thread-safe: one thread (the node's worker) calls it,
+// and a caller that serves other threads (services) holds its own lock.
+#pragma once
+
+#include <Eigen/Geometry>
+#include <opencv2/core/mat.hpp>
+
+#include <any>
+#include <cstdint>
+#include <deque>
+#include <memory>
+#include <optional>
+#include <stdexcept>
+#include <string>
+
+#include "long3r/io/config_fields.hpp"
+#include "long3r/pipeline/camera_rectifier.hpp"
+#include "long3r/pipeline/metric_scale.hpp"
+#include "long3r/pipeline/reconstruction.hpp"
+#include "long3r/pipeline/stream_monitor.hpp"
+
+namespace long3r {
+
+struct LiveSessionConfig {
+  StreamMonitorConfig stream;
+  MetricScaleConfig scale;
+  // Consecutive frames without a pose before a new stream starts; 0 = never.
+  int lost_reset_frames = 0;
+  // The images arrive rectified: a calibration's distortion is not applied again.
+  bool image_is_rectified = false;
+  // What the calibrations are called in messages ("camera_info", "calibration.txt").
+  std::string calibration_source = "calibration";
+
+  // Throws ConfigError naming the field.
+  void validate(const config::FieldCheck& check) const;
+};
+
+// One input frame.
+struct LiveFrame {
+  cv::Mat image;         // the source image, in `encoding` (Reconstruction::push)
+  std::string encoding;  // rgb8, bgr8, rgba8, bgra8, mono8, mono16
+  double stamp_s = 0.0;  // its time stamp
+  double clock_s = 0.0;  // the clock when it arrived (ROS time: simulated in a replay)
+  // The camera's calibration for this frame, when one is known.
+  std::optional<CameraModel> camera;
+  std::any tag;  // the caller's, returned with the frame's result
+};
+
+struct LiveResult {
+  FrameResult frame;    // in the stream's scale after this frame
+  std::any tag;         // the frame's LiveFrame::tag
+  cv::Size image_size;  // the image as the model took it (after rectification)
+  // The metric scale was (re)applied with this result: the stream, this
+  // result included, is now in another scale than the results before.
+  bool scale_changed = false;
+};
+
+// What happened, for the log. Warnings are grouped by kind for throttling
+// (one kind's flood does not hide another's); some must never be throttled.
+struct LiveEvent {
+  enum class Level { kInfo, kWarning };
+  Level level = Level::kInfo;
+  std::string kind;
+  std::string message;
+  bool throttle = true;        // warnings only
+  bool frame_dropped = false;  // the frame named was not processed
+};
+
+// What the session asks of the world around it, on its caller's thread: the
+// node answers from TF and its topics, long3r_reconstruct from the dataset.
+class LiveSessionClient {
+ public:
+  // A question the world cannot answer now: kind (for throttling) and a
+  // message naming the problem.
+  class Unavailable : public std::runtime_error {
+   public:
+    Unavailable(std::string kind, const std::string& what)
+        : std::runtime_error(what), kind_(std::move(kind)) {}
+    const std::string& kind() const { return kind_; }
+
+   private:
+    std::string kind_;
+  };
+
+  virtual ~LiveSessionClient() = default;
+  // Just before the model runs on a frame the stream admitted: the pose that
+  // places it (pose from odometry, in W) or nullopt (the model's own pose).
+  // Throwing Unavailable skips the frame (dropped, with that message).
+  virtual std::optional<Eigen::Isometry3d> place(const LiveFrame& frame);
+  // scale_source odometry: the camera's position in a metric odometry frame
+  // at the result's stamp. Throwing Unavailable skips this sample.
+  virtual Eigen::Vector3d odometry_camera_position_m(const LiveResult& result);
+  // scale_source depth: a depth image registered to the raw source image of
+  // the result: CV_16UC1 millimetres (RGB-D drivers) or CV_32FC1 metres, 0 or
+  // NaN where there is none. Throwing Unavailable skips this sample.
+  virtual cv::Mat depth(const LiveResult& result);
+
+  // Results, in frame order.
+  virtual void on_result(LiveResult& result) = 0;
+  // A new stream starts (after the old one's last result): the caller's
+  // per-stream state goes with the memory, map and path.
+  virtual void on_new_stream(const std::string& why) { (void)why; }
+  virtual void on_event(const LiveEvent& event) { (void)event; }
+};
+
+// A snapshot for diagnostics.
+struct LiveStatus {
+  std::int64_t stream_frames = 0;        // frames pushed in the current stream
+  std::uint64_t streams = 0;             // streams started, the first included
+  std::string tracking = "not started";  // "ok", "lost"
+  int lost_frames = 0;                   // consecutive frames without a pose
+  double lost_for_s = 0.0;               // stamps spanned by them
+  std::string calibration = "none";      // the one in use, or why the latest was refused
+  bool calibration_refused = false;      // the latest calibration was not used
+  ScaleEstimate scale_estimate;
+  double scale = 1.0;  // metres per model unit in use
+  bool scale_metric = false;
+  // Frames are placed by given poses (metres) but not mapped until the scale
+  // is metric.
+  bool mapping_held = false;
+  std::int64_t mem_short_tokens = 0, mem_long_tokens = 0, relevant_tokens = -1;
+};
+
+class LiveSession {
+ public:
+  // Throws ConfigError for a bad config, std::invalid_argument for a null
+  // model (Reconstruction).
+  LiveSession(std::unique_ptr<StreamingModel> model, const ReconstructionConfig& reconstruction,
+              const LiveSessionConfig& config, LiveSessionClient& client);
+
+  // One input frame, in arrival order. Results and events go to the client.
+  // Throws what Reconstruction::push throws for input it refuses (nothing of
+  // the session changes then but the stream's record of the frame).
+  void push(LiveFrame frame);
+  // The pending frame's result now (a pause in the input); the stream goes on.
+  void flush();
+  // Starts a new stream with the next frame (memory, map, path, scale);
+  // `why` names the reason in the warning.
+  void reset(const std::string& why);
+
+  LiveStatus status() const { return status_; }
+  const Reconstruction& reconstruction() const { return recon_; }
+  Reconstruction& reconstruction() { return recon_; }
+  const LiveSessionConfig& config() const { return config_; }
+
+ private:
+  struct Pending {  // a frame the model took, awaiting its result
+    std::any tag;
+    cv::Size image_size;
+  };
+  void process(LiveFrame frame);
+  cv::Mat calibrate(const LiveFrame& frame);
+  void deliver(FrameResult frame);
+  void track_loss(const FrameResult& r);
+  void update_scale(LiveResult& result);
+  std::optional<double> depth_sample(const LiveResult& result);
+  void new_stream(const std::string& why);
+  void start_stream_scale();
+  void info(const std::string& kind, const std::string& message);
+  void warn(const std::string& kind, const std::string& message, bool dropped = false);
+
+  LiveSessionConfig config_;
+  LiveSessionClient& client_;
+  Reconstruction recon_;
+  StreamMonitor monitor_;
+  std::optional<LiveFrame> held_;  // see StreamMonitor::kHold
+  std::deque<Pending> pending_;
+  CameraRectifier rectifier_;
+  ScalePolicy scale_policy_;
+  OdometryScaleSampler scale_sampler_;
+  double lost_since_stamp_ = 0.0;
+  std::string intrinsics_logged_;  // the intrinsics line last reported
+  LiveStatus status_;
+};
+
+}  // namespace long3r

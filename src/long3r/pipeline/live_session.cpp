@@ -1,0 +1,371 @@
+// A live camera stream turned into one reconstruction; see live_session.hpp.
+#include "long3r/pipeline/live_session.hpp"
+
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <utility>
+#include <vector>
+
+namespace long3r {
+
+namespace {
+
+std::string format(const char* fmt, double a, double b = 0.0) {
+  char buf[256];
+  std::snprintf(buf, sizeof(buf), fmt, a, b);
+  return buf;
+}
+
+// A registered depth image in metres (NaN where there is none): CV_16UC1 is
+// millimetres, as RGB-D drivers publish (REP 118), CV_32FC1 metres.
+cv::Mat depth_in_metres(const cv::Mat& depth) {
+  cv::Mat metres;
+  if (depth.type() == CV_16UC1) {
+    depth.convertTo(metres, CV_32FC1, 0.001);
+    metres.setTo(std::numeric_limits<float>::quiet_NaN(), depth == 0);
+  } else if (depth.type() == CV_32FC1) {
+    metres = depth;
+  } else {
+    throw std::invalid_argument("a depth image must be 16UC1 (mm) or 32FC1 (m)");
+  }
+  return metres;
+}
+
+}  // namespace
+
+void LiveSessionConfig::validate(const config::FieldCheck& check) const {
+  check.require(stream.max_backward_jump_s >= 0.0, "stream.max_backward_jump_s", "must be >= 0");
+  check.require(stream.max_stamp_jump_s > 0.0, "stream.max_stamp_jump_s", "must be > 0");
+  check.require(stream.size_change_frames >= 1, "stream.size_change_frames", "must be >= 1");
+  scale.validate(config::FieldCheck{check.what, check.field("scale")});
+  check.require(lost_reset_frames >= 0, "lost_reset_frames", "must be >= 0 (0 = never)");
+}
+
+std::optional<Eigen::Isometry3d> LiveSessionClient::place(const LiveFrame&) { return std::nullopt; }
+
+Eigen::Vector3d LiveSessionClient::odometry_camera_position_m(const LiveResult&) {
+  throw Unavailable("odometry", "odometry scale: this input has no odometry");
+}
+
+cv::Mat LiveSessionClient::depth(const LiveResult&) {
+  throw Unavailable("depth missing", "depth scale: this input has no depth images");
+}
+
+LiveSession::LiveSession(std::unique_ptr<StreamingModel> model,
+                         const ReconstructionConfig& reconstruction,
+                         const LiveSessionConfig& config, LiveSessionClient& client)
+    : config_(config),
+      client_(client),
+      recon_(std::move(model), reconstruction),
+      monitor_(config.stream),
+      scale_policy_(config.scale),
+      scale_sampler_(config.scale) {
+  config_.validate(config::FieldCheck{"live session config", ""});
+  start_stream_scale();
+}
+
+void LiveSession::info(const std::string& kind, const std::string& message) {
+  LiveEvent e;
+  e.level = LiveEvent::Level::kInfo;
+  e.kind = kind;
+  e.message = message;
+  client_.on_event(e);
+}
+
+void LiveSession::warn(const std::string& kind, const std::string& message, bool dropped) {
+  LiveEvent e;
+  e.level = LiveEvent::Level::kWarning;
+  e.kind = kind;
+  e.message = message;
+  e.frame_dropped = dropped;
+  client_.on_event(e);
+}
+
+// ---------------------------------------------------------------- input
+
+void LiveSession::push(LiveFrame frame) {
+  const double stamp_s = frame.stamp_s;
+  const StreamMonitor::Decision d =
+      monitor_.check(stamp_s, frame.clock_s, frame.image.cols, frame.image.rows);
+  std::optional<LiveFrame> held;
+  if (d.held != StreamMonitor::Held::kNone) held.swap(held_);
+  if (held && d.held == StreamMonitor::Held::kProcess) {
+    process(std::move(*held));
+  } else if (held) {
+    warn("outlier stamp",
+         format("frame at t=%.3f dropped: its stamp was far ahead of the frames around it "
+                "(max_stamp_jump_s)",
+                held->stamp_s),
+         true);
+  }
+
+  using A = StreamMonitor::Action;
+  switch (d.action) {
+    case A::kProcess:
+      process(std::move(frame));
+      return;
+    case A::kNewStreamTimeBackwards:
+    case A::kNewStreamSizeChanged:
+      flush();  // the old stream's last frame is delivered, not lost
+      new_stream(format("frame at t=%.3f: ", stamp_s) + StreamMonitor::describe(d.action));
+      process(std::move(frame));
+      return;
+    case A::kHold:
+      warn("stamp jump", format("frame at t=%.3f: its stamp ran ahead of the clock by more than "
+                                "max_stamp_jump_s (%.1f s); held until the next frame shows "
+                                "whether time moved on",
+                                stamp_s, config_.stream.max_stamp_jump_s));
+      held_ = std::move(frame);
+      return;
+    case A::kDropZeroStamp:
+    case A::kDropOutOfOrder:
+    case A::kDropStraySize:
+      warn(StreamMonitor::describe(d.action),
+           format("frame at t=%.3f dropped: ", stamp_s) + StreamMonitor::describe(d.action) +
+               (d.action == A::kDropStraySize ? " (" + std::to_string(frame.image.cols) + "x" +
+                                                    std::to_string(frame.image.rows) + ")"
+                                              : std::string()),
+           true);
+      return;
+  }
+}
+
+void LiveSession::process(LiveFrame frame) {
+  const cv::Mat image = calibrate(frame);
+  std::optional<Eigen::Isometry3d> T_W_C;
+  try {
+    T_W_C = client_.place(frame);
+  } catch (const LiveSessionClient::Unavailable& e) {
+    warn(e.kind(), e.what(), true);
+    return;
+  }
+  // A given pose is in metres: mapping waits for a metric scale, and says so.
+  if (T_W_C) {
+    const bool metric = scale_policy_.metric();
+    recon_.set_mapping(metric);
+    status_.mapping_held = !metric;
+    if (!metric) {
+      const ScaleEstimate& e = scale_policy_.estimate();
+      char line[320];
+      std::snprintf(line, sizeof line,
+                    "frame at t=%.3f placed by the given pose but not mapped: the map waits for "
+                    "a metric scale (%s; %d of %d samples, standard error %.1f %% of %.4g, "
+                    "converged at %.1f %%)",
+                    frame.stamp_s, config::enum_name(config_.scale.source), e.samples,
+                    config_.scale.min_samples, e.scale > 0.0 ? 100.0 * e.stddev / e.scale : 0.0,
+                    e.scale, 100.0 * config_.scale.max_rel_stddev);
+      warn("map waits for scale", line);
+    }
+  }
+  std::optional<FrameResult> result = recon_.push(image, frame.encoding, frame.stamp_s, T_W_C);
+  // Only a frame the model took awaits a result.
+  pending_.push_back({std::move(frame.tag), image.size()});
+  status_.stream_frames = recon_.frames_pushed();
+  if (result) deliver(std::move(*result));
+}
+
+void LiveSession::flush() {
+  if (pending_.empty()) return;
+  if (std::optional<FrameResult> result = recon_.flush()) deliver(std::move(*result));
+}
+
+// The calibration of this frame, validated against its image; a valid new
+// one applies from this frame on. Returns the image the model sees.
+cv::Mat LiveSession::calibrate(const LiveFrame& frame) {
+  const cv::Mat& image = frame.image;
+  const std::string& source = config_.calibration_source;
+  if (rectifier_.valid() && (rectifier_.intrinsics().width != image.cols ||
+                             rectifier_.intrinsics().height != image.rows)) {
+    rectifier_ = CameraRectifier();  // of another image size: a new stream began
+    recon_.set_calibration(std::nullopt);
+  }
+  if (frame.camera) {
+    const std::string problem = CameraRectifier::problem(*frame.camera, image.cols, image.rows);
+    if (!problem.empty()) {
+      status_.calibration_refused = true;
+      status_.calibration = source + " not used: " + problem;
+      warn(source + " " + problem,
+           source + " not used: " + problem +
+               (rectifier_.valid() ? "; keeping the last valid calibration"
+                                   : "; the focal length is estimated from the images instead"));
+    } else {
+      status_.calibration_refused = false;
+      const bool first = !rectifier_.valid();
+      if (rectifier_.set(*frame.camera, config_.image_is_rectified)) {
+        info("calibration", "camera calibration " + (first ? "from " + source : "changed") + ": " +
+                                rectifier_.describe());
+        recon_.set_calibration(rectifier_.intrinsics());
+      }
+      status_.calibration = rectifier_.describe();
+    }
+  }
+  return rectifier_.prepare(image);
+}
+
+void LiveSession::reset(const std::string& why) {
+  monitor_.reset();
+  new_stream(why);
+}
+
+void LiveSession::new_stream(const std::string& why) {
+  LiveEvent e;
+  e.level = LiveEvent::Level::kWarning;
+  e.kind = "new stream";
+  e.message = why + ": starting a new stream (memory, map and path cleared)";
+  e.throttle = false;  // each one is news
+  client_.on_event(e);
+  recon_.reset();
+  pending_.clear();
+  held_.reset();
+  status_.lost_frames = 0;
+  status_.lost_for_s = 0.0;
+  status_.stream_frames = 0;
+  start_stream_scale();
+  client_.on_new_stream(why);
+}
+
+void LiveSession::start_stream_scale() {
+  scale_policy_.reset();
+  scale_sampler_.reset();
+  recon_.set_scale(scale_policy_.applied());  // fixed: the given scale; otherwise 1
+  recon_.set_mapping(true);
+  status_.scale_estimate = scale_policy_.estimate();
+  status_.scale = scale_policy_.applied();
+  status_.scale_metric = scale_policy_.metric();
+  ++status_.streams;
+}
+
+// ---------------------------------------------------------------- results
+
+void LiveSession::deliver(FrameResult frame) {
+  // Results come back in push order: the oldest pending frame is this one.
+  if (pending_.empty()) return;
+  LiveResult r;
+  r.tag = std::move(pending_.front().tag);
+  r.image_size = pending_.front().image_size;
+  pending_.pop_front();
+  r.frame = std::move(frame);
+  const FrameResult& f = r.frame;
+  status_.mem_short_tokens = f.model.mem_short_tokens;
+  status_.mem_long_tokens = f.model.mem_long_tokens;
+  status_.relevant_tokens = f.model.relevant_tokens;
+
+  if (f.intrinsics.fx > 0.0) {
+    const std::string line =
+        f.intrinsics_source == IntrinsicsSource::kCalibration
+            ? "from " + config_.calibration_source +
+                  format(": fx %.2f, fy %.2f px", f.intrinsics.fx, f.intrinsics.fy) +
+                  format(", cx %.2f, cy %.2f at model resolution", f.intrinsics.cx, f.intrinsics.cy)
+            : format(
+                  "estimated from the first frame (no usable calibration): focal %.2f px at "
+                  "model resolution",
+                  f.intrinsics.fx);
+    if (line != intrinsics_logged_) {
+      info("intrinsics", "intrinsics in use " + line);
+      intrinsics_logged_ = line;
+    }
+  }
+  track_loss(f);
+  if (f.pose.ok()) update_scale(r);
+  client_.on_result(r);
+}
+
+void LiveSession::track_loss(const FrameResult& r) {
+  int& lost = status_.lost_frames;
+  if (r.pose.ok()) {
+    if (lost > 0) {
+      info("tracking", "tracking recovered at frame " + std::to_string(r.frame_index) + " after " +
+                           std::to_string(lost) + " unposed frame(s)");
+    }
+    lost = 0;
+  } else {
+    if (lost++ == 0) lost_since_stamp_ = r.stamp;
+    warn("pose", "frame " + std::to_string(r.frame_index) + ": pose estimation failed (" +
+                     r.pose.message + "); not added to the map (tracking lost for " +
+                     std::to_string(lost) + " frame(s))");
+    if (config_.lost_reset_frames > 0 && lost >= config_.lost_reset_frames) {
+      new_stream("tracking lost for " + std::to_string(lost) +
+                 " consecutive frames (lost_reset_frames)");
+    }
+  }
+  status_.lost_for_s = lost > 0 ? r.stamp - lost_since_stamp_ : 0.0;
+  status_.tracking = lost > 0 ? "lost" : "ok";
+}
+
+// This result's sample of the metric scale, and the scale itself when the
+// policy applies one: the stream is rescaled, and so is this result.
+void LiveSession::update_scale(LiveResult& result) {
+  FrameResult& r = result.frame;
+  std::optional<double> sample;
+  if (config_.scale.source == ScaleSource::kDepth) {
+    sample = depth_sample(result);
+  } else if (config_.scale.source == ScaleSource::kOdometry) {
+    try {
+      const Eigen::Vector3d odom = client_.odometry_camera_position_m(result);
+      const Eigen::Vector3d model = r.model_T_W_C.translation() / r.scale;
+      sample = scale_sampler_.add(odom, model);
+    } catch (const LiveSessionClient::Unavailable& e) {
+      warn(e.kind(), e.what());
+    }
+  }
+  if (sample) scale_policy_.add_sample(*sample);
+  const std::optional<double> scale = scale_policy_.scale_to_apply();
+  const ScaleEstimate& e = scale_policy_.estimate();
+  if (scale) {
+    recon_.set_scale(*scale);
+    recon_.set_mapping(true);
+  }
+  status_.scale_estimate = e;
+  status_.scale = scale_policy_.applied();
+  status_.scale_metric = scale_policy_.metric();
+  if (!scale) return;
+  char line[256];
+  std::snprintf(line, sizeof line,
+                "metric scale %.4f +- %.4f m per model unit from %d samples (%s, %d rejected): "
+                "map and path rescaled",
+                e.scale, e.stddev, e.samples, config::enum_name(config_.scale.source), e.rejected);
+  info("scale", line);
+  Reconstruction::rescale(r, *scale);
+  result.scale_changed = true;
+}
+
+// measured / predicted depth for this result (metric_scale.hpp).
+std::optional<double> LiveSession::depth_sample(const LiveResult& result) {
+  const FrameResult& r = result.frame;
+  cv::Mat metres;
+  try {
+    metres = client_.depth(result);
+  } catch (const LiveSessionClient::Unavailable& e) {
+    warn(e.kind(), e.what());
+    return std::nullopt;
+  }
+  try {
+    metres = depth_in_metres(metres);
+  } catch (const std::exception& e) {
+    warn("depth encoding", std::string("depth image not used: ") + e.what());
+    return std::nullopt;
+  }
+  const cv::Size& image_size = result.image_size;
+  // Registered to the raw image: rectified as the image was, without blending depths.
+  if (metres.size() == image_size && rectifier_.rectifies()) {
+    metres = rectifier_.prepare(metres, cv::INTER_NEAREST);
+  }
+  if (metres.size() != image_size) {
+    warn("depth size", "depth image of " + std::to_string(metres.cols) + "x" +
+                           std::to_string(metres.rows) + " is not registered to the images (" +
+                           std::to_string(image_size.width) + "x" +
+                           std::to_string(image_size.height) + ")");
+    return std::nullopt;
+  }
+  const ReconstructionConfig& rc = recon_.config();
+  const ResizeCropPlan plan = plan_resize_crop(metres.cols, metres.rows, rc.preprocess);
+  const cv::Mat measured =
+      depth_at_model_pixels(metres, plan.model_to_source, r.conf.cols, r.conf.rows);
+  std::vector<cv::Mat> xyz;
+  cv::split(r.points_C, xyz);
+  const cv::Mat predicted = xyz[2] / r.scale;  // model units
+  return depth_scale_sample(predicted, measured, r.conf, rc.conf_threshold);
+}
+
+}  // namespace long3r

@@ -1,0 +1,348 @@
+// LiveSession without ROS: tags back with their results, stream continuity
+// (a pause goes on, a jump back in time starts a new stream after the old
+// one's last result), tracking loss, the metric scale from odometry and from
+// depth images, calibrations validated, and frames the client cannot place.
+// A model that returns the generator's ground truth makes every figure exact.
+#include <gtest/gtest.h>
+
+#include <any>
+#include <cmath>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "long3r/pipeline/live_session.hpp"
+#include "support/cv_test_support.hpp"
+
+namespace long3r {
+namespace {
+
+using test::FakeModel;
+using test::GtSequence;
+using test::kGtSize;
+using test::make_sequence;
+
+// Depth of frame k (z in its own camera) from the ground-truth pointmap.
+cv::Mat gt_depth(const GtSequence& g, int k) {
+  const Eigen::Isometry3f T_C_0 = g.T_0_k[static_cast<std::size_t>(k)].inverse().cast<float>();
+  const cv::Mat& pts = g.pts_W0[static_cast<std::size_t>(k)];
+  cv::Mat z(pts.size(), CV_32FC1);
+  for (int i = 0; i < pts.rows * pts.cols; ++i) {
+    const cv::Vec3f p = pts.at<cv::Vec3f>(i);
+    z.at<float>(i) = (T_C_0 * Eigen::Vector3f(p[0], p[1], p[2])).z();
+  }
+  return z;
+}
+
+// Records what the session reports; tags are frame numbers.
+struct Recorder : LiveSessionClient {
+  const GtSequence* g = nullptr;
+  std::vector<LiveResult> results;
+  std::vector<LiveEvent> events;
+  std::vector<std::string> log;  // results and new streams, in order
+  std::function<std::optional<Eigen::Isometry3d>(int)> placer;
+  double odometry_scale = 0.0;  // metres per ground-truth unit
+  double depth_scale = 0.0;
+  int depth_type = CV_32FC1;
+
+  std::optional<Eigen::Isometry3d> place(const LiveFrame& f) override {
+    return placer ? placer(std::any_cast<int>(f.tag)) : std::nullopt;
+  }
+  Eigen::Vector3d odometry_camera_position_m(const LiveResult& r) override {
+    const int k = std::any_cast<int>(r.tag);
+    if (k == 5) throw Unavailable("tf scale", "odometry scale: no odometry at frame 5");
+    return odometry_scale * g->T_0_k[static_cast<std::size_t>(k)].translation();
+  }
+  cv::Mat depth(const LiveResult& r) override {
+    const cv::Mat z = gt_depth(*g, std::any_cast<int>(r.tag)) * depth_scale;
+    if (depth_type == CV_32FC1) return z;
+    cv::Mat out;
+    z.convertTo(out, depth_type, depth_type == CV_16UC1 ? 1000.0 : 1.0);
+    return out;
+  }
+  void on_result(LiveResult& r) override {
+    log.push_back("result " + std::to_string(std::any_cast<int>(r.tag)));
+    results.push_back(r);
+  }
+  void on_new_stream(const std::string& why) override { log.push_back("new stream: " + why); }
+  void on_event(const LiveEvent& e) override { events.push_back(e); }
+
+  const LiveEvent* event(const std::string& text) const {
+    for (const LiveEvent& e : events) {
+      if (e.message.find(text) != std::string::npos) return &e;
+    }
+    return nullptr;
+  }
+};
+
+struct Session {
+  GtSequence g;
+  Recorder client;
+  std::unique_ptr<LiveSession> session;
+  explicit Session(int frames, LiveSessionConfig config = {}, bool calibrated = true)
+      : g(make_sequence(frames)) {
+    client.g = &g;
+    session = std::make_unique<LiveSession>(std::make_unique<FakeModel>(&g.pts_W0),
+                                            test::gt_reconstruction_config(), config, client);
+    calibrated_ = calibrated;
+  }
+  // Frame k at stamp_s, arriving when the clock reads clock_s (default: the stamp).
+  void push(int k, double stamp_s, double clock_s = -1.0,
+            std::optional<CameraModel> camera = std::nullopt) {
+    LiveFrame f;
+    f.image = g.bgr[static_cast<std::size_t>(k)];
+    f.encoding = "bgr8";
+    f.stamp_s = stamp_s;
+    f.clock_s = clock_s < 0.0 ? stamp_s : clock_s;
+    f.camera = camera        ? camera
+               : calibrated_ ? std::optional<CameraModel>(camera_model(g.seq.config.intrinsics))
+                             : std::nullopt;
+    f.tag = k;
+    session->push(std::move(f));
+  }
+  std::vector<int> tags() const {
+    std::vector<int> t;
+    for (const LiveResult& r : client.results) t.push_back(std::any_cast<int>(r.tag));
+    return t;
+  }
+
+ private:
+  bool calibrated_ = true;
+};
+
+TEST(LiveSession, TagsComeBackWithTheirResultsAcrossAPauseAndOddFrames) {
+  Session s(7);
+  for (int k = 0; k < 3; ++k) s.push(k, 10.0 + 0.1 * k);
+  s.push(2, 10.2);  // a duplicate: dropped, named
+  const LiveEvent* dup = s.client.event("duplicate or out of order");
+  ASSERT_NE(dup, nullptr);
+  EXPECT_TRUE(dup->frame_dropped);
+  EXPECT_EQ(dup->level, LiveEvent::Level::kWarning);
+  s.push(3, 0.0);  // no stamp: dropped
+  EXPECT_NE(s.client.event("has no time stamp"), nullptr);
+  s.session->flush();  // a pause: frame 2 now
+  EXPECT_EQ(s.tags(), (std::vector<int>{0, 1, 2}));
+  for (int k = 3; k < 7; ++k) s.push(k, 3600.0 + 0.1 * k);  // an hour later: the same stream
+  s.session->flush();
+  ASSERT_EQ(s.tags(), (std::vector<int>{0, 1, 2, 3, 4, 5, 6}));
+  for (std::size_t k = 0; k < s.client.results.size(); ++k) {
+    const FrameResult& r = s.client.results[k].frame;
+    EXPECT_EQ(r.frame_index, static_cast<std::int64_t>(k));
+    ASSERT_TRUE(r.pose.ok()) << k;
+    EXPECT_LT((r.pose.T_W_C.translation() - s.g.T_0_k[k].translation()).norm(), 1e-3) << k;
+    EXPECT_EQ(s.client.results[k].image_size, cv::Size(kGtSize, kGtSize));
+  }
+  const LiveStatus st = s.session->status();
+  EXPECT_EQ(st.streams, 1u);
+  EXPECT_EQ(st.stream_frames, 7);
+  EXPECT_EQ(st.tracking, "ok");
+  EXPECT_EQ(st.mem_short_tokens, 7);
+  EXPECT_NE(s.client.event("intrinsics in use from calibration: fx"), nullptr);
+  EXPECT_EQ(s.session->reconstruction().trajectory().size(), 7u);
+}
+
+TEST(LiveSession, TimeJumpingBackStartsANewStreamAfterTheOldOnesLastResult) {
+  Session s(6);
+  for (int k = 0; k < 4; ++k) s.push(k, 10.0 + 0.1 * k);
+  s.push(4, 2.0);  // a looped bag
+  s.push(5, 2.1);
+  s.session->flush();
+  ASSERT_EQ(s.client.log.size(), 7u);
+  EXPECT_EQ(s.client.log[3], "result 3");  // the old stream's last frame comes first
+  EXPECT_EQ(s.client.log[4].rfind("new stream: frame at t=2.000: time jumped back", 0), 0u)
+      << s.client.log[4];
+  EXPECT_EQ(s.client.log[5], "result 4");
+  EXPECT_EQ(s.client.results.back().frame.frame_index, 1);  // of the new stream
+  const LiveEvent* w = s.client.event("starting a new stream (memory, map and path cleared)");
+  ASSERT_NE(w, nullptr);
+  EXPECT_FALSE(w->throttle);
+  EXPECT_EQ(s.session->status().streams, 2u);
+  EXPECT_EQ(s.session->reconstruction().trajectory().size(), 2u);
+}
+
+TEST(LiveSession, LostTrackingStartsANewStreamAfterLostResetFrames) {
+  LiveSessionConfig config;
+  config.lost_reset_frames = 2;
+  Session s(8, config);
+  const cv::Mat nothing(kGtSize, kGtSize, CV_32FC3, cv::Scalar::all(NAN));
+  s.g.pts_W0[3] = s.g.pts_W0[4] = nothing;  // the model sees nothing it can pose
+  for (int k = 0; k < 5; ++k) s.push(k, 1.0 + 0.1 * k);
+  // Frame 4 (the second unposed one) comes back with frame 5: the stream restarts.
+  s.push(5, 1.5);
+  const LiveEvent* lost = s.client.event("pose estimation failed");
+  ASSERT_NE(lost, nullptr);
+  EXPECT_NE(lost->message.find("tracking lost for 1 frame(s)"), std::string::npos);
+  EXPECT_EQ(s.client.log.back(), "result 4");
+  EXPECT_EQ(s.client.log[s.client.log.size() - 2],
+            "new stream: tracking lost for 2 consecutive frames (lost_reset_frames)");
+  const LiveStatus st = s.session->status();
+  EXPECT_EQ(st.lost_frames, 0);
+  EXPECT_EQ(st.streams, 2u);
+  // Frame 5 went with the old stream; the new one starts with frame 6.
+  s.push(6, 1.6);
+  s.push(7, 1.7);
+  s.session->flush();
+  EXPECT_EQ(s.tags(), (std::vector<int>{0, 1, 2, 3, 4, 6, 7}));
+  EXPECT_EQ(s.client.results[5].frame.frame_index, 0);
+  EXPECT_TRUE(s.client.results[5].frame.pose.ok());
+}
+
+TEST(LiveSession, OdometryScaleConvergesAndEveryResultLeavesInIt) {
+  LiveSessionConfig config;
+  config.scale.source = ScaleSource::kOdometry;
+  config.scale.min_baseline_m = 0.01;
+  config.scale.min_samples = 3;
+  Session s(10, config);
+  s.client.odometry_scale = 2.5;
+  for (int k = 0; k < 10; ++k) s.push(k, 1.0 + 0.1 * k);
+  s.session->flush();
+  ASSERT_EQ(s.client.results.size(), 10u);
+  // The estimate: ratios of odometry to PnP displacements on exact points.
+  const double scale = s.session->status().scale;
+  EXPECT_NEAR(scale, 2.5, 1e-6);
+  int changed = 0;
+  bool metric = false;
+  for (std::size_t k = 0; k < 10; ++k) {
+    const LiveResult& r = s.client.results[k];
+    changed += r.scale_changed;
+    metric = metric || r.scale_changed;
+    const double expected = metric ? scale : 1.0;
+    EXPECT_EQ(r.frame.scale, expected) << k;
+    EXPECT_LT((r.frame.pose.T_W_C.translation() - expected * s.g.T_0_k[k].translation()).norm(),
+              2e-3)
+        << k;
+  }
+  EXPECT_EQ(changed, 1);
+  // The frames before the scale was known are rescaled in the path.
+  const auto trajectory = s.session->reconstruction().trajectory();
+  ASSERT_EQ(trajectory.size(), 10u);
+  for (std::size_t k = 0; k < 10; ++k) {
+    EXPECT_LT((trajectory[k].second.translation() - 2.5 * s.g.T_0_k[k].translation()).norm(), 5e-3)
+        << k;
+  }
+  const LiveStatus st = s.session->status();
+  EXPECT_TRUE(st.scale_metric);
+  EXPECT_NE(s.client.event("metric scale 2.5000"), nullptr);
+  const LiveEvent* missing = s.client.event("no odometry at frame 5");
+  ASSERT_NE(missing, nullptr);
+  EXPECT_EQ(missing->kind, "tf scale");
+  EXPECT_FALSE(missing->frame_dropped);  // the frame is there; only its sample is not
+}
+
+TEST(LiveSession, DepthScaleFromMillimetreAndMetreImages) {
+  for (const int type : {CV_32FC1, CV_16UC1}) {
+    SCOPED_TRACE(type);
+    LiveSessionConfig config;
+    config.scale.source = ScaleSource::kDepth;
+    config.scale.min_samples = 3;
+    Session s(6, config);
+    s.client.depth_scale = 0.8;
+    s.client.depth_type = type;
+    for (int k = 0; k < 6; ++k) s.push(k, 1.0 + 0.1 * k);
+    s.session->flush();
+    const LiveStatus st = s.session->status();
+    ASSERT_TRUE(st.scale_metric);
+    EXPECT_NEAR(st.scale, 0.8, type == CV_16UC1 ? 1e-3 : 1e-5);
+    EXPECT_EQ(s.client.results.size(), 6u);
+  }
+  LiveSessionConfig config;
+  config.scale.source = ScaleSource::kDepth;
+  Session s(3, config);
+  s.client.depth_scale = 1.0;
+  s.client.depth_type = CV_8UC1;
+  for (int k = 0; k < 3; ++k) s.push(k, 1.0 + 0.1 * k);
+  const LiveEvent* e = s.client.event("depth image not used: a depth image must be 16UC1");
+  ASSERT_NE(e, nullptr);
+  EXPECT_EQ(e->kind, "depth encoding");
+  EXPECT_FALSE(s.session->status().scale_metric);
+}
+
+TEST(LiveSession, CalibrationsAreValidatedAndARefusedOneIsNamed) {
+  LiveSessionConfig config;
+  config.calibration_source = "calibration.txt";
+  Session s(5, config, /*calibrated=*/false);
+  CameraModel bad = camera_model(s.g.seq.config.intrinsics);
+  bad.K[0] = NAN;
+  s.push(0, 1.0, -1.0, bad);
+  const LiveEvent* refused = s.client.event("calibration.txt not used: K[0] (fx) is nan");
+  ASSERT_NE(refused, nullptr);
+  EXPECT_NE(refused->message.find("the focal length is estimated from the images"),
+            std::string::npos);
+  EXPECT_TRUE(s.session->status().calibration_refused);
+  s.push(1, 1.1);  // no calibration: frame 0 comes back with an estimated focal length
+  ASSERT_EQ(s.client.results.size(), 1u);
+  EXPECT_EQ(s.client.results[0].frame.intrinsics_source, IntrinsicsSource::kEstimatedWeiszfeld);
+  s.push(2, 1.2, -1.0, camera_model(s.g.seq.config.intrinsics));
+  EXPECT_NE(s.client.event("camera calibration from calibration.txt: fx"), nullptr);
+  EXPECT_FALSE(s.session->status().calibration_refused);
+  EXPECT_EQ(s.session->status().calibration.rfind("fx ", 0), 0u);
+  // A calibration of another image size is refused, the valid one kept.
+  CameraModel other = camera_model(s.g.seq.config.intrinsics);
+  other.width *= 2;
+  s.push(3, 1.3, -1.0, other);
+  EXPECT_NE(s.client.event("keeping the last valid calibration"), nullptr);
+  s.push(4, 1.4);
+  s.session->flush();
+  ASSERT_EQ(s.client.results.size(), 5u);
+  for (std::size_t k = 2; k < 5; ++k) {
+    const FrameResult& r = s.client.results[k].frame;
+    EXPECT_EQ(r.intrinsics_source, IntrinsicsSource::kCalibration) << k;
+    EXPECT_NEAR(r.intrinsics.fx, s.g.seq.config.intrinsics.fx, 1e-9) << k;
+  }
+}
+
+TEST(LiveSession, AFrameTheClientCannotPlaceIsSkippedAndTheStreamGoesOn) {
+  Session s(5);
+  s.client.placer = [&](int k) -> std::optional<Eigen::Isometry3d> {
+    if (k == 2) throw LiveSessionClient::Unavailable("tf odometry", "frame 2: no odometry yet");
+    if (k == 4) return s.g.T_0_k[4];  // a given pose places the frame
+    return std::nullopt;
+  };
+  for (int k = 0; k < 5; ++k) s.push(k, 1.0 + 0.1 * k);
+  s.session->flush();
+  const LiveEvent* skipped = s.client.event("frame 2: no odometry yet");
+  ASSERT_NE(skipped, nullptr);
+  EXPECT_TRUE(skipped->frame_dropped);
+  EXPECT_EQ(skipped->kind, "tf odometry");
+  EXPECT_EQ(s.tags(), (std::vector<int>{0, 1, 3, 4}));
+  // A given pose is in metres: mapping waits for a metric scale from then on.
+  EXPECT_TRUE(s.client.results[1].frame.added_to_map);
+  EXPECT_FALSE(s.client.results[3].frame.added_to_map);
+  EXPECT_TRUE(s.client.results[3].frame.pose.T_W_C.isApprox(s.g.T_0_k[4]));
+  EXPECT_TRUE(s.session->status().mapping_held);
+  const LiveEvent* held = s.client.event("not mapped: the map waits for a metric scale (none;");
+  ASSERT_NE(held, nullptr);
+  EXPECT_FALSE(held->frame_dropped);
+}
+
+TEST(LiveSession, ResetStartsOverAndAConfigIsChecked) {
+  Session s(4);
+  for (int k = 0; k < 3; ++k) s.push(k, 1.0 + 0.1 * k);
+  s.session->reset("reset requested");
+  EXPECT_EQ(s.client.log.back(), "new stream: reset requested");
+  EXPECT_EQ(s.session->reconstruction().map().size(), 0u);
+  s.push(3, 1.05);  // even an earlier stamp: the monitor starts over too
+  s.push(0, 1.06);
+  EXPECT_EQ(s.client.results.back().frame.frame_index, 0);
+  EXPECT_EQ(std::any_cast<int>(s.client.results.back().tag), 3);
+
+  LiveSessionConfig bad;
+  bad.lost_reset_frames = -1;
+  Recorder client;
+  const GtSequence g = make_sequence(1);
+  EXPECT_THROW(LiveSession(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config(),
+                           bad, client),
+               ConfigError);
+  bad = LiveSessionConfig();
+  bad.scale.min_samples = 0;
+  try {
+    LiveSession(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config(), bad,
+                client);
+    FAIL() << "no error";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("scale.min_samples"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace long3r
