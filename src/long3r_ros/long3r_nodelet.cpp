@@ -380,11 +380,6 @@ std::optional<Eigen::Isometry3d> Long3rNodelet::place(const long3r::LiveFrame& f
     throw Unavailable("tf start", format("frame at t=%.3f skipped: ", header.stamp.toSec()) +
                                       e.what() + "; the stream starts once TF has it");
   }
-  {
-    std::lock_guard<std::mutex> state_lock(state_mutex_);
-    state_.frames = frames_->describe();
-    state_.T_map_W = frames_->T_map_W();
-  }
   if (config_.pose_source != PoseSource::kOdometry) return std::nullopt;
   try {
     return frames_->cameraFromOdometry(header.stamp);

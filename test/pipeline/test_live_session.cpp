@@ -342,6 +342,16 @@ TEST(LiveSession, ResetStartsOverAndAConfigIsChecked) {
   } catch (const ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find("scale.min_samples"), std::string::npos) << e.what();
   }
+  bad = LiveSessionConfig();
+  bad.stream.size_change_frames = 0;
+  try {
+    LiveSession(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config(), bad,
+                client);
+    FAIL() << "no error";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("stream.size_change_frames"), std::string::npos)
+        << e.what();
+  }
 }
 
 }  // namespace

@@ -20,6 +20,8 @@
 
 #include <string>
 
+#include "long3r/io/config_fields.hpp"
+
 namespace long3r {
 
 struct StreamMonitorConfig {
@@ -35,6 +37,9 @@ struct StreamMonitorConfig {
   // consumer read it so: such frames are dropped. Recorded data whose clock
   // starts at 0 turns this off.
   bool drop_zero_stamps = true;
+
+  // Throws ConfigError naming the field.
+  void validate(const config::FieldCheck& check) const;
 };
 
 class StreamMonitor {

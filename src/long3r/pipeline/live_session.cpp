@@ -35,9 +35,7 @@ cv::Mat depth_in_metres(const cv::Mat& depth) {
 }  // namespace
 
 void LiveSessionConfig::validate(const config::FieldCheck& check) const {
-  check.require(stream.max_backward_jump_s >= 0.0, "stream.max_backward_jump_s", "must be >= 0");
-  check.require(stream.max_stamp_jump_s > 0.0, "stream.max_stamp_jump_s", "must be > 0");
-  check.require(stream.size_change_frames >= 1, "stream.size_change_frames", "must be >= 1");
+  stream.validate(config::FieldCheck{check.what, check.field("stream")});
   scale.validate(config::FieldCheck{check.what, check.field("scale")});
   check.require(lost_reset_frames >= 0, "lost_reset_frames", "must be >= 0 (0 = never)");
 }

@@ -4,6 +4,12 @@
 
 namespace long3r {
 
+void StreamMonitorConfig::validate(const config::FieldCheck& check) const {
+  check.require(max_backward_jump_s >= 0.0, "max_backward_jump_s", "must be >= 0");
+  check.require(max_stamp_jump_s > 0.0, "max_stamp_jump_s", "must be > 0");
+  check.require(size_change_frames >= 1, "size_change_frames", "must be >= 1");
+}
+
 void StreamMonitor::reset() {
   has_stream_ = false;
   held_ = false;
