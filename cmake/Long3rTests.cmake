@@ -112,6 +112,11 @@ if(LONG3R_WITH_ROS)
       FIXTURES_REQUIRED ros_replay_data
       ENVIRONMENT "LONG3R_REPLAY_DATA=${LONG3R_REPLAY_DATA};LONG3R_BIN=$<TARGET_FILE_DIR:app_long3r_eval>")
   endforeach()
+  # Sessions: map, stop, restart, continue in the same map frame (three node runs).
+  add_test(NAME ros_sessions
+    COMMAND ${CATKIN_ENV} /usr/bin/python3 ${PROJECT_SOURCE_DIR}/test/ros/session_check.py)
+  set_tests_properties(ros_sessions PROPERTIES FIXTURES_REQUIRED ros_replay_data
+    ENVIRONMENT "LONG3R_REPLAY_DATA=${LONG3R_REPLAY_DATA}" TIMEOUT 900)
   # The distorted camera's map is as accurate as the undistorted one's (within 5 %).
   foreach(t robot_undistorted robot_distorted)
     set_tests_properties(_ctest_${PROJECT_NAME}_rostest_test_ros_${t}.test PROPERTIES

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <geometry_msgs/Pose.h>
+#include <nav_msgs/OccupancyGrid.h>
 #include <nav_msgs/Odometry.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
@@ -19,6 +20,7 @@
 
 #include "long3r/pipeline/camera_rectifier.hpp"
 #include "long3r/pipeline/frame_result.hpp"
+#include "long3r/pipeline/occupancy_grid.hpp"
 #include "long3r_ros/Pointmap.h"
 
 namespace long3r_ros {
@@ -43,6 +45,17 @@ sensor_msgs::PointCloud2 toFrameCloud(const sensor_msgs::ImageConstPtr& depth,
                                       const cv::Mat& rgb);
 
 // Unorganised cloud with fields x, y, z, rgb. colors are RGB.
+// The grid as nav_msgs/OccupancyGrid (the same cell layout: rows along y from
+// the origin corner, -1 unknown, 0 free, 100 occupied) in header.frame_id.
+nav_msgs::OccupancyGrid toOccupancyGrid(const long3r::OccupancyGrid& grid,
+                                        const std_msgs::Header& header);
+
+// The map thinned for display (~map with map_display_voxel_m): one point per
+// cube of voxel_m, the centroid of its points' positions and colours (PCL's
+// VoxelGrid). Unchanged for voxel_m <= 0.
+void downsampleForDisplay(std::vector<Eigen::Vector3f>& points,
+                          std::vector<std::array<std::uint8_t, 3>>& colors, double voxel_m);
+
 sensor_msgs::PointCloud2 toColoredCloud(const std::vector<Eigen::Vector3f>& points,
                                         const std::vector<std::array<std::uint8_t, 3>>& colors,
                                         const std_msgs::Header& header);

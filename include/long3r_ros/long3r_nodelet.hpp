@@ -34,6 +34,7 @@
 #include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
 #include <std_srvs/Trigger.h>
+#include <tf2_msgs/TFMessage.h>
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/transform_broadcaster.h>
 #include <tf2_ros/transform_listener.h>
@@ -48,7 +49,9 @@
 
 #include "long3r/pipeline/bounded_queue.hpp"
 #include "long3r/pipeline/live_session.hpp"
+#include "long3r_ros/LoadSession.h"
 #include "long3r_ros/SaveMap.h"
+#include "long3r_ros/SaveSession.h"
 #include "long3r_ros/SaveTrajectory.h"
 #include "long3r_ros/image_input.hpp"
 #include "long3r_ros/log_throttle.hpp"
@@ -67,6 +70,7 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   void onInit() override;
   void loadModel();
   void advertise();
+  void loadStartSession();  // ~session_path
   void subscribe();
 
   // Callbacks: they only enqueue (or count a frame dropped while paused).
@@ -81,8 +85,11 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   bool pauseService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
   bool resumeService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
   bool saveMapService(SaveMap::Request& req, SaveMap::Response& res);
+  bool saveSessionService(SaveSession::Request& req, SaveSession::Response& res);
+  bool loadSessionService(LoadSession::Request& req, LoadSession::Response& res);
   bool saveTrajectoryService(SaveTrajectory::Request& req, SaveTrajectory::Response& res);
   void mapTimerCallback(const ros::WallTimerEvent& event);
+  void publishGrid(const std::vector<Eigen::Vector3f>& points_map);
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
   // Worker thread; session_mutex_ is held around every call into the session,
@@ -99,6 +106,8 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   cv::Mat depth(const long3r::LiveResult& result) override;
   void on_result(long3r::LiveResult& result) override;
   void on_new_stream(const std::string& why) override;
+  long3r::StateDict session_state() override;
+  void restore_session_state(const long3r::StateDict& state) override;
   void on_event(const long3r::LiveEvent& event) override;
 
   void publishOutputs(const long3r::FrameResult& r, const std_msgs::Header& header);
@@ -114,15 +123,24 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   long3r::ThreadConfig thread_config_;
   long3r::InferenceConfig inference_config_;
   long3r::ReconstructionConfig recon_config_;
+  long3r::OccupancyGridConfig grid_config_;
 
   std::unique_ptr<image_transport::ImageTransport> it_;
   image_transport::Subscriber image_sub_;
   ros::Subscriber compressed_sub_, camera_info_sub_, depth_sub_;
   ros::Publisher frame_cloud_pub_, pointmap_pub_, map_pub_, pose_pub_, path_pub_, camera_info_pub_,
-      depth_pub_, odometry_pub_;
+      depth_pub_, odometry_pub_, grid_pub_;
   ros::ServiceServer reset_srv_, pause_srv_, resume_srv_, save_map_srv_, save_trajectory_srv_;
+  ros::ServiceServer save_session_srv_, load_session_srv_;
   ros::WallTimer map_timer_;
   ros::Timer tf_timer_;  // republishes map -> odom (odometry mode), as SLAM nodes do
+  // Another node publishing our transform (amcl, a second SLAM node): ours
+  // stops while it does (statically: for good), named in the log and diagnostics.
+  ros::Subscriber tf_watch_sub_, tf_static_watch_sub_;
+  std::atomic<double> rival_tf_wall_s_{-1e9};
+  std::atomic<bool> rival_tf_static_{false};
+  bool rivalPublishing() const;
+  void tfWatchCallback(const ros::MessageEvent<tf2_msgs::TFMessage const>& event, bool is_static);
   tf2_ros::TransformBroadcaster tf_broadcaster_;
   tf2_ros::Buffer tf_buffer_;
   std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
@@ -151,6 +169,7 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   std::atomic<bool> running_{false};
   std::atomic<bool> paused_{false};
   std::uint64_t last_map_revision_ = 0;
+  std::uint64_t last_grid_revision_ = 0;
 
   // Statistics for diagnostics (written by callbacks and worker).
   WindowStats window_;
@@ -165,6 +184,11 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
     std::string frames = "not started";
     Eigen::Isometry3d T_map_W = Eigen::Isometry3d::Identity();
     std::optional<geometry_msgs::TransformStamped> map_to_odom;
+    std::string session_file = "none";  // the last session saved or loaded, for diagnostics
+    // Camera positions of the path in map (for ~grid).
+    std::vector<Eigen::Vector3d> cameras_map;
+    std::string grid = "not subscribed";
+    std::string tf_rival;  // the node also publishing our transform, if any
   };
   std::mutex state_mutex_;
   State state_;

@@ -17,6 +17,7 @@
 #include "long3r/model/threads.hpp"
 #include "long3r/pipeline/live_session.hpp"
 #include "long3r/pipeline/metric_scale.hpp"
+#include "long3r/pipeline/occupancy_grid.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 #include "long3r_ros/robot_frames.hpp"
 
@@ -39,8 +40,9 @@ inline const std::array<std::pair<PoseSource, const char*>, 2>& enum_names(PoseS
 
 // ROS-side settings: topics, input, queueing, timers, diagnostics.
 struct NodeletConfig {
-  std::string model_path;  // safetensors checkpoint; empty = package default
-  bool publish_tf = true;  // broadcast the one transform (robot_frames.hpp)
+  std::string model_path;    // safetensors checkpoint; empty = package default
+  std::string session_path;  // a saved session to continue at start; empty = none
+  bool publish_tf = true;    // broadcast the one transform (robot_frames.hpp)
   PoseSource pose_source = PoseSource::kModel;
   bool use_camera_info = true;          // use camera_info intrinsics when published
   std::string image_transport = "raw";  // raw, compressed, ...
@@ -48,8 +50,14 @@ struct NodeletConfig {
   int queue_size = 1;                   // bounded input queue; newest frame wins
   double flush_after_s = 1.0;           // publish the pending frame after this silence
   double map_publish_period_s = 1.0;    // republish the map (if changed) this often
-  double no_input_warn_s = 5.0;         // diagnostics warn after this long without images
-  double max_latency_s = 5.0;           // diagnostics: stamp delay beyond this is an error
+  double map_display_voxel_m = 0.0;     // ~map downsampled to this voxel (PCL); 0 = the map's own
+  double tf_publish_rate_hz = 20.0;     // map -> odom republished this often; 0 = with frames only
+  double tf_delay_s = 0.0;              // map -> odom forward-dated by this (as rtabmap's tf_delay)
+  // With a scale source: ~depth and ~frame_cloud wait for the metric scale
+  // (false), or go out in model units meanwhile (true).
+  bool publish_unscaled_depth = false;
+  double no_input_warn_s = 5.0;  // diagnostics warn after this long without images
+  double max_latency_s = 5.0;    // diagnostics: stamp delay beyond this is an error
 };
 
 NodeletConfig readNodeletConfig(const ros::NodeHandle& pnh);
@@ -61,6 +69,7 @@ long3r::StreamMonitorConfig readStreamMonitorConfig(const ros::NodeHandle& pnh);
 long3r::MetricScaleConfig readMetricScaleConfig(const ros::NodeHandle& pnh);
 // The two above, lost_reset_frames and image_is_rectified.
 long3r::LiveSessionConfig readLiveSessionConfig(const ros::NodeHandle& pnh);
+long3r::OccupancyGridConfig readOccupancyGridConfig(const ros::NodeHandle& pnh);
 long3r::ThreadConfig readThreadConfig(const ros::NodeHandle& pnh);
 long3r::InferenceConfig readInferenceConfig(const ros::NodeHandle& pnh);
 long3r::ReconstructionConfig readReconstructionConfig(const ros::NodeHandle& pnh);
@@ -71,6 +80,7 @@ std::string describe(const FramesConfig& config);
 std::string describe(const long3r::StreamMonitorConfig& config);
 std::string describe(const long3r::LiveSessionConfig& config);
 std::string describe(const long3r::MetricScaleConfig& config);
+std::string describe(const long3r::OccupancyGridConfig& config);
 std::string describe(const long3r::ThreadConfig& config);
 std::string describe(const long3r::InferenceConfig& config);
 std::string describe(const long3r::ReconstructionConfig& config);

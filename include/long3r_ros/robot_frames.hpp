@@ -38,6 +38,10 @@ struct FramesConfig {
   std::string base_frame;     // empty: no robot base
   std::string camera_frame;   // empty: the image header's frame_id
   double tf_timeout_s = 0.2;  // wait for a transform at an image stamp
+  // A loaded session's odometry: true = the odom frame it was saved with (a
+  // bag replayed, a robot not restarted), map -> odom is kept; false = the
+  // odometry started over, map -> odom follows from the first placed frame.
+  bool session_odometry_continues = false;
 };
 
 // A transform the node needs is not (yet) in TF; says which and why.
@@ -62,7 +66,26 @@ class RobotFrames {
   // static transform arrived late); then the root of its tree is published
   // from now on (T_map_W stays). Returns true when that changed.
   bool followRoot();
-  void reset() { started_ = false; }
+  void reset() {
+    started_ = false;
+    continuing_ = false;
+  }
+  // A loaded session: the next stream keeps the session's T_map_W (the map
+  // frame it was saved in) instead of fixing a new one; in odom mode,
+  // map -> odom is then unknown until anchorOdometry() (the robot's odometry
+  // started over since), and cameraFromOdometry() waits for it.
+  // T_map_odom: the session's map -> odom, kept when session_odometry_continues.
+  void continueSession(const Eigen::Isometry3d& T_map_W,
+                       const std::optional<Eigen::Isometry3d>& T_map_odom);
+  const Eigen::Isometry3d& T_map_odom() const { return T_map_odom_; }
+  // Whether T_map_W is known: a stream started or a session loaded.
+  bool anchored() const { return started_ || continuing_; }
+  // Whether map -> odom is known (always, but after a session load in odom
+  // mode until anchorOdometry()).
+  bool odometryAnchored() const { return odom_anchored_; }
+  // map -> odom from a camera pose in W that the model estimated at `stamp`
+  // (the first frame relocalised in a loaded session). Throws TfUnavailable.
+  void anchorOdometry(const Eigen::Isometry3d& T_W_C, const ros::Time& stamp);
 
   Mode mode() const { return mode_; }
   const std::string& cameraFrame() const { return camera_frame_; }
@@ -84,7 +107,8 @@ class RobotFrames {
     return T_map_W_ * T_W_C * T_body_cam_.inverse();
   }
   // The camera pose in W from the odometry at `stamp` (pose_source odometry):
-  // T_W_C = T_map_W^-1 * T_odom_base(t) * T_base_cam (map starts as odom).
+  // T_W_C = T_map_W^-1 * T_map_odom * T_odom_base(t) * T_base_cam (map
+  // starts as odom, T_map_odom = I, except in a loaded session).
   // Needs odom and base frames. Throws TfUnavailable.
   Eigen::Isometry3d cameraFromOdometry(const ros::Time& stamp) const;
   // The camera pose in odom at `stamp` (for the odometry scale). Throws TfUnavailable.
@@ -112,6 +136,11 @@ class RobotFrames {
   std::string camera_frame_, published_child_;
   Eigen::Isometry3d T_map_W_ = Eigen::Isometry3d::Identity();
   Eigen::Isometry3d T_body_cam_ = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_map_odom_ = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d saved_T_map_W_ = Eigen::Isometry3d::Identity();
+  std::optional<Eigen::Isometry3d> saved_T_map_odom_;
+  std::atomic<bool> continuing_{false};  // continueSession() until the stream starts
+  bool odom_anchored_ = true;
   std::string conflict_;
 };
 

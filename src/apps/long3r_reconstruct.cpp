@@ -6,6 +6,11 @@
 // cameras and metric scale (--scale-source: a TUM folder's depth images or
 // its groundtruth.txt standing in for odometry).
 //
+// Sessions: --save-session writes the whole stream (memory, map, path, scale)
+// at the end, --load-session continues one, e.g. on a later part of the same
+// input (--first-frame): the map and trajectory then hold both parts, in the
+// saved session's world frame.
+//
 // Outputs in --out: map.ply (fused voxel map, world = camera 0), trajectory.txt
 // (TUM "t tx ty tz qx qy qz qw", frames with a good pose), frames.csv (per
 // frame timings, memory tokens, PnP status, scale, RSS); a summary on stdout.
@@ -120,8 +125,9 @@ class Client : public LiveSessionClient {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string model_path, out_dir, input;
+  std::string model_path, out_dir, input, load_session, save_session;
   int stride = 1, img = 224;
+  long first_frame = 0;
   ThreadConfig threads;
   long max_frames = -1;
   ReconstructionConfig cfg;
@@ -137,6 +143,12 @@ int main(int argc, char** argv) {
   cli.option("--out", "DIR", &out_dir, "map.ply, trajectory.txt, frames.csv").required();
   cli.option("--stride", "N", &stride, "use every N-th frame").min(1);
   cli.option("--max-frames", "N", &max_frames, "stop after N used frames").shown_default("all");
+  cli.option("--first-frame", "N", &first_frame, "start at the input's N-th frame (0-based)")
+      .min(0);
+  cli.option("--load-session", "FILE", &load_session,
+             "continue a session saved by --save-session or the node's ~save_session");
+  cli.option("--save-session", "FILE", &save_session,
+             "save the session (memory, map, path, scale) at the end, to continue it later");
   cli.option("--conf-threshold", "C", &cfg.conf_threshold,
              "confidence threshold for PnP and map (3 for official DUSt3R / Spann3R "
              "checkpoints)")
@@ -272,14 +284,17 @@ int main(int argc, char** argv) {
     };
     Client client(src, record);
     LiveSession session(make_streaming_model(model_path, inference), cfg, session_cfg, client);
+    if (!load_session.empty()) session.load(load_session);
 
     long used = 0, skipped = 0;
     for (size_t i = 0;; ++i) {
       if (max_frames >= 0 && used >= max_frames) break;
+      if (!src.is_video && static_cast<long>(i) < first_frame) continue;
       cv::Mat bgr;
       double stamp = 0.0;
       if (src.is_video) {
         if (!src.video.read(bgr)) break;
+        if (static_cast<long>(i) < first_frame) continue;
         stamp = static_cast<double>(i) / src.fps;
       } else {
         if (i >= src.paths.size()) break;
@@ -315,6 +330,7 @@ int main(int argc, char** argv) {
     if (tty) std::printf("\n");
     if (used == 0) throw std::runtime_error("no readable frames in " + input);
     csv.commit();
+    if (!save_session.empty()) session.save(save_session);
 
     const Reconstruction& rec = session.reconstruction();
     const LiveStatus status = session.status();

@@ -2,6 +2,8 @@
 
 #include <depth_image_proc/depth_conversions.h>
 #include <image_geometry/pinhole_camera_model.h>
+#include <pcl/filters/voxel_grid.h>
+#include <pcl/point_types.h>
 #include <sensor_msgs/image_encodings.h>
 #include <sensor_msgs/point_cloud2_iterator.h>
 #include <tf2_eigen/tf2_eigen.h>
@@ -88,6 +90,34 @@ sensor_msgs::PointCloud2 toFrameCloud(const sensor_msgs::ImageConstPtr& depth,
     }
   }
   return *cloud;
+}
+
+void downsampleForDisplay(std::vector<Eigen::Vector3f>& points,
+                          std::vector<std::array<std::uint8_t, 3>>& colors, double voxel_m) {
+  if (!(voxel_m > 0.0) || points.empty()) return;
+  pcl::PointCloud<pcl::PointXYZRGB>::Ptr cloud(new pcl::PointCloud<pcl::PointXYZRGB>);
+  cloud->resize(points.size());
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    pcl::PointXYZRGB& p = (*cloud)[i];
+    p.x = points[i].x();
+    p.y = points[i].y();
+    p.z = points[i].z();
+    p.r = colors[i][0];
+    p.g = colors[i][1];
+    p.b = colors[i][2];
+  }
+  pcl::VoxelGrid<pcl::PointXYZRGB> grid;
+  grid.setInputCloud(cloud);
+  const float leaf = static_cast<float>(voxel_m);
+  grid.setLeafSize(leaf, leaf, leaf);
+  pcl::PointCloud<pcl::PointXYZRGB> out;
+  grid.filter(out);
+  points.resize(out.size());
+  colors.resize(out.size());
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    points[i] = Eigen::Vector3f(out[i].x, out[i].y, out[i].z);
+    colors[i] = {out[i].r, out[i].g, out[i].b};
+  }
 }
 
 sensor_msgs::PointCloud2 toColoredCloud(const std::vector<Eigen::Vector3f>& points,
@@ -189,6 +219,21 @@ Pointmap toPointmap(const long3r::FrameResult& r, const std_msgs::Header& header
   pm.scale_stddev = metric ? scale_stddev : 0.0;
   pm.metric = metric;
   return pm;
+}
+
+nav_msgs::OccupancyGrid toOccupancyGrid(const long3r::OccupancyGrid& grid,
+                                        const std_msgs::Header& header) {
+  nav_msgs::OccupancyGrid msg;
+  msg.header = header;
+  msg.info.map_load_time = header.stamp;
+  msg.info.resolution = static_cast<float>(grid.resolution_m);
+  msg.info.width = static_cast<std::uint32_t>(grid.width);
+  msg.info.height = static_cast<std::uint32_t>(grid.height);
+  msg.info.origin.position.x = grid.origin_x_m;
+  msg.info.origin.position.y = grid.origin_y_m;
+  msg.info.origin.orientation.w = 1.0;
+  msg.data = grid.cells;
+  return msg;
 }
 
 }  // namespace long3r_ros

@@ -6,6 +6,8 @@
 #include <ros/package.h>
 #include <sensor_msgs/image_encodings.h>
 #include <tf2_eigen/tf2_eigen.h>
+#include <boost/function.hpp>
+#include <boost/make_shared.hpp>
 #include <pluginlib/class_list_macros.hpp>
 
 #include <algorithm>
@@ -75,6 +77,7 @@ void Long3rNodelet::onInit() {
     thread_config_ = readThreadConfig(pnh);
     inference_config_ = readInferenceConfig(pnh);
     recon_config_ = readReconstructionConfig(pnh);
+    grid_config_ = readOccupancyGridConfig(pnh);
   } catch (const ParamError& e) {
     logFatal(getName(), std::string("invalid configuration: ") + e.what());
     throw;
@@ -95,11 +98,13 @@ void Long3rNodelet::onInit() {
                       << describe(session_config_) << "\n"
                       << describe(thread_config_) << "\n"
                       << describe(inference_config_) << "\n"
-                      << describe(recon_config_));
+                      << describe(recon_config_) << "\n"
+                      << describe(grid_config_));
   tf_listener_ = std::make_unique<tf2_ros::TransformListener>(tf_buffer_, getNodeHandle());
   frames_ = std::make_unique<RobotFrames>(frames_config_, tf_buffer_);
   loadModel();
   advertise();
+  loadStartSession();
   queue_ = std::make_unique<long3r::BoundedQueue<InputFrame>>(
       static_cast<std::size_t>(config_.queue_size));
   started_ = ros::WallTime::now();
@@ -142,6 +147,24 @@ void Long3rNodelet::loadModel() {
                long3r::config::enum_name(inference_config_.precision));
 }
 
+// A session named at start must continue, or the node must not start:
+// mapping into a new map frame would mislead whatever navigates on it.
+void Long3rNodelet::loadStartSession() {
+  if (config_.session_path.empty()) return;
+  try {
+    std::lock_guard<std::mutex> lock(session_mutex_);
+    session_->load(config_.session_path);
+    copyStatus();
+    std::lock_guard<std::mutex> state_lock(state_mutex_);
+    state_.session_file = "loaded from " + config_.session_path;
+  } catch (const std::exception& e) {
+    const std::string what =
+        std::string("cannot continue the session (~session_path): ") + e.what();
+    logFatal(getName(), what);
+    throw std::runtime_error(what);
+  }
+}
+
 void Long3rNodelet::advertise() {
   ros::NodeHandle& nh = getNodeHandle();
   ros::NodeHandle& pnh = getPrivateNodeHandle();
@@ -155,16 +178,35 @@ void Long3rNodelet::advertise() {
   camera_info_pub_ = pnh.advertise<sensor_msgs::CameraInfo>("camera_info", 10);
   depth_pub_ = pnh.advertise<sensor_msgs::Image>("depth", 5);
   odometry_pub_ = pnh.advertise<nav_msgs::Odometry>("odometry", 10);
+  grid_pub_ = pnh.advertise<nav_msgs::OccupancyGrid>("grid", 1, /*latch=*/true);
   reset_srv_ = pnh.advertiseService("reset", &Long3rNodelet::resetService, this);
   pause_srv_ = pnh.advertiseService("pause", &Long3rNodelet::pauseService, this);
   resume_srv_ = pnh.advertiseService("resume", &Long3rNodelet::resumeService, this);
   save_map_srv_ = pnh.advertiseService("save_map", &Long3rNodelet::saveMapService, this);
   save_trajectory_srv_ =
       pnh.advertiseService("save_trajectory", &Long3rNodelet::saveTrajectoryService, this);
+  save_session_srv_ =
+      pnh.advertiseService("save_session", &Long3rNodelet::saveSessionService, this);
+  load_session_srv_ =
+      pnh.advertiseService("load_session", &Long3rNodelet::loadSessionService, this);
   map_timer_ = nh.createWallTimer(ros::WallDuration(config_.map_publish_period_s),
                                   &Long3rNodelet::mapTimerCallback, this);
-  if (config_.publish_tf && !frames_config_.odom_frame.empty()) {
-    tf_timer_ = nh.createTimer(ros::Duration(0.05), &Long3rNodelet::tfTimerCallback, this);
+  if (config_.publish_tf &&
+      !(frames_config_.odom_frame.empty() && frames_config_.base_frame.empty())) {
+    using TfEvent = ros::MessageEvent<tf2_msgs::TFMessage const>;
+    tf_watch_sub_ = nh.subscribe<tf2_msgs::TFMessage>(
+        "/tf", 100, boost::function<void(const TfEvent&)>([this](const TfEvent& e) {
+          tfWatchCallback(e, false);
+        }));
+    tf_static_watch_sub_ = nh.subscribe<tf2_msgs::TFMessage>(
+        "/tf_static", 100, boost::function<void(const TfEvent&)>([this](const TfEvent& e) {
+          tfWatchCallback(e, true);
+        }));
+  }
+  if (config_.publish_tf && !frames_config_.odom_frame.empty() &&
+      config_.tf_publish_rate_hz > 0.0) {
+    tf_timer_ = nh.createTimer(ros::Duration(1.0 / config_.tf_publish_rate_hz),
+                               &Long3rNodelet::tfTimerCallback, this);
   }
 
   diagnostics_ = std::make_unique<diagnostic_updater::Updater>(nh, pnh, getName());
@@ -258,16 +300,53 @@ void Long3rNodelet::depthCallback(const sensor_msgs::ImageConstPtr& msg) {
   depth_cache_.add(msg);  // read by the worker with the result of the image of its stamp
 }
 
+// How long another publisher of our transform silences ours after its last
+// message on /tf.
+constexpr double kRivalHoldS = 5.0;
+
+bool Long3rNodelet::rivalPublishing() const {
+  return rival_tf_static_ || wallNow() - rival_tf_wall_s_ < kRivalHoldS;
+}
+
+// The transform we publish (map -> odom, or map -> base without odometry)
+// coming from another node: one frame would have two publishers fighting
+// over it. Ours gives way, and says to whom.
+void Long3rNodelet::tfWatchCallback(const ros::MessageEvent<tf2_msgs::TFMessage const>& event,
+                                    bool is_static) {
+  const std::string& publisher = event.getPublisherName();
+  if (publisher == ros::this_node::getName()) return;
+  const std::string& ours =
+      frames_config_.odom_frame.empty() ? frames_config_.base_frame : frames_config_.odom_frame;
+  for (const geometry_msgs::TransformStamped& t : event.getMessage()->transforms) {
+    if (t.child_frame_id != ours || t.header.frame_id != frames_config_.map_frame) continue;
+    const bool news = !rivalPublishing();
+    rival_tf_wall_s_ = wallNow();
+    if (is_static) rival_tf_static_ = true;
+    const std::string what = frames_config_.map_frame + " -> " + ours + " is also published by " +
+                             publisher + (is_static ? " (static)" : "") +
+                             ": ours stopped while it is, so that the frame has one publisher";
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      state_.tf_rival = what;
+    }
+    if (news) {
+      NODELET_ERROR("%s", what.c_str());
+    }
+    return;
+  }
+}
+
 void Long3rNodelet::tfTimerCallback(const ros::TimerEvent&) {
   std::optional<geometry_msgs::TransformStamped> t;
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
     t = state_.map_to_odom;
   }
-  if (!t) return;
+  if (!t || rivalPublishing()) return;
   // map -> odom is a slowly changing correction: kept valid at the current
-  // time, so that map -> base resolves at the odometry's latest stamps.
-  t->header.stamp = ros::Time::now();
+  // time (and tf_delay_s ahead), so that map -> base resolves at the
+  // odometry's latest stamps.
+  t->header.stamp = ros::Time::now() + ros::Duration(config_.tf_delay_s);
   tf_broadcaster_.sendTransform(*t);
 }
 
@@ -356,9 +435,12 @@ void Long3rNodelet::copyStatus() {
   const long3r::LiveStatus status = session_->status();
   std::lock_guard<std::mutex> lock(state_mutex_);
   state_.session = status;
-  if (frames_->started()) {
-    state_.frames = frames_->describe();
-    state_.T_map_W = frames_->T_map_W();
+  if (frames_->started()) state_.frames = frames_->describe();
+  if (frames_->anchored()) state_.T_map_W = frames_->T_map_W();
+  // For ~grid, whenever it is subscribed (a few microseconds per thousand poses).
+  state_.cameras_map.clear();
+  for (const auto& entry : session_->reconstruction().trajectory()) {
+    state_.cameras_map.push_back(state_.T_map_W * entry.second.translation());
   }
 }
 
@@ -381,6 +463,14 @@ std::optional<Eigen::Isometry3d> Long3rNodelet::place(const long3r::LiveFrame& f
                                       e.what() + "; the stream starts once TF has it");
   }
   if (config_.pose_source != PoseSource::kOdometry) return std::nullopt;
+  if (!frames_->odometryAnchored()) {
+    warnThrottled("session odometry",
+                  format("frame at t=%.3f placed by the model: in the loaded session, map -> "
+                         "odom follows from the first frame the model places (pose_source "
+                         "odometry resumes then)",
+                         header.stamp.toSec()));
+    return std::nullopt;
+  }
   try {
     return frames_->cameraFromOdometry(header.stamp);
   } catch (const TfUnavailable& e) {
@@ -452,6 +542,35 @@ void Long3rNodelet::on_new_stream(const std::string&) {
   path_pub_.publish(pathMessage());
 }
 
+long3r::StateDict Long3rNodelet::session_state() {
+  long3r::StateDict state;
+  if (frames_->anchored()) state["T_map_W"] = long3r::pose_to_tensor(frames_->T_map_W());
+  if (frames_->started() && frames_->mode() == RobotFrames::Mode::kMapToOdom &&
+      frames_->odometryAnchored()) {
+    state["T_map_odom"] = long3r::pose_to_tensor(frames_->T_map_odom());
+  }
+  return state;
+}
+
+// After a load: the session's map frame, so that its map and path stay where
+// they were; the robot's odometry is tied to it by the first placed frame.
+void Long3rNodelet::restore_session_state(const long3r::StateDict& state) {
+  auto pose = [&state](const char* key) -> std::optional<Eigen::Isometry3d> {
+    const auto it = state.find(key);
+    return it == state.end() ? std::nullopt : long3r::pose_from_tensor(it->second);
+  };
+  if (const std::optional<Eigen::Isometry3d> T_map_W = pose("T_map_W")) {
+    frames_->continueSession(*T_map_W, pose("T_map_odom"));
+  } else {
+    NODELET_WARN(
+        "the loaded session has no map frame of its own (saved by long3r_reconstruct?): "
+        "%s is fixed by the next frame, as for a new stream",
+        frames_config_.map_frame.c_str());
+  }
+  copyStatus();
+  path_pub_.publish(pathMessage());
+}
+
 nav_msgs::Path Long3rNodelet::pathMessage() {
   nav_msgs::Path path;
   path.header.frame_id = frames_config_.map_frame;
@@ -478,6 +597,15 @@ void Long3rNodelet::on_result(long3r::LiveResult& r) {
   window_.processed((ros::Time::now() - header.stamp).toSec());
   output_diagnostic_->tick(header.stamp);
   if (r.scale_changed) last_body_.reset();  // the previous pose was in the old scale
+  if (r.frame.pose.ok() && !frames_->odometryAnchored()) {
+    try {
+      frames_->anchorOdometry(r.frame.pose.T_W_C, header.stamp);
+      NODELET_INFO("relocalised in the loaded session at t=%.3f: map -> %s follows from it",
+                   header.stamp.toSec(), frames_config_.odom_frame.c_str());
+    } catch (const TfUnavailable& e) {
+      warnThrottled("tf session", std::string("map -> odom not tied yet: ") + e.what());
+    }
+  }
   publishOutputs(r.frame, header);
 }
 
@@ -493,7 +621,17 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
   const Eigen::Isometry3d T_map_cam = T_map_W * r.pose.T_W_C;
   const Eigen::Isometry3d T_map_body = frames_->bodyInMap(r.pose.T_W_C);
   const long3r::LiveStatus status = session_->status();
-  if (depth_pub_.getNumSubscribers() > 0 || frame_cloud_pub_.getNumSubscribers() > 0) {
+  const bool depth_held = session_config_.scale.source != long3r::ScaleSource::kNone &&
+                          !status.scale_metric && !config_.publish_unscaled_depth;
+  if (depth_held &&
+      (depth_pub_.getNumSubscribers() > 0 || frame_cloud_pub_.getNumSubscribers() > 0)) {
+    warnThrottled("depth held",
+                  format("~depth and ~frame_cloud of the frame at t=%.3f held: they wait for the "
+                         "metric scale (scale_source ",
+                         header.stamp.toSec()) +
+                      long3r::config::enum_name(session_config_.scale.source) +
+                      "); publish_unscaled_depth: true sends them in model units meanwhile");
+  } else if (depth_pub_.getNumSubscribers() > 0 || frame_cloud_pub_.getNumSubscribers() > 0) {
     const sensor_msgs::ImagePtr depth =
         toDepthImage(r.points_C, r.conf, recon_config_.conf_threshold, header);
     if (depth_pub_.getNumSubscribers() > 0) depth_pub_.publish(depth);
@@ -543,7 +681,7 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
   if (config_.publish_tf) {
     try {
       if (const auto t = frames_->transformFor(r.pose.T_W_C, header.stamp)) {
-        tf_broadcaster_.sendTransform(*t);
+        if (!rivalPublishing()) tf_broadcaster_.sendTransform(*t);
         if (frames_->mode() == RobotFrames::Mode::kMapToOdom) {
           std::lock_guard<std::mutex> lock(state_mutex_);
           state_.map_to_odom = *t;
@@ -564,8 +702,14 @@ void Long3rNodelet::mapTimerCallback(const ros::WallTimerEvent&) {
   // The map locks itself: no wait for the model step.
   const long3r::VoxelMap& map = session_->reconstruction().map();
   const std::uint64_t revision = map.revision();
-  if (revision == last_map_revision_) return;  // republish only when the map changed
-  last_map_revision_ = revision;
+  // Built only for subscribers, and only when the map changed since they got it.
+  const bool grid = grid_pub_.getNumSubscribers() > 0 && revision != last_grid_revision_;
+  const bool cloud = map_pub_.getNumSubscribers() > 0 && revision != last_map_revision_;
+  if (!grid) {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    if (grid_pub_.getNumSubscribers() == 0) state_.grid = "not subscribed";
+  }
+  if (!cloud && !grid) return;
   long3r::MapSnapshot snap = map.snapshot();
   Eigen::Isometry3f T_map_W;
   {
@@ -573,10 +717,52 @@ void Long3rNodelet::mapTimerCallback(const ros::WallTimerEvent&) {
     T_map_W = state_.T_map_W.cast<float>();
   }
   for (Eigen::Vector3f& p : snap.points) p = T_map_W * p;
+  if (grid) {
+    last_grid_revision_ = revision;
+    publishGrid(snap.points);
+  }
+  if (!cloud) return;
+  last_map_revision_ = revision;
   std_msgs::Header header;
   header.stamp = ros::Time::now();
   header.frame_id = frames_config_.map_frame;
-  map_pub_.publish(toColoredCloud(snap.points, snap.colors, header));
+  downsampleForDisplay(snap.points, snap.colors, config_.map_display_voxel_m);
+  // By pointer: subscribers in the same nodelet manager share it without a copy.
+  map_pub_.publish(boost::make_shared<sensor_msgs::PointCloud2>(
+      toColoredCloud(snap.points, snap.colors, header)));
+}
+
+// ~grid from the map and the path's camera positions, in the map frame. Only
+// a z-up map (a robot base) has a floor to stand on; the diagnostics say why
+// there is no grid, or that it is not in metres yet.
+void Long3rNodelet::publishGrid(const std::vector<Eigen::Vector3f>& points_map) {
+  std::vector<Eigen::Vector3d> cameras;
+  bool metric = false;
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    cameras = state_.cameras_map;
+    metric = state_.session.scale_metric;
+    if (frames_config_.base_frame.empty()) {
+      state_.grid = "none: needs base_frame (the map is z-up with its floor at z = 0 only then)";
+      return;
+    }
+  }
+  std::string status;
+  try {
+    const long3r::OccupancyGrid g = long3r::build_occupancy_grid(points_map, cameras, grid_config_);
+    std_msgs::Header header;
+    header.stamp = ros::Time::now();
+    header.frame_id = frames_config_.map_frame;
+    if (g.width > 0) grid_pub_.publish(toOccupancyGrid(g, header));
+    status = std::to_string(g.width) + " x " + std::to_string(g.height) + " cells, " +
+             std::to_string(g.occupied) + " occupied, " + std::to_string(g.free) + " free" +
+             (metric ? "" : "; in model units: the scale is not metric yet");
+  } catch (const std::exception& e) {
+    status = std::string("not published: ") + e.what();
+    warnThrottled("grid", "~grid " + status);
+  }
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  state_.grid = status;
 }
 
 // ---------------------------------------------------------------- services
@@ -633,6 +819,47 @@ bool Long3rNodelet::saveMapService(SaveMap::Request& req, SaveMap::Response& res
   return true;
 }
 
+bool Long3rNodelet::saveSessionService(SaveSession::Request& req, SaveSession::Response& res) {
+  std::lock_guard<std::mutex> lock(session_mutex_);
+  try {
+    session_->save(req.path);  // atomic; publishes the pending frame first
+    res.success = true;
+    res.message = "saved " + std::to_string(session_->reconstruction().frames_pushed()) +
+                  " frames, " + std::to_string(session_->reconstruction().map().size()) +
+                  " map points to " + req.path;
+    std::lock_guard<std::mutex> state_lock(state_mutex_);
+    state_.session_file = "saved to " + req.path;
+  } catch (const std::exception& e) {
+    res.success = false;
+    res.message = e.what();
+    NODELET_ERROR("~save_session: %s", e.what());
+  }
+  copyStatus();
+  return true;
+}
+
+bool Long3rNodelet::loadSessionService(LoadSession::Request& req, LoadSession::Response& res) {
+  {
+    std::lock_guard<std::mutex> lock(session_mutex_);
+    try {
+      session_->load(req.path);  // all or nothing
+      res.success = true;
+      res.message = "loaded " + std::to_string(session_->reconstruction().frames_pushed()) +
+                    " frames, " + std::to_string(session_->reconstruction().map().size()) +
+                    " map points from " + req.path + "; the next frames continue it";
+      std::lock_guard<std::mutex> state_lock(state_mutex_);
+      state_.session_file = "loaded from " + req.path;
+    } catch (const std::exception& e) {
+      res.success = false;
+      res.message = e.what() + std::string("; the running session is kept");
+      NODELET_ERROR("~load_session: %s", res.message.c_str());
+    }
+    copyStatus();
+  }
+  if (res.success) queue_->clear();  // frames queued for the old stream
+  return true;
+}
+
 bool Long3rNodelet::saveTrajectoryService(SaveTrajectory::Request& req,
                                           SaveTrajectory::Response& res) {
   long3r::PoseTrajectory trajectory;
@@ -682,7 +909,10 @@ void Long3rNodelet::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) 
   }
   const long3r::LiveStatus& s = state.session;
 
-  if (paused_) {
+  const bool rival = rivalPublishing();
+  if (rival) {
+    stat.summary(S::ERROR, state.tf_rival);
+  } else if (paused_) {
     stat.summary(S::OK, "paused (~resume to continue)");
   } else if (quiet_s > config_.no_input_warn_s) {
     stat.summaryf(S::WARN, last_input > 0.0 ? "no input for %.0f s" : "no image received in %.0f s",
@@ -726,6 +956,9 @@ void Long3rNodelet::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) 
             e.samples, e.rejected);
   stat.add("stream frames", s.stream_frames);
   stat.add("streams started", s.streams);
+  stat.add("session file", state.session_file);
+  stat.add("grid", state.grid);
+  stat.add("tf", rival ? state.tf_rival : std::string("publishing"));
   stat.add("memory tokens short", s.mem_short_tokens);
   stat.add("memory tokens long", s.mem_long_tokens);
   stat.add("relevant tokens", s.relevant_tokens);
@@ -753,6 +986,8 @@ void Long3rNodelet::shutdown() {
   pause_srv_.shutdown();
   resume_srv_.shutdown();
   save_map_srv_.shutdown();
+  save_session_srv_.shutdown();
+  load_session_srv_.shutdown();
   save_trajectory_srv_.shutdown();
   map_timer_.stop();
   if (queue_) queue_->close();

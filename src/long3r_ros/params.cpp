@@ -16,6 +16,7 @@ namespace {
 template <class S, class V>
 long3r::config::FieldsOf<S, NodeletConfig> ros_fields(S& c, V& v) {
   v("model_path", c.model_path, "(package default)");
+  v("session_path", c.session_path, "(none)");
   v("publish_tf", c.publish_tf);
   v("pose_source", c.pose_source);
   v("use_camera_info", c.use_camera_info);
@@ -24,6 +25,10 @@ long3r::config::FieldsOf<S, NodeletConfig> ros_fields(S& c, V& v) {
   v("queue_size", c.queue_size);
   v("flush_after_s", c.flush_after_s);
   v("map_publish_period_s", c.map_publish_period_s);
+  v("map_display_voxel_m", c.map_display_voxel_m, "(the map's voxels)");
+  v("tf_publish_rate_hz", c.tf_publish_rate_hz, "(with frames only)");
+  v("tf_delay_s", c.tf_delay_s);
+  v("publish_unscaled_depth", c.publish_unscaled_depth);
   v("no_input_warn_s", c.no_input_warn_s);
   v("max_latency_s", c.max_latency_s);
 }
@@ -35,6 +40,7 @@ long3r::config::FieldsOf<S, FramesConfig> ros_fields(S& c, V& v) {
   v("base_frame", c.base_frame, "(none)");
   v("camera_frame", c.camera_frame, "(from image header)");
   v("tf_timeout_s", c.tf_timeout_s);
+  v("session_odometry_continues", c.session_odometry_continues);
 }
 
 template <class S, class V>
@@ -60,6 +66,15 @@ template <class S, class V>
 long3r::config::FieldsOf<S, long3r::LiveSessionConfig> ros_fields(S& c, V& v) {
   v("image_is_rectified", c.image_is_rectified);
   v("lost_reset_frames", c.lost_reset_frames, "(never)");
+}
+
+template <class S, class V>
+long3r::config::FieldsOf<S, long3r::OccupancyGridConfig> ros_fields(S& c, V& v) {
+  v("grid_resolution_m", c.resolution_m);
+  v("grid_min_height_m", c.min_height_m);
+  v("grid_max_height_m", c.max_height_m);
+  v("grid_max_range_m", c.max_range_m);
+  v("grid_min_points", c.min_points);
 }
 
 template <class S, class V>
@@ -192,6 +207,11 @@ NodeletConfig readNodeletConfig(const ros::NodeHandle& pnh) {
   require(c.queue_size >= 1 && c.queue_size <= 1000, pnh, "queue_size", "must be in [1, 1000]");
   require(c.flush_after_s > 0.0, pnh, "flush_after_s", "must be > 0");
   require(c.map_publish_period_s > 0.0, pnh, "map_publish_period_s", "must be > 0");
+  require(c.map_display_voxel_m >= 0.0 && std::isfinite(c.map_display_voxel_m), pnh,
+          "map_display_voxel_m", "must be >= 0 (0 = the map's own voxels)");
+  require(c.tf_publish_rate_hz >= 0.0 && c.tf_publish_rate_hz <= 1000.0, pnh, "tf_publish_rate_hz",
+          "must be in [0, 1000] (0 = with frames only)");
+  require(c.tf_delay_s >= 0.0 && c.tf_delay_s <= 10.0, pnh, "tf_delay_s", "must be in [0, 10]");
   require(c.max_image_pixels >= 16 * 16, pnh, "max_image_pixels", "must be >= 256");
   require(c.no_input_warn_s > 0.0, pnh, "no_input_warn_s", "must be > 0");
   require(c.max_latency_s > 0.0, pnh, "max_latency_s", "must be > 0");
@@ -250,6 +270,16 @@ long3r::LiveSessionConfig readLiveSessionConfig(const ros::NodeHandle& pnh) {
   return c;
 }
 
+long3r::OccupancyGridConfig readOccupancyGridConfig(const ros::NodeHandle& pnh) {
+  const long3r::OccupancyGridConfig c = read_all<long3r::OccupancyGridConfig>(pnh);
+  try {
+    c.validate({"parameters " + pnh.getNamespace() + "/grid_*", ""});
+  } catch (const long3r::ConfigError& e) {
+    throw ParamError(e.what());
+  }
+  return c;
+}
+
 long3r::ThreadConfig readThreadConfig(const ros::NodeHandle& pnh) {
   const long3r::ThreadConfig c = read_all<long3r::ThreadConfig>(pnh);
   require(c.torch_threads >= 0 && c.torch_threads <= 256, pnh, "torch_threads",
@@ -292,6 +322,7 @@ long3r::ReconstructionConfig readReconstructionConfig(const ros::NodeHandle& pnh
 
 std::string describe(const NodeletConfig& c) { return describe_all(c); }
 std::string describe(const FramesConfig& c) { return describe_all(c); }
+std::string describe(const long3r::OccupancyGridConfig& c) { return describe_all(c); }
 std::string describe(const long3r::MetricScaleConfig& c) { return describe_all(c); }
 std::string describe(const long3r::StreamMonitorConfig& c) { return describe_all(c); }
 std::string describe(const long3r::LiveSessionConfig& c) {

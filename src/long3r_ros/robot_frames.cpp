@@ -74,7 +74,31 @@ void RobotFrames::startStream(const std::string& image_frame, const ros::Time& s
     followRoot();
     if (mode_ == Mode::kMapToRoot) lookup(published_child_, camera_frame_, stamp);  // resolves now
   }
+  T_map_odom_ = Eigen::Isometry3d::Identity();
+  odom_anchored_ = true;
+  if (continuing_) {  // the loaded session's map frame
+    T_map_W_ = saved_T_map_W_;
+    if (mode_ == Mode::kMapToOdom) {
+      odom_anchored_ = config_.session_odometry_continues && saved_T_map_odom_;
+      if (odom_anchored_) T_map_odom_ = *saved_T_map_odom_;
+    }
+    continuing_ = false;
+  }
   started_ = true;
+}
+
+void RobotFrames::continueSession(const Eigen::Isometry3d& T_map_W,
+                                  const std::optional<Eigen::Isometry3d>& T_map_odom) {
+  started_ = false;
+  saved_T_map_W_ = T_map_W;
+  saved_T_map_odom_ = T_map_odom;
+  T_map_W_ = T_map_W;  // outputs of the loaded session (map, path) show in it at once
+  continuing_ = true;
+}
+
+void RobotFrames::anchorOdometry(const Eigen::Isometry3d& T_W_C, const ros::Time& stamp) {
+  T_map_odom_ = T_map_W_ * T_W_C * cameraInOdom(stamp).inverse();
+  odom_anchored_ = true;
 }
 
 bool RobotFrames::followRoot() {
@@ -95,7 +119,12 @@ Eigen::Isometry3d RobotFrames::cameraFromOdometry(const ros::Time& stamp) const 
   if (config_.odom_frame.empty() || config_.base_frame.empty()) {
     throw TfUnavailable("pose from odometry needs odom_frame and base_frame");
   }
-  return T_map_W_.inverse() * cameraInOdom(stamp);
+  if (!odom_anchored_) {
+    throw TfUnavailable(
+        "map -> odom is not known yet in the loaded session (the first frame is "
+        "placed by the model)");
+  }
+  return T_map_W_.inverse() * T_map_odom_ * cameraInOdom(stamp);
 }
 
 Eigen::Isometry3d RobotFrames::cameraInOdom(const ros::Time& stamp) const {

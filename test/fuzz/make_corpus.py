@@ -43,14 +43,15 @@ FILES = {
                                 {"config": CONFIG}),
     "valid_all_dtypes.safetensors": st({
         "a": ("I64", [2], 0, 16), "b": ("F32", [3], 16, 28), "c": ("F16", [2], 28, 32),
-        "d": ("BF16", [1, 1], 32, 34), "e": ("F32", [0, 7], 34, 34), "s": ("F32", [], 36, 40)},
+        "d": ("BF16", [1, 1], 32, 34), "e": ("F32", [0, 7], 34, 34), "s": ("F32", [], 36, 40),
+        "f": ("F64", [1], 40, 48), "u": ("U8", [3], 48, 51)},
         {"k": "v", "esc": "\u00e9\U0001F600\n\"\\"}),
     "valid_empty.safetensors": image("{}"),
     "valid_metadata_only.safetensors": image('{"__metadata__": {"case": "x"}}'),
     "valid_unicode_escapes.safetensors": image(
         '{"__metadata__": {"k": "\\u00e9\\ud83d\\ude00\\t\\/"}, "t\\u0041": '
         '{"dtype": "F16", "shape": [1], "data_offsets": [0, 2]}}', b"\x00\x3c"),
-    "bad_dtype.safetensors": st({"w": ("F64", [1], 0, 8)}),
+    "bad_dtype.safetensors": st({"w": ("C64", [1], 0, 8)}),
     "bad_shape_mismatch.safetensors": st({"w": ("F32", [2, 3], 0, 20)}),
     "bad_offset_past_end.safetensors": st({"w": ("F32", [4], 0, 16)}, data_size=8),
     "bad_overlap.safetensors": st({"a": ("F32", [4], 0, 16), "b": ("F32", [4], 8, 24)}),

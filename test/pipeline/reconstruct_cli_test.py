@@ -104,6 +104,45 @@ def main():
                    "--img-size", "64", jump])
     check(rc == 0 and "time jumped back" in log and "2 stream(s)" in log, "time jump: " + log)
 
+    # Sessions: frames 0-2 saved, then 3-5 continue them in another run; the
+    # second run's path holds the first's poses unchanged, its map every
+    # saved point, and its frame indices go on. Other settings are refused.
+    session = os.path.join(a.workdir, "part1.l3s")
+    part1, part2 = os.path.join(a.workdir, "part1"), os.path.join(a.workdir, "part2")
+    rc, log = run([a.reconstruct, "--model", model, "--out", part1, "--img-size", "64",
+                   "--max-frames", "3", "--save-session", session, seq])
+    check(rc == 0 and "session saved to " + session in log, "save session: " + log)
+    rc, log = run([a.reconstruct, "--model", model, "--out", part2, "--img-size", "64",
+                   "--first-frame", "3", "--load-session", session, seq])
+    check(rc == 0 and "session loaded from " + session in log and "3 frames used" in log,
+          "load session: " + log)
+    rows = list(csv.DictReader(open(os.path.join(part2, "frames.csv"))))
+    check([int(r["frame"]) for r in rows] == [3, 4, 5], "frame indices go on: %s" % rows)
+    t1 = [l for l in open(os.path.join(part1, "trajectory.txt")) if not l.startswith("#")]
+    t2 = [l for l in open(os.path.join(part2, "trajectory.txt")) if not l.startswith("#")]
+    check(t2[:len(t1)] == t1 and len(t2) >= len(t1), "joined trajectory: %s / %s" % (t1, t2))
+
+    def ply_points(path):
+        with open(path, "rb") as f:
+            for line in f:
+                if line.startswith(b"element vertex"):
+                    return int(line.split()[2])
+        return -1
+    check(ply_points(os.path.join(part2, "map.ply")) >= ply_points(os.path.join(part1, "map.ply")),
+          "the continued map keeps the saved points")
+    rc, log = run([a.reconstruct, "--model", model, "--out", part2, "--img-size", "32",
+                   "--load-session", session, seq])
+    check(rc != 0 and "a model input size of 64x64, this one 32x32" in log, "other size: " + log)
+    other = os.path.join(a.workdir, "other.safetensors")
+    rc, log = run([a.make_model, "--out", other, "--size", "tiny", "--seed", "3"])
+    check(rc == 0, "make_random_model: " + log)
+    rc, log = run([a.reconstruct, "--model", other, "--out", part2, "--img-size", "64",
+                   "--load-session", session, seq])
+    check(rc != 0 and "other weights" in log, "other weights: " + log)
+    rc, log = run([a.reconstruct, "--model", model, "--out", part2, "--img-size", "64",
+                   "--load-session", model, seq])
+    check(rc != 0 and "not a long3r session file" in log, "a checkpoint as session: " + log)
+
     # Error cases.
     rc, log = run([a.reconstruct, "--out", out, seq])
     check(rc != 0 and "--model" in log, "missing --model: %d %s" % (rc, log))

@@ -8,7 +8,8 @@ and odom_frame set:
   * ~odometry arrives for every posed frame (every ~pointmap), with a
     symmetric positive-definite pose covariance;
   * ~depth and ~camera_info through depth_image_proc's point_cloud_xyz give the
-    same points as ~frame_cloud, to float precision;
+    same points as ~frame_cloud, to float precision (with --expect-unscaled:
+    neither is published, they wait for a metric scale);
   * the saved map's floor is horizontal in map (normal within 5 degrees of +z),
     unless --no-floor;
   * --expect-metric: the scale source's estimate is applied (~pointmap says
@@ -16,7 +17,13 @@ and odom_frame set:
     adopted, the map stays in model units);
   * with --eval, the saved map is scored against the ground truth (long3r_eval,
     metrics.json under OUT/robot_MODE_eval) and, with --max-scale-error > 0,
-    its Sim(3) scale must be within that of 1.
+    its Sim(3) scale must be within that of 1;
+  * with --rival (another node publishes map -> odom from the start), the
+    nodelet publishes none, and its diagnostics name the other publisher;
+  * with --grid, ~grid (subscribed from the start) is the occupancy grid of the
+    room (the sequence's scene.json, brought into map by the first ground-truth
+    base pose): the base's path free, the wall ahead occupied, and the occupied
+    cells on the room's walls and furniture (within 0.5 m, the map's accuracy).
 """
 import argparse
 import json
@@ -31,7 +38,8 @@ import unittest
 import numpy as np
 import rospy
 import rostest
-from nav_msgs.msg import Odometry
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import OccupancyGrid, Odometry
 from sensor_msgs.msg import PointCloud2
 from tf2_msgs.msg import TFMessage
 
@@ -91,19 +99,30 @@ def floor_normal(points):
 class Recorder:
     def __init__(self):
         self.lock = threading.Lock()
-        self.parents = {}
+        self.parents, self.publishers, self.diagnostics = {}, {}, []
         self.pointmaps, self.odometry, self.clouds, self.dip = [], [], {}, {}
         rospy.Subscriber('/tf', TFMessage, self._tf, queue_size=1000)
+        rospy.Subscriber('/diagnostics', DiagnosticArray, self._diagnostics, queue_size=100)
         rospy.Subscriber('/tf_static', TFMessage, self._tf, queue_size=100)
         rospy.Subscriber('/long3r/pointmap', Pointmap, self._add('pointmaps'), queue_size=100)
         rospy.Subscriber('/long3r/odometry', Odometry, self._add('odometry'), queue_size=100)
         rospy.Subscriber('/long3r/frame_cloud', PointCloud2, self._cloud('clouds'), queue_size=100)
         rospy.Subscriber('/dip_points', PointCloud2, self._cloud('dip'), queue_size=100)
+        self.grids = []
+        rospy.Subscriber('/long3r/grid', OccupancyGrid, self._add('grids'), queue_size=10)
 
     def _tf(self, msg):
+        caller = msg._connection_header.get('callerid', '?')
         with self.lock:
             for t in msg.transforms:
                 self.parents.setdefault(t.child_frame_id, set()).add(t.header.frame_id)
+                self.publishers.setdefault(t.child_frame_id, set()).add(caller)
+
+    def _diagnostics(self, msg):
+        with self.lock:
+            for st in msg.status:
+                if 'long3r' in st.name:
+                    self.diagnostics.append(st.message)
 
     def _add(self, name):
         def cb(msg):
@@ -158,6 +177,16 @@ class RobotCheck(unittest.TestCase):
             self.assertEqual(len(ps), 1, '%s has parents %s' % (child, sorted(ps)))
         self.assertIn(ARGS.odom_frame, parents)
         self.assertEqual(parents[ARGS.odom_frame], {'map'})
+        publishers = rec.get('publishers')
+        rospy.loginfo('publishers of %s: %s', ARGS.odom_frame, publishers[ARGS.odom_frame])
+        if ARGS.rival:
+            self.assertEqual(publishers[ARGS.odom_frame], {'/rival'},
+                             'the nodelet published map -> odom beside another publisher')
+            named = [m for m in rec.get('diagnostics') if 'also published by /rival' in m]
+            self.assertTrue(named, 'the diagnostics do not name the other publisher: %s'
+                            % sorted(set(rec.get('diagnostics')))[:5])
+        else:
+            self.assertEqual(len(publishers[ARGS.odom_frame]), 1)
 
         # ~odometry for every posed frame, with a PD covariance.
         odom = {o.header.stamp.to_nsec(): o for o in rec.get('odometry')}
@@ -170,16 +199,17 @@ class RobotCheck(unittest.TestCase):
             self.assertTrue(np.allclose(c, c.T, atol=1e-12 * max(1.0, np.abs(c).max())))
             self.assertGreater(np.linalg.eigvalsh(c).min(), 0.0)
 
-        # depth_image_proc's cloud of ~depth equals ~frame_cloud.
+        if ARGS.grid:
+            self.check_grid(rec)
+
+        # depth_image_proc's cloud of ~depth equals ~frame_cloud; with a scale
+        # source, neither goes out before the scale is metric (publish_unscaled_depth).
         clouds, dip = rec.get('clouds'), rec.get('dip')
-        common = sorted(set(clouds) & set(dip))
-        self.assertGreaterEqual(len(common), min(5, ARGS.min_frames))
-        for stamp in common:
-            a, b = clouds[stamp], dip[stamp]
-            self.assertEqual(a.shape, b.shape)
-            np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
-            ok = ~np.isnan(a)
-            np.testing.assert_allclose(a[ok], b[ok], rtol=1e-6, atol=1e-7)
+        if ARGS.expect_unscaled:
+            self.assertEqual((len(clouds), len(dip)), (0, 0),
+                             '~frame_cloud or ~depth published in model units')
+        else:
+            self.expect_same_clouds(clouds, dip)
 
         # The saved map: floor level in map, and metric.
         map_path = os.path.join(ARGS.out, 'robot_%s_map.ply' % ARGS.mode)
@@ -212,6 +242,75 @@ class RobotCheck(unittest.TestCase):
                 self.assertLess(abs(scale - 1.0), ARGS.max_scale_error,
                                 'the map is not metric: Sim(3) scale %.4f' % scale)
 
+    def expect_same_clouds(self, clouds, dip):
+        common = sorted(set(clouds) & set(dip))
+        self.assertGreaterEqual(len(common), min(5, ARGS.min_frames))
+        for stamp in common:
+            a, b = clouds[stamp], dip[stamp]
+            self.assertEqual(a.shape, b.shape)
+            np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+            ok = ~np.isnan(a)
+            np.testing.assert_allclose(a[ok], b[ok], rtol=1e-6, atol=1e-7)
+
+    def check_grid(self, rec):
+        time.sleep(2.0)  # the grid of the last map (map_publish_period_s)
+        grids = rec.get('grids')
+        self.assertTrue(grids, 'no ~grid')
+        g = grids[-1]
+        self.assertEqual(g.header.frame_id, 'map')
+        self.assertAlmostEqual(g.info.resolution, 0.05, places=6)
+        cells = np.array(g.data, dtype=np.int8).reshape(g.info.height, g.info.width)
+        res, ox, oy = g.info.resolution, g.info.origin.position.x, g.info.origin.position.y
+        # map = odom = the base at the first frame: the ground truth in map.
+        gt = np.loadtxt(ARGS.gt_traj)
+        T0 = np.eye(4)
+        T0[:3, :3] = quaternion_matrix(gt[0, 4:8])
+        T0[:3, 3] = gt[0, 1:4]
+        to_map = np.linalg.inv(T0)
+        path = (to_map[:3, :3] @ gt[:, 1:4].T).T + to_map[:3, 3]
+
+        def cell(x, y):
+            i, j = int(math.floor((x - ox) / res)), int(math.floor((y - oy) / res))
+            return cells[j, i] if 0 <= i < g.info.width and 0 <= j < g.info.height else -1
+        # The base from the tenth frame on stands where the first frames' cameras looked.
+        on_path = [cell(p[0], p[1]) for p in path[10:]]
+        rospy.loginfo('~grid %dx%d: %d occupied, %d free; path cells %s', g.info.width,
+                      g.info.height, (cells == 100).sum(), (cells == 0).sum(), on_path)
+        self.assertNotIn(100, on_path, 'an occupied cell on the path')
+        self.assertGreaterEqual(on_path.count(0), 0.8 * len(on_path), 'the path is not free')
+
+        # Occupied cells: on a wall or a shape of the room, as far as the map is: its
+        # points lie within 0.3 m of them for 79 % and 0.5 m for 98 % (the shipped
+        # model's per-frame shape at 1-4 m), its occupied cells within 0.5 m for 94 %.
+        scene = json.load(open(os.path.join(ARGS.seq, 'scene.json')))
+        size = scene['room_size']
+        to_world = T0
+        jj, ii = np.nonzero(cells == 100)
+        xy = np.stack([ox + (ii + 0.5) * res, oy + (jj + 0.5) * res, np.zeros(len(ii))], axis=1)
+        w = (to_world[:3, :3] @ xy.T).T + to_world[:3, 3]
+
+        def distance(p):
+            d = min(abs(p[0]), abs(p[0] - size[0]), abs(p[1]), abs(p[1] - size[1]))
+            for s in scene['shapes']:
+                c, h = np.array(s['center'][:2]), np.array(s['half_size'][:2])
+                q = np.abs(p[:2] - c) - h
+                d = min(d, np.linalg.norm(np.maximum(q, 0.0)) + min(max(q[0], q[1]), 0.0))
+            return d
+        near = np.array([distance(p) <= 0.5 for p in w])
+        far_wall = np.sum(np.abs(w[:, 1] - size[1]) <= 0.5)
+        rospy.loginfo('~grid occupied cells near the room: %d of %d; on the far wall: %d',
+                      near.sum(), len(near), far_wall)
+        self.assertGreater(len(near), 20)
+        self.assertGreaterEqual(near.mean(), 0.85, 'occupied cells off the walls and furniture')
+        self.assertGreaterEqual(far_wall, 50, 'the wall ahead is not occupied')
+
+
+def quaternion_matrix(q):
+    x, y, z, w = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
 
 if __name__ == '__main__':
     parser = argparse.ArgumentParser()
@@ -230,6 +329,8 @@ if __name__ == '__main__':
     parser.add_argument('--no-floor', action='store_true')
     parser.add_argument('--expect-metric', action='store_true')
     parser.add_argument('--expect-unscaled', action='store_true')
+    parser.add_argument('--grid', action='store_true')
+    parser.add_argument('--rival', action='store_true')
     ARGS, rest = parser.parse_known_args(rospy.myargv()[1:])
     rospy.init_node('robot_check')
     rostest.rosrun('long3r_ros', 'robot_check', RobotCheck, [sys.argv[0]] + rest)

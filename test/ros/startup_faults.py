@@ -88,6 +88,14 @@ class StartupFaults(unittest.TestCase):
         path = self.model_file('corrupt.safetensors', b'\xff' * 64)
         self.expect_fault('header length', 'model_path:=' + path, path=path)
 
+    def test_session_that_cannot_continue(self):
+        # A truncated session file, and a model checkpoint given as a session.
+        with open(MODEL, 'rb') as f:
+            data = f.read()
+        path = self.model_file('truncated.l3s', data[:100])
+        self.expect_fault('cannot continue the session', 'session_path:=' + path, path=path)
+        self.expect_fault('not a long3r session file', 'session_path:=' + MODEL, path=MODEL)
+
     def test_invalid_parameter(self):
         self.expect_fault('queue_size must be in [1, 1000]', 'queue_size:=0')
 

@@ -11,6 +11,7 @@ using long3r_ros::readInferenceConfig;
 using long3r_ros::readLiveSessionConfig;
 using long3r_ros::readMetricScaleConfig;
 using long3r_ros::readNodeletConfig;
+using long3r_ros::readOccupancyGridConfig;
 using long3r_ros::readReconstructionConfig;
 using long3r_ros::readStreamMonitorConfig;
 using long3r_ros::readThreadConfig;
@@ -32,6 +33,7 @@ class ParamsTest : public ::testing::Test {
       readThreadConfig(pnh_);
       readInferenceConfig(pnh_);
       readReconstructionConfig(pnh_);
+      readOccupancyGridConfig(pnh_);
       FAIL() << "no error for bad " << name;
     } catch (const ParamError& e) {
       EXPECT_NE(std::string(e.what()).find(name), std::string::npos) << e.what();
@@ -49,6 +51,34 @@ TEST_F(ParamsTest, DefaultsWhenUnset) {
   EXPECT_TRUE(c.publish_tf);
   EXPECT_EQ(readThreadConfig(pnh_).torch_threads, 0);
   EXPECT_EQ(readThreadConfig(pnh_).openblas_threads, long3r::ThreadConfig::kOpenblasThreadsAuto);
+}
+
+TEST_F(ParamsTest, SessionAndGridParameters) {
+  EXPECT_EQ(readNodeletConfig(pnh_).session_path, "");
+  EXPECT_FALSE(readFramesConfig(pnh_).session_odometry_continues);
+  EXPECT_EQ(readOccupancyGridConfig(pnh_).resolution_m, 0.05);
+  pnh_.setParam("session_path", "/maps/site.l3s");
+  pnh_.setParam("session_odometry_continues", true);
+  pnh_.setParam("grid_resolution_m", 0.1);
+  pnh_.setParam("grid_min_height_m", 0.2);
+  pnh_.setParam("grid_max_height_m", 2);  // an int where a double is expected is fine
+  pnh_.setParam("grid_max_range_m", 3.0);
+  pnh_.setParam("grid_min_points", 5);
+  EXPECT_EQ(readNodeletConfig(pnh_).session_path, "/maps/site.l3s");
+  EXPECT_TRUE(readFramesConfig(pnh_).session_odometry_continues);
+  const long3r::OccupancyGridConfig g = readOccupancyGridConfig(pnh_);
+  EXPECT_EQ(g.resolution_m, 0.1);
+  EXPECT_EQ(g.min_height_m, 0.2);
+  EXPECT_EQ(g.max_height_m, 2.0);
+  EXPECT_EQ(g.max_range_m, 3.0);
+  EXPECT_EQ(g.min_points, 5);
+  pnh_.setParam("grid_max_height_m", 0.1);  // below the band's bottom
+  expectError("grid_*: max_height_m");
+  pnh_.setParam("grid_max_height_m", 2.0);
+  pnh_.setParam("grid_resolution_m", -1.0);
+  expectError("grid_*: resolution_m");
+  pnh_.setParam("grid_resolution_m", "fine");
+  expectError("grid_resolution_m");
 }
 
 TEST_F(ParamsTest, ReadsValidValues) {

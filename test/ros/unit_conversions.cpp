@@ -114,6 +114,49 @@ TEST(Conversions, ColoredCloud) {
   EXPECT_THROW(toColoredCloud(p, c, {}), std::invalid_argument);
 }
 
+TEST(Conversions, DisplayDownsamplingKeepsOneCentroidPerVoxel) {
+  // Two points in one 0.1 m voxel, one in another: two points, the first the
+  // centroid of the pair (position and colour).
+  std::vector<Eigen::Vector3f> p{{0.01f, 0.01f, 0.01f}, {0.03f, 0.05f, 0.07f}, {0.55f, 0.0f, 0.0f}};
+  std::vector<std::array<std::uint8_t, 3>> c{{{100, 0, 0}}, {{200, 0, 50}}, {{0, 0, 255}}};
+  auto q = p;
+  auto d = c;
+  long3r_ros::downsampleForDisplay(q, d, 0.0);  // off
+  EXPECT_EQ(q.size(), 3u);
+  long3r_ros::downsampleForDisplay(q, d, 0.1);
+  ASSERT_EQ(q.size(), 2u);
+  ASSERT_EQ(d.size(), 2u);
+  const std::size_t pair = q[0].x() < 0.3f ? 0 : 1;
+  EXPECT_NEAR(q[pair].x(), 0.02f, 1e-6);
+  EXPECT_NEAR(q[pair].y(), 0.03f, 1e-6);
+  EXPECT_NEAR(q[pair].z(), 0.04f, 1e-6);
+  EXPECT_EQ(d[pair][0], 150);
+  EXPECT_EQ(d[pair][2], 25);
+  EXPECT_NEAR(q[1 - pair].x(), 0.55f, 1e-6);
+  EXPECT_EQ(d[1 - pair][2], 255);
+}
+
+TEST(Conversions, OccupancyGridLayout) {
+  long3r::OccupancyGrid g;
+  g.resolution_m = 0.05;
+  g.origin_x_m = -1.0;
+  g.origin_y_m = 2.0;
+  g.width = 3;
+  g.height = 2;
+  g.cells = {-1, 0, 100, 0, 0, -1};
+  std_msgs::Header h;
+  h.frame_id = "map";
+  const nav_msgs::OccupancyGrid m = long3r_ros::toOccupancyGrid(g, h);
+  EXPECT_EQ(m.header.frame_id, "map");
+  EXPECT_FLOAT_EQ(m.info.resolution, 0.05f);
+  EXPECT_EQ(m.info.width, 3u);
+  EXPECT_EQ(m.info.height, 2u);
+  EXPECT_DOUBLE_EQ(m.info.origin.position.x, -1.0);
+  EXPECT_DOUBLE_EQ(m.info.origin.position.y, 2.0);
+  EXPECT_DOUBLE_EQ(m.info.origin.orientation.w, 1.0);
+  EXPECT_EQ(m.data, g.cells);  // rows along y from the origin, as nav_msgs
+}
+
 TEST(Conversions, CameraInfo) {
   auto info = toCameraInfo(200, 210, 111.5, 100.5, 224, 224, {});
   EXPECT_DOUBLE_EQ(info.K[0], 200);

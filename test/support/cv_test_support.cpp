@@ -74,6 +74,17 @@ std::optional<StreamOutput> FakeModel::push(const at::Tensor& image) {
   return output(k - 1, false);
 }
 
+StateDict FakeModel::stream_state() const {
+  StateDict state;
+  put_int(state, "frames", n_);
+  return state;
+}
+
+void FakeModel::restore_stream_state(const StateDict& state) {
+  n_ = StateReader(state, "fake model state")
+           .integer("frames", 0, static_cast<int64_t>(pts_->size()));
+}
+
 std::optional<StreamOutput> FakeModel::peek_last() {
   if (n_ == 0) return std::nullopt;
   return output(n_ - 1, true);

@@ -54,6 +54,12 @@ class FakeModel : public StreamingModel {
   void reset() override { n_ = 0; }
   int64_t frames_pushed() const override { return n_; }
   std::string variant() const override { return "fake"; }
+  // Sessions: the frame count is the whole stream; the identity's weights
+  // fingerprint is `weights` (empty: a model that cannot save sessions).
+  StateDict stream_state() const override;
+  void restore_stream_state(const StateDict& state) override;
+  ModelIdentity identity() const override { return {variant(), "{\"fake\": 1}", weights}; }
+  std::string weights = "fake-weights";
 
  private:
   StreamOutput output(int64_t k, bool coarse);

@@ -22,7 +22,8 @@ class CheckpointError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-enum class DType { kF32, kF16, kBF16, kI64 };
+// F64 and U8 carry sessions' stamps, poses and colours (pipeline/session.hpp).
+enum class DType { kF32, kF16, kBF16, kI64, kF64, kU8 };
 const char* dtype_name(DType d);
 std::size_t dtype_size(DType d);
 

@@ -24,10 +24,12 @@
 
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <vector>
 
 #include "long3r/memory/memory_config.hpp"  // SpatioTemporalMemoryConfig
 #include "long3r/memory/memory_gating.hpp"
+#include "long3r/model/state_dict.hpp"
 
 namespace long3r {
 
@@ -99,6 +101,21 @@ class SpatioTemporalMemory {
   std::vector<double> v_scene() const;
 
   void reset();
+
+  // The whole memory as a state dict (state_dict.hpp): every token with its
+  // key, value, position, attention, frame and order, the short-term frame
+  // sizes, the counters and the voxel statistics. Payloads are not saved:
+  // they are derived from keys and values, and restore() recomputes them.
+  StateDict state() const;
+  // Replaces the memory by a saved one. Keys and values go to `options`
+  // (the model's device and dtype), the other tensors keep their dtype on
+  // that device; `payload(keys [B,N,C], values)` -> [B,N,D] recomputes the
+  // payloads when given. Everything is validated first (StateError naming
+  // the entry; the memory is unchanged then), including the token counts
+  // against this memory's K and L.
+  using PayloadFn = std::function<at::Tensor(const at::Tensor&, const at::Tensor&)>;
+  void restore(const StateReader& state, const at::TensorOptions& options,
+               const PayloadFn& payload = {});
 
  private:
   // A set of N memory tokens: every per-token tensor, kept in step by

@@ -76,6 +76,12 @@ class Long3rModel : public StreamingModel, public ModelShell {
   void reset() override;
   int64_t frames_pushed() const override;
   std::string variant() const override { return "long3r"; }
+  // Sessions: the memory (payloads recomputed on restore), the newest frame's
+  // F^I and F^c, the coarse layers head 2 reads (peek_last), the shape and
+  // frame count. Inference mode only.
+  StateDict stream_state() const override;
+  void restore_stream_state(const StateDict& state) override;
+  ModelIdentity identity() const override;
 
   // One whole sequence in a single graph (reset, push every frame, flush):
   // returns N outputs, frames 0..N-2 from head1 and frame N-1 from head2. With

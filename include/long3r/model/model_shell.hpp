@@ -56,6 +56,10 @@ class ModelShell {
   void load_weights(const TensorMap& tensors, const std::string& source_name,
                     const std::string& strip_prefix = "");
 
+  // Identifies the weights last loaded by load_weights(): a hash of every
+  // tensor's name, dtype, shape and first and last 4 KiB of data (a new
+  // training step changes nearly every tensor). Empty before any load.
+  const std::string& weights_fingerprint() const { return weights_fingerprint_; }
   // Every parameter and buffer by name, with metadata "config" =
   // model_config_to_json(config()); from_file() reads it back.
   void save(const std::string& path) const;
@@ -88,6 +92,7 @@ class ModelShell {
  private:
   ModelConfig config_;
   std::shared_ptr<torch::nn::Module> module_;
+  std::string weights_fingerprint_;
 };
 
 }  // namespace long3r

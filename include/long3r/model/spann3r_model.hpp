@@ -51,6 +51,12 @@ class Spann3rModel : public StreamingModel, public ModelShell {
   void reset() override;
   int64_t frames_pushed() const override;
   std::string variant() const override { return "spann3r"; }
+  // Sessions: the memory (keys, values, counters), the newest frame's
+  // features and next query, the coarse layers head 2 reads (peek_last), the
+  // shape and frame count.
+  StateDict stream_state() const override;
+  void restore_stream_state(const StateDict& state) override;
+  ModelIdentity identity() const override;
   // False with landscape_only (the official setting).
   bool accepts_portrait() const override;
 

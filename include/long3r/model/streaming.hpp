@@ -16,6 +16,7 @@
 #include <string>
 
 #include "long3r/model/inference_config.hpp"
+#include "long3r/model/state_dict.hpp"
 
 namespace long3r {
 
@@ -37,6 +38,15 @@ struct StreamOutput {
   at::Tensor conf;                // [B, H, W] float32, >= 1
   bool from_coarse_head = false;  // true for the frame returned by peek_last() / flush()
   StepStats stats;
+};
+
+// What a saved stream state is valid for: the model variant, its
+// configuration (JSON) and its weights (a fingerprint of the checkpoint's
+// tensors; empty for weights never loaded from one).
+struct ModelIdentity {
+  std::string variant;
+  std::string config_json;
+  std::string weights;
 };
 
 class StreamingModel {
@@ -69,6 +79,19 @@ class StreamingModel {
 
   // "spann3r" or "long3r".
   virtual std::string variant() const = 0;
+
+  // The stream between two pushes (memory, the newest frame's features,
+  // counters) as a state dict, for sessions: restore_stream_state() of it
+  // into a model of the same identity() continues the stream exactly (the
+  // next push returns what this model's next push would). Tensors are shared
+  // with the model, on its device. Throws std::logic_error where the model
+  // cannot (training mode; a model without sessions).
+  virtual StateDict stream_state() const;
+  // Replaces the stream by a saved one, converted to this model's device and
+  // precision. Validated first: StateError naming the entry, and the stream
+  // is unchanged then.
+  virtual void restore_stream_state(const StateDict& state);
+  virtual ModelIdentity identity() const { return {variant(), "", ""}; }
 
   // Whether portrait frames (H > W) keep their token grid. A landscape-only
   // Spann3R (the official setting) runs them, as the official model does, on a

@@ -38,6 +38,7 @@
 #include "long3r/pipeline/camera_rectifier.hpp"
 #include "long3r/pipeline/metric_scale.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
+#include "long3r/pipeline/session.hpp"
 #include "long3r/pipeline/stream_monitor.hpp"
 
 namespace long3r {
@@ -116,6 +117,14 @@ class LiveSessionClient {
   // NaN where there is none. Throwing Unavailable skips this sample.
   virtual cv::Mat depth(const LiveResult& result);
 
+  // Sessions: what the client keeps per stream that a saved session must
+  // keep too (the node: where W sits in its map frame). Saved with the
+  // session; after a load (and its on_new_stream()) it comes back. Entries
+  // the client cannot use are ignored, never an error: the file may come
+  // from another client (long3r_reconstruct's, loaded by the node).
+  virtual StateDict session_state() { return {}; }
+  virtual void restore_session_state(const StateDict& state) { (void)state; }
+
   // Results, in frame order.
   virtual void on_result(LiveResult& result) = 0;
   // A new stream starts (after the old one's last result): the caller's
@@ -158,6 +167,19 @@ class LiveSession {
   // Starts a new stream with the next frame (memory, map, path, scale);
   // `why` names the reason in the warning.
   void reset(const std::string& why);
+
+  // Sessions (session.hpp). save() delivers the pending frame's result (as
+  // flush()) and writes the whole stream to `path` atomically; the stream
+  // goes on. load() replaces the stream by a saved one: memory, map, path,
+  // world frame, scale and frame indices. The next frame continues it,
+  // whatever its stamp (a recording replayed again, another day), and
+  // on_new_stream() tells the client that its per-stream state is stale.
+  // Both throw SessionError naming the file and the problem (another model
+  // or configuration, a damaged or foreign file, a failed write); the
+  // running stream is then unchanged.
+  void save(const std::string& path);
+  void load(const std::string& path);
+  SessionIdentity identity() const;
 
   LiveStatus status() const { return status_; }
   const Reconstruction& reconstruction() const { return recon_; }

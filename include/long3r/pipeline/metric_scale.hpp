@@ -137,6 +137,16 @@ class ScalePolicy {
   bool metric() const { return metric_; }
   void reset();
 
+  // What the policy carries (sessions): the samples and the scale applied.
+  struct State {
+    std::vector<double> samples;
+    double applied = 1.0;
+    bool metric = false;
+  };
+  State state() const { return {{samples_.begin(), samples_.end()}, applied_, metric_}; }
+  // The estimate is recomputed from the samples (the newest max_samples).
+  void restore(const State& state);
+
  private:
   MetricScaleConfig config_;
   std::deque<double> samples_;

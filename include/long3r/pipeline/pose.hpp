@@ -8,6 +8,7 @@
 // camera optical frame (x right, y down, z forward) to world.
 #pragma once
 
+#include <ATen/core/Tensor.h>
 #include <Eigen/Geometry>
 #include <opencv2/core/mat.hpp>
 
@@ -107,12 +108,31 @@ class PoseTracker {
   void reset();  // new stream
   const PnpConfig& config() const { return config_; }
 
+  // What the tracker carries from frame to frame (sessions).
+  struct State {
+    Eigen::Isometry3d last_good = Eigen::Isometry3d::Identity();
+    bool has_good = false;
+    int64_t consecutive_failures = 0;
+  };
+  State state() const { return {last_good_, has_good_, consecutive_failures_}; }
+  void restore(const State& s) {
+    last_good_ = s.last_good;
+    has_good_ = s.has_good;
+    consecutive_failures_ = s.consecutive_failures;
+  }
+
  private:
   PnpConfig config_;
   Eigen::Isometry3d last_good_ = Eigen::Isometry3d::Identity();
   bool has_good_ = false;
   int64_t consecutive_failures_ = 0;
 };
+
+// A pose in a state dict (sessions, state_dict.hpp): a [4, 4] float64 tensor,
+// and back: nullopt unless the tensor is [4, 4], finite and a rigid
+// transform (orthonormal rotation with det 1 to 1e-6, last row 0 0 0 1).
+at::Tensor pose_to_tensor(const Eigen::Isometry3d& T);
+std::optional<Eigen::Isometry3d> pose_from_tensor(const at::Tensor& t);
 
 // points (CV_32FC3) mapped through T: p' = T p, e.g. the world pointmap into
 // the camera frame with T = T_W_C.inverse(). Non-finite points stay NaN.

@@ -25,6 +25,7 @@
 #include <utility>
 #include <vector>
 
+#include "long3r/model/state_dict.hpp"
 #include "long3r/model/streaming.hpp"
 #include "long3r/pipeline/frame_result.hpp"
 #include "long3r/pipeline/intrinsics.hpp"
@@ -110,6 +111,20 @@ class Reconstruction {
   std::vector<std::pair<double, Eigen::Isometry3d>> trajectory() const { return trajectory_; }
   // Frames pushed in the current stream.
   int64_t frames_pushed() const { return frames_pushed_; }
+
+  // The whole stream as a state dict, for sessions (session.hpp): the
+  // model's stream ("model."), the map ("map.", exact), the path, the pose
+  // tracker, the intrinsics and calibration, the scale and frame counters.
+  // Call flush() first: a frame still waiting for its result is a
+  // std::logic_error, except the lone first frame of a stream, which has no
+  // result yet and is left out (the state is then an empty stream).
+  StateDict state() const;
+  // Replaces the stream by a saved one, of a model with the same identity()
+  // and a map of the same voxel size (the caller checks both). Everything is
+  // validated first: StateError naming the entry, and nothing changes then.
+  // The next push continues the saved stream (its world frame, memory, map,
+  // path, scale and frame indices), as after flush().
+  void restore(const StateDict& state);
 
   const StreamingModel& model() const { return *model_; }
   const ReconstructionConfig& config() const { return config_; }

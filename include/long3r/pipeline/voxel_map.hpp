@@ -58,6 +58,16 @@ struct VoxelInfo {
   std::int64_t last_seen = 0;
 };
 
+// One voxel exactly as the map keeps it: sessions save and restore the map
+// bit for bit (pipeline/session.hpp).
+struct VoxelRecord {
+  Eigen::Vector3i index;
+  Eigen::Vector3d mean;   // running mean position
+  Eigen::Vector3f color;  // running mean colour (RGB), unrounded
+  std::uint32_t hits = 0;
+  std::int64_t last_seen = 0;
+};
+
 struct IntegrationStats {
   std::size_t candidates = 0;  // confident, finite points offered
   std::size_t fused = 0;       // points that went into a voxel
@@ -100,6 +110,13 @@ class VoxelMap {
 
   MapSnapshot snapshot() const;
   std::vector<VoxelInfo> voxels() const;  // unspecified order
+  // Every voxel exactly, in storage order (that of snapshot()).
+  std::vector<VoxelRecord> records() const;
+  // Replaces the map by records() of a map of the same voxel size. Validated
+  // first (std::invalid_argument naming the problem: more than max_points,
+  // an index out of range or twice, a mean outside its voxel, non-finite
+  // values, no hits); the map is unchanged then.
+  void restore(const std::vector<VoxelRecord>& records);
 
   // Writes the map (see save_colored_cloud): format from the extension.
   void save(const std::string& path, const MapSaveOptions& options = {}) const;

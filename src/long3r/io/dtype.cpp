@@ -12,6 +12,10 @@ const char* dtype_name(DType d) {
       return "BF16";
     case DType::kI64:
       return "I64";
+    case DType::kF64:
+      return "F64";
+    case DType::kU8:
+      return "U8";
   }
   return "?";
 }
@@ -25,7 +29,10 @@ std::size_t dtype_size(DType d) {
     case DType::kBF16:
       return 2;
     case DType::kI64:
+    case DType::kF64:
       return 8;
+    case DType::kU8:
+      return 1;
   }
   return 0;
 }

@@ -44,6 +44,10 @@ bool parse_dtype(const std::string& s, DType* d) {
     *d = DType::kBF16;
   } else if (s == "I64") {
     *d = DType::kI64;
+  } else if (s == "F64") {
+    *d = DType::kF64;
+  } else if (s == "U8") {
+    *d = DType::kU8;
   } else {
     return false;
   }

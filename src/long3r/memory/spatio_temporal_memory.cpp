@@ -275,6 +275,124 @@ void SpatioTemporalMemory::reset() {
   layout_valid_ = false;
 }
 
+namespace {
+const char* const kTokenFields[] = {"keys", "values", "positions", "attention", "frame", "order"};
+}  // namespace
+
+StateDict SpatioTemporalMemory::state() const {
+  StateDict out;
+  put_int(out, "batch", batch_);
+  if (batch_ == 0) return out;
+  put_int(out, "channels", channels_);
+  put_int(out, "frames_added", frames_added_);
+  put_int(out, "next_order", next_order_);
+  put_int(out, "last_skipped", last_skipped_ ? 1 : 0);
+  put_int(out, "frame_of_last_add", frame_of_last_add_);
+  out["short.frame_sizes"] = at::tensor(
+      std::vector<int64_t>(short_frame_sizes_.begin(), short_frame_sizes_.end()), at::kLong);
+  auto put_tokens = [&](const std::string& prefix, const Tokens& t) {
+    const at::Tensor* fields[] = {&t.keys,      &t.values, &t.positions,
+                                  &t.attention, &t.frame,  &t.order};
+    for (std::size_t i = 0; i < 6; ++i) out[prefix + kTokenFields[i]] = fields[i]->detach();
+  };
+  put_tokens("short.", short_term_);
+  for (int64_t b = 0; b < batch_; ++b) {
+    const Stream& st = streams_[static_cast<size_t>(b)];
+    const std::string p = "stream." + std::to_string(b) + ".";
+    put_tokens(p + "long.", st.long_term);
+    put_real(out, p + "v_img_last", st.v_img_last);
+    put_real(out, p + "v_img_sum", st.v_img_sum);
+    put_int(out, p + "v_img_count", st.v_img_count);
+  }
+  return out;
+}
+
+void SpatioTemporalMemory::restore(const StateReader& state, const at::TensorOptions& options,
+                                   const PayloadFn& payload) {
+  constexpr int64_t kMaxBatch = 1 << 16;
+  constexpr int64_t kMax = int64_t{1} << 53;
+  const int64_t batch = state.integer("batch", 0, kMaxBatch);
+  SpatioTemporalMemory m(config_);
+  m.training_ = training_;
+  if (batch == 0) {
+    *this = std::move(m);
+    return;
+  }
+  m.batch_ = batch;
+  m.channels_ = state.integer("channels", 1, kMax);
+  m.frames_added_ = state.integer("frames_added", 1, kMax);
+  m.next_order_ = state.integer("next_order", 0, kMax);
+  m.last_skipped_ = state.integer("last_skipped", 0, 1) == 1;
+  m.frame_of_last_add_ = state.integer("frame_of_last_add", 0, kMax);
+  const at::Tensor sizes = state.int64("short.frame_sizes", {-1});
+  int64_t short_tokens = 0;
+  for (int64_t i = 0; i < sizes.size(0); ++i) {
+    const int64_t n = sizes[i].item<int64_t>();
+    if (n <= 0) state.fail("short.frame_sizes", "a frame of " + std::to_string(n) + " tokens");
+    short_tokens += n;
+    m.short_frame_sizes_.push_back(n);
+  }
+  if (m.short_frames() > config_.short_term_frames) {
+    state.fail("short.frame_sizes", std::to_string(m.short_frames()) +
+                                        " short-term frames, more than this memory's K = " +
+                                        std::to_string(config_.short_term_frames));
+  }
+  const int64_t C = m.channels_;
+  const at::TensorOptions device_only = at::TensorOptions().device(options.device());
+  // One token set: per-stream fields [B?, N, ...], frame / order [N].
+  auto read_tokens = [&](const std::string& prefix, bool batched, int64_t n) {
+    Tokens t;
+    t.batched = batched;
+    if (batched) {
+      t.keys = state.floating(prefix + "keys", {batch, n, C});
+      t.values = state.floating(prefix + "values", {batch, n, C});
+      t.positions = state.floating(prefix + "positions", {batch, n, 3}, /*finite=*/false);
+      t.attention = state.floating(prefix + "attention", {batch, n});
+    } else {
+      t.keys = state.floating(prefix + "keys", {n, C});
+      t.values = state.floating(prefix + "values", {n, C});
+      t.positions = state.floating(prefix + "positions", {n, 3}, /*finite=*/false);
+      t.attention = state.floating(prefix + "attention", {n});
+    }
+    t.frame = state.int64(prefix + "frame", {n});
+    t.order = state.int64(prefix + "order", {n});
+    t.keys = t.keys.to(options);
+    t.values = t.values.to(options);
+    t.positions = t.positions.to(device_only);
+    t.attention = t.attention.to(device_only.dtype(at::kFloat));
+    t.frame = t.frame.to(device_only);
+    t.order = t.order.to(device_only);
+    return t;
+  };
+  m.short_term_ = read_tokens("short.", true, short_tokens);
+  for (int64_t b = 0; b < batch; ++b) {
+    const std::string p = "stream." + std::to_string(b) + ".";
+    Stream st;
+    const int64_t n = state.has(p + "long.frame") ? state.int64(p + "long.frame", {-1}).size(0) : 0;
+    if (n > config_.long_term_capacity) {
+      state.fail(p + "long.frame",
+                 std::to_string(n) + " long-term tokens, more than this " +
+                     "memory's L = " + std::to_string(config_.long_term_capacity));
+    }
+    st.long_term = read_tokens(p + "long.", false, n);
+    st.v_img_last = state.real(p + "v_img_last");
+    st.v_img_sum = state.real(p + "v_img_sum");
+    st.v_img_count = state.integer(p + "v_img_count", 0, kMax);
+    m.streams_.push_back(std::move(st));
+  }
+  if (payload) {
+    m.short_term_.payload = payload(m.short_term_.keys, m.short_term_.values);
+    m.payload_dim_ = m.short_term_.payload.size(2);
+    for (Stream& st : m.streams_) {
+      Tokens& lt = st.long_term;
+      lt.payload = lt.size() == 0
+                       ? at::empty({0, m.payload_dim_}, m.short_term_.payload.options())
+                       : payload(lt.keys.unsqueeze(0), lt.values.unsqueeze(0)).squeeze(0);
+    }
+  }
+  *this = std::move(m);
+}
+
 void SpatioTemporalMemory::add_frame(const at::Tensor& keys, const at::Tensor& values,
                                      const at::Tensor& positions, int64_t frame_index,
                                      at::IntArrayRef grid_hw, const at::Tensor& payload) {

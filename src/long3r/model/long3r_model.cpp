@@ -175,6 +175,72 @@ std::optional<StreamOutput> Long3rModel::push(const at::Tensor& image) {
   return out;
 }
 
+StateDict Long3rModel::stream_state() const {
+  const Impl& s = *impl_;
+  if (s.training) throw std::logic_error("Long3rModel: no stream state in training mode");
+  StateDict out;
+  put_int(out, "frames", s.frames);
+  if (s.frames == 0) return out;
+  s.shape.put(out);
+  out["feat"] = s.feat;
+  if (s.frames >= 2) {
+    out["coarse_final"] = s.coarse_final;
+    model::put_head_layers(out, "last_coarse", s.last_coarse);
+  }
+  for (auto& [key, t] : s.memory.state()) out["memory." + key] = t;
+  return out;
+}
+
+void Long3rModel::restore_stream_state(const StateDict& state) {
+  Impl& s = *impl_;
+  if (s.training) throw std::logic_error("Long3rModel: no stream state in training mode");
+  c10::InferenceMode guard;
+  const StateReader r(state, "long3r stream state");
+  const int64_t frames = r.integer("frames", 0, int64_t{1} << 53);
+  if (frames == 0) {
+    s.reset();
+    return;
+  }
+  const Dust3rConfig& dc = config().dust3r;
+  model::StreamShape shape;
+  const int64_t P = shape.read(r, *s.net->dust3r), B = shape.batch;
+  const at::TensorOptions opts = at::TensorOptions().device(device()).dtype(dtype());
+  const at::Tensor feat = r.floating("feat", {B, P, dc.enc_embed_dim}).to(opts);
+  at::Tensor coarse_final;
+  model::DecoderOutputs last_coarse;
+  if (frames >= 2) {
+    coarse_final = r.floating("coarse_final", {B, P, dc.dec_embed_dim}).to(opts);
+    last_coarse = model::read_head_layers(r, "last_coarse", dc, B, P, opts);
+  }
+  SpatioTemporalMemory memory(s.memory.config());
+  SpatioTemporalMemory::PayloadFn payload;
+  if (s.projection_cache) {
+    payload = [&s](const at::Tensor& k, const at::Tensor& v) {
+      return s.net->project_memory(k, v);
+    };
+  }
+  try {
+    memory.restore(r.child("memory."), opts, payload);
+  } catch (const c10::Error& e) {  // the projections refused the tokens' width
+    r.fail("memory", std::string("does not fit this model: ") + e.what_without_backtrace());
+  }
+  if (memory.batch_size() != 0 && memory.batch_size() != B) {
+    r.fail("memory.batch", "memory of " + std::to_string(memory.batch_size()) +
+                               " streams, frames of " + std::to_string(B));
+  }
+  s.reset();
+  s.frames = frames;
+  s.shape = shape;
+  s.feat = feat;
+  s.coarse_final = coarse_final;
+  s.last_coarse = std::move(last_coarse);
+  s.memory = std::move(memory);
+}
+
+ModelIdentity Long3rModel::identity() const {
+  return {variant(), model_config_to_json(config()), weights_fingerprint()};
+}
+
 std::optional<StreamOutput> Long3rModel::peek_last() {
   Impl& s = *impl_;
   if (s.frames < 2) return std::nullopt;

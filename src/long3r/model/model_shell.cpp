@@ -6,6 +6,10 @@
 #include <torch/nn/module.h>
 #include <torch/nn/modules/conv.h>
 
+#include <algorithm>
+#include <cstdio>
+#include <stdexcept>
+
 #include "long3r/model/checkpoint.hpp"
 #include "long3r/model/long3r_model.hpp"
 #include "long3r/model/safetensors.hpp"
@@ -13,6 +17,47 @@
 #include "long3r/model/streaming.hpp"
 
 namespace long3r {
+namespace {
+
+// FNV-1a, 64 bits.
+struct Fnv1a {
+  uint64_t h = 1469598103934665603ull;
+  void add(const void* data, std::size_t n) {
+    const auto* p = static_cast<const unsigned char*>(data);
+    for (std::size_t i = 0; i < n; ++i) h = (h ^ p[i]) * 1099511628211ull;
+  }
+  void add(const std::string& s) { add(s.data(), s.size() + 1); }
+};
+
+std::string fingerprint(const TensorMap& tensors) {
+  constexpr int64_t kEndBytes = 4096;
+  Fnv1a f;
+  for (const auto& [name, t] : tensors) {
+    f.add(name);
+    f.add(std::string(c10::toString(t.scalar_type())));
+    for (const int64_t d : t.sizes()) f.add(&d, sizeof d);
+    const at::Tensor flat = t.reshape({-1});
+    const int64_t n = flat.numel(), per = std::max<int64_t>(1, kEndBytes / t.element_size());
+    for (const at::Tensor& part : {flat.narrow(0, 0, std::min(n, per)),
+                                   flat.narrow(0, n - std::min(n, per), std::min(n, per))}) {
+      const at::Tensor c = part.to(at::kCPU).contiguous();
+      f.add(c.data_ptr(), static_cast<std::size_t>(c.numel() * c.element_size()));
+    }
+  }
+  char hex[17];
+  std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(f.h));
+  return hex;
+}
+
+}  // namespace
+
+StateDict StreamingModel::stream_state() const {
+  throw std::logic_error("the " + variant() + " model cannot save its stream (no sessions)");
+}
+
+void StreamingModel::restore_stream_state(const StateDict&) {
+  throw std::logic_error("the " + variant() + " model cannot restore a stream (no sessions)");
+}
 
 ModelShell::ModelShell(const ModelConfig& config, ModelKind kind, const char* needs)
     : config_(config) {
@@ -33,6 +78,7 @@ void ModelShell::set_module(std::shared_ptr<torch::nn::Module> module) {
 void ModelShell::load_weights(const TensorMap& tensors, const std::string& source_name,
                               const std::string& strip_prefix) {
   load_module_strict(*module_, tensors, source_name, strip_prefix);
+  weights_fingerprint_ = fingerprint(tensors);
   // Floating tensors load as stored (a bfloat16 checkpoint leaves bfloat16
   // weights, unconverted): the model then runs in the checkpoint's precision,
   // dtype(), with what to() keeps float32 on this device. A float32

@@ -667,6 +667,46 @@ void StreamShape::check(const at::Tensor& image, bool first_frame, const Dust3rN
   }
 }
 
+void StreamShape::put(StateDict& state) const {
+  put_int(state, "height", H);
+  put_int(state, "width", W);
+  put_int(state, "batch", batch);
+}
+
+int64_t StreamShape::read(const StateReader& state, const Dust3rNetImpl& net) {
+  H = state.integer("height", 1, 1 << 15);
+  W = state.integer("width", 1, 1 << 15);
+  batch = state.integer("batch", 1, 1 << 10);
+  try {
+    const Grid g = net.grid(H, W);
+    return g.first * g.second;
+  } catch (const std::exception& e) {
+    state.fail("height", e.what());
+  }
+}
+
+void put_head_layers(StateDict& state, const std::string& prefix, const DecoderOutputs& layers) {
+  put_int(state, prefix + ".layers", static_cast<int64_t>(layers.size()));
+  for (std::size_t i = 0; i < layers.size(); ++i) {
+    if (layers[i].defined()) state[prefix + "." + std::to_string(i)] = layers[i];
+  }
+}
+
+DecoderOutputs read_head_layers(const StateReader& state, const std::string& prefix,
+                                const Dust3rConfig& config, int64_t batch, int64_t tokens,
+                                const at::TensorOptions& options) {
+  const int64_t layers =
+      state.integer(prefix + ".layers", config.dec_depth + 1, config.dec_depth + 1);
+  DecoderOutputs out(static_cast<std::size_t>(layers), at::ones({1}));
+  keep_head_layers(out, config);  // the layers the head reads must be there
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    if (out[i].defined()) {
+      out[i] = state.floating(prefix + "." + std::to_string(i), {batch, tokens, -1}).to(options);
+    }
+  }
+  return out;
+}
+
 void keep_head_layers(DecoderOutputs& dec, const Dust3rConfig& config) {
   std::vector<bool> hooked(dec.size(), false);
   if (config.head_type == HeadType::kLinear) {

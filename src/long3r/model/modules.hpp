@@ -28,6 +28,7 @@
 #include "long3r/memory/memory_gating.hpp"  // GatingNorms
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/model_trace.hpp"
+#include "long3r/model/state_dict.hpp"
 
 namespace long3r {
 namespace model {
@@ -355,7 +356,20 @@ TORCH_MODULE(Spann3rNet);
 struct StreamShape {
   int64_t H = 0, W = 0, batch = 0;
   void check(const at::Tensor& image, bool first_frame, const Dust3rNetImpl& net, const char* who);
+  // Saved stream states (StreamingModel::stream_state): "height", "width",
+  // "batch"; read() checks them against the net's patch grid and returns
+  // the tokens per frame.
+  void put(StateDict& state) const;
+  int64_t read(const StateReader& state, const Dust3rNetImpl& net);
 };
+
+// The decoder layers a head reads (keep_head_layers) in a saved stream state:
+// "<prefix>.layers" and "<prefix>.<i>" for each kept layer; read back as
+// [batch, tokens, *] tensors converted to `options`.
+void put_head_layers(StateDict& state, const std::string& prefix, const DecoderOutputs& layers);
+DecoderOutputs read_head_layers(const StateReader& state, const std::string& prefix,
+                                const Dust3rConfig& config, int64_t batch, int64_t tokens,
+                                const at::TensorOptions& options);
 
 // Releases the decoder layers the head does not read (DPT: config.dpt.hooks;
 // linear: all but the last):

@@ -47,6 +47,10 @@ at::ScalarType to_scalar_type(DType d) {
       return at::kBFloat16;
     case DType::kI64:
       return at::kLong;
+    case DType::kF64:
+      return at::kDouble;
+    case DType::kU8:
+      return at::kByte;
   }
   return at::kFloat;
 }
@@ -64,6 +68,12 @@ bool from_scalar_type(at::ScalarType s, DType* d) {
       return true;
     case at::kLong:
       *d = DType::kI64;
+      return true;
+    case at::kDouble:
+      *d = DType::kF64;
+      return true;
+    case at::kByte:
+      *d = DType::kU8;
       return true;
     default:
       return false;

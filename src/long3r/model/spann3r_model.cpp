@@ -154,6 +154,81 @@ std::optional<StreamOutput> Spann3rModel::push(const at::Tensor& image) {
   return out;
 }
 
+StateDict Spann3rModel::stream_state() const {
+  const Impl& s = *impl_;
+  StateDict out;
+  put_int(out, "frames", s.frames);
+  if (s.frames == 0) return out;
+  s.shape.put(out);
+  if (s.frames == 1) {
+    out["first_image"] = s.first_image;
+    return out;
+  }
+  out["feat2"] = s.feat2;
+  out["feat_k2"] = s.feat_k2;
+  model::put_head_layers(out, "last_dec2", s.last_dec2);
+  const Spann3rMemoryState m = s.memory->state();
+  put_int(out, "memory.working_frames", m.working_frames);
+  put_int(out, "memory.long_mem_counter", m.long_mem_counter);
+  put_int(out, "memory.num_patches", m.num_patches);
+  if (m.keys.defined()) {
+    out["memory.keys"] = m.keys;
+    out["memory.values"] = m.values;
+    out["memory.mem_attn"] = m.mem_attn;
+    out["memory.mem_count"] = m.mem_count;
+  }
+  return out;
+}
+
+void Spann3rModel::restore_stream_state(const StateDict& state) {
+  Impl& s = *impl_;
+  c10::InferenceMode guard;
+  const StateReader r(state, "spann3r stream state");
+  constexpr int64_t kMax = int64_t{1} << 53;
+  const int64_t frames = r.integer("frames", 0, kMax);
+  if (frames == 0) {
+    s.reset();
+    return;
+  }
+  const Dust3rConfig& dc = config().dust3r;
+  model::StreamShape shape;
+  const int64_t P = shape.read(r, *s.net->dust3r), B = shape.batch, C = config().memory_dim();
+  const at::TensorOptions opts = at::TensorOptions().device(device()).dtype(dtype());
+  if (frames == 1) {
+    const at::Tensor first = r.floating("first_image", {B, 3, shape.H, shape.W}).to(opts);
+    s.reset();
+    s.frames = 1;
+    s.shape = shape;
+    s.first_image = first;
+    return;
+  }
+  const at::Tensor feat2 = r.floating("feat2", {B, P, dc.enc_embed_dim}).to(opts);
+  const at::Tensor feat_k2 = r.floating("feat_k2", {B, P, C}).to(opts);
+  model::DecoderOutputs last_dec2 = model::read_head_layers(r, "last_dec2", dc, B, P, opts);
+  Spann3rMemoryState m;
+  m.working_frames = r.integer("memory.working_frames", 0, kMax);
+  m.long_mem_counter = r.integer("memory.long_mem_counter", 0, kMax);
+  m.num_patches = r.integer("memory.num_patches", 0, kMax);
+  if (r.has("memory.keys")) {
+    m.keys = r.floating("memory.keys", {B, -1, C}).to(opts);
+    const int64_t M = m.keys.size(1);
+    m.values = r.floating("memory.values", {B, M, C}).to(opts);
+    m.mem_attn = r.floating("memory.mem_attn", {B, M}).to(opts);
+    m.mem_count = r.floating("memory.mem_count", {B, M}).to(opts);
+  }
+  s.reset();
+  s.memory->set_state(m);
+  s.frames = frames;
+  s.shape = shape;
+  s.feat2 = feat2;
+  s.feat_k2 = feat_k2;
+  s.last_dec2 = std::move(last_dec2);
+}
+
+ModelIdentity Spann3rModel::identity() const {
+  return {variant(), model_config_to_json(config()), weights_fingerprint()};
+}
+
 std::optional<StreamOutput> Spann3rModel::peek_last() {
   Impl& s = *impl_;
   if (s.frames < 2) return std::nullopt;

@@ -1,6 +1,8 @@
 // A live camera stream turned into one reconstruction; see live_session.hpp.
 #include "long3r/pipeline/live_session.hpp"
 
+#include <ATen/ATen.h>
+
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -232,6 +234,100 @@ void LiveSession::start_stream_scale() {
   status_.scale = scale_policy_.applied();
   status_.scale_metric = scale_policy_.metric();
   ++status_.streams;
+}
+
+// ---------------------------------------------------------------- sessions
+
+SessionIdentity LiveSession::identity() const {
+  SessionIdentity id;
+  id.model = recon_.model().identity();
+  id.input_width = recon_.config().preprocess.width;
+  id.input_height = recon_.config().preprocess.height;
+  id.voxel_size_m = recon_.config().map.voxel_size_m;
+  return id;
+}
+
+void LiveSession::save(const std::string& path) {
+  flush();
+  StateDict state;
+  try {
+    for (auto& [key, t] : recon_.state()) state["reconstruction." + key] = t;
+  } catch (const std::logic_error& e) {
+    throw SessionError("session not saved to " + path + ": " + e.what());
+  }
+  const ScalePolicy::State scale = scale_policy_.state();
+  state["live.scale.samples"] = at::tensor(scale.samples, at::kDouble);
+  put_real(state, "live.scale.applied", scale.applied);
+  put_int(state, "live.scale.metric", scale.metric ? 1 : 0);
+  for (auto& [key, t] : client_.session_state()) state["client." + key] = t;
+  char scale_text[64];
+  std::snprintf(scale_text, sizeof scale_text, "%.6g%s", recon_.scale(),
+                scale.metric ? " m per model unit" : " (model units)");
+  write_session(path, identity(), state,
+                {{"frames", std::to_string(recon_.frames_pushed())},
+                 {"map_points", std::to_string(recon_.map().size())},
+                 {"path_poses", std::to_string(recon_.trajectory().size())},
+                 {"scale", scale_text}});
+  info("session", "session saved to " + path + ": " + std::to_string(recon_.frames_pushed()) +
+                      " frames, " + std::to_string(recon_.map().size()) + " map points");
+}
+
+void LiveSession::load(const std::string& path) {
+  const StateDict file = read_session(path, identity());
+  StateDict recon_state;
+  for (const auto& [key, t] : file) {
+    if (key.rfind("reconstruction.", 0) == 0) recon_state[key.substr(15)] = t;
+  }
+  ScalePolicy::State scale;
+  try {
+    const StateReader r(file, "session", "live.scale.");
+    const at::Tensor samples = r.floating("samples", {-1}).to(at::kDouble).contiguous();
+    scale.samples.assign(samples.data_ptr<double>(), samples.data_ptr<double>() + samples.numel());
+    scale.applied = r.real("applied");
+    scale.metric = r.integer("metric", 0, 1) == 1;
+    if (!(scale.applied > 0.0) || !std::isfinite(scale.applied)) {
+      r.fail("applied", "must be positive and finite");
+    }
+    recon_.restore(recon_state);
+  } catch (const StateError& e) {
+    throw SessionError(path + ": damaged session: " + e.what());
+  }
+  // The stream now is the file's: stamps start over, and so does what the
+  // client keeps per stream.
+  monitor_.reset();
+  held_.reset();
+  pending_.clear();
+  status_.lost_frames = 0;
+  status_.lost_for_s = 0.0;
+  status_.tracking = recon_.frames_pushed() > 0 ? "ok" : "not started";
+  status_.stream_frames = recon_.frames_pushed();
+  scale_sampler_.reset();
+  if (scale.metric) {
+    scale_policy_.restore(scale);
+  } else {  // not metric yet: this run's scale source decides, from the file's samples
+    scale_policy_.reset();
+    scale.applied = scale_policy_.applied();
+    scale.metric = scale_policy_.metric();
+    scale_policy_.restore(scale);
+    recon_.set_scale(scale_policy_.applied());
+  }
+  recon_.set_mapping(true);
+  status_.scale_estimate = scale_policy_.estimate();
+  status_.scale = scale_policy_.applied();
+  status_.scale_metric = scale_policy_.metric();
+  status_.mapping_held = false;
+  ++status_.streams;
+  info("session", "session loaded from " + path + ": " + std::to_string(recon_.frames_pushed()) +
+                      " frames, " + std::to_string(recon_.map().size()) + " map points, " +
+                      std::to_string(recon_.trajectory().size()) +
+                      " poses; the next frames "
+                      "continue it");
+  client_.on_new_stream("session loaded from " + path);
+  StateDict client_state;
+  for (const auto& [key, t] : file) {
+    if (key.rfind("client.", 0) == 0) client_state[key.substr(7)] = t;
+  }
+  client_.restore_session_state(client_state);
 }
 
 // ---------------------------------------------------------------- results

@@ -137,6 +137,15 @@ void ScalePolicy::reset() {
   metric_ = fixed;
 }
 
+void ScalePolicy::restore(const State& state) {
+  samples_.assign(state.samples.begin(), state.samples.end());
+  while (samples_.size() > config_.max_samples) samples_.pop_front();
+  estimate_ = samples_.empty() ? ScaleEstimate()
+                               : robust_scale({samples_.begin(), samples_.end()}, config_);
+  applied_ = state.applied;
+  metric_ = state.metric;
+}
+
 void ScalePolicy::add_sample(double ratio) {
   samples_.push_back(ratio);
   while (samples_.size() > config_.max_samples) samples_.pop_front();

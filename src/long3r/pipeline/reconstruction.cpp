@@ -6,6 +6,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <tuple>
 #include <utility>
@@ -143,6 +144,201 @@ void Reconstruction::rescale(FrameResult& r, double scale) {
     c.bottomLeftCorner<3, 3>() *= factor;
   }
   r.scale = scale;
+}
+
+namespace {
+
+Eigen::Isometry3d pose_from(const at::Tensor& t, const StateReader& r, const std::string& key) {
+  const std::optional<Eigen::Isometry3d> T = pose_from_tensor(t);
+  if (!T) r.fail(key, "not a rigid transform");
+  return *T;
+}
+
+at::Tensor intrinsics_tensor(const PinholeIntrinsics& k) {
+  return at::tensor(std::vector<double>{k.fx, k.fy, k.cx, k.cy, double(k.width), double(k.height)},
+                    at::kDouble);
+}
+
+PinholeIntrinsics intrinsics_from(const StateReader& r, const std::string& key) {
+  const at::Tensor t = r.floating(key, {6}).to(at::kDouble).contiguous();
+  const double* v = t.data_ptr<double>();
+  PinholeIntrinsics k;
+  k.fx = v[0];
+  k.fy = v[1];
+  k.cx = v[2];
+  k.cy = v[3];
+  k.width = static_cast<int>(v[4]);
+  k.height = static_cast<int>(v[5]);
+  if (!k.valid() || v[4] < 0 || v[5] < 0 || v[4] > 1e5 || v[5] > 1e5) {
+    r.fail(key, "not valid intrinsics");
+  }
+  return k;
+}
+
+}  // namespace
+
+StateDict Reconstruction::state() const {
+  const bool lone_first = frames_pushed_ == 1 && pending_.size() == 1;
+  if (!pending_.empty() && !lone_first) {
+    throw std::logic_error("Reconstruction::state: a frame waits for its result; flush() first");
+  }
+  StateDict out;
+  if (lone_first || frames_pushed_ == 0) {
+    put_int(out, "frames_pushed", 0);
+    put_int(out, "model.frames", 0);
+    put_real(out, "scale", scale_);
+    return out;
+  }
+  put_int(out, "frames_pushed", frames_pushed_);
+  put_int(out, "source_width", source_width_);
+  put_int(out, "source_height", source_height_);
+  put_int(out, "flushed_index", flushed_index_);
+  put_real(out, "scale", scale_);
+  put_int(out, "intrinsics_failed", intrinsics_failed_ ? 1 : 0);
+  if (calibration_) out["calibration"] = intrinsics_tensor(*calibration_);
+  if (intrinsics_) {
+    out["intrinsics"] = intrinsics_tensor(intrinsics_->intrinsics);
+    put_int(out, "intrinsics.source", static_cast<int64_t>(intrinsics_->source));
+  }
+  const PoseTracker::State tracker = tracker_.state();
+  out["tracker.last_good"] = pose_to_tensor(tracker.last_good);
+  put_int(out, "tracker.has_good", tracker.has_good ? 1 : 0);
+  put_int(out, "tracker.consecutive_failures", tracker.consecutive_failures);
+
+  const int64_t n = static_cast<int64_t>(trajectory_.size());
+  at::Tensor stamps = at::empty({n}, at::kDouble), poses = at::empty({n, 4, 4}, at::kDouble);
+  for (int64_t i = 0; i < n; ++i) {
+    const auto& [stamp, T_W_C] = trajectory_[static_cast<std::size_t>(i)];
+    stamps.data_ptr<double>()[i] = stamp;
+    Eigen::Map<Eigen::Matrix<double, 4, 4, Eigen::RowMajor>>(poses.data_ptr<double>() + 16 * i) =
+        T_W_C.matrix();
+  }
+  out["trajectory.stamp"] = stamps;
+  out["trajectory.T_W_C"] = poses;
+
+  const std::vector<VoxelRecord> voxels = map_.records();
+  const int64_t m = static_cast<int64_t>(voxels.size());
+  at::Tensor index = at::empty({m, 3}, at::kLong), mean = at::empty({m, 3}, at::kDouble),
+             color = at::empty({m, 3}, at::kFloat), hits = at::empty({m}, at::kLong),
+             seen = at::empty({m}, at::kLong);
+  int64_t* index_p = index.data_ptr<int64_t>();
+  double* mean_p = mean.data_ptr<double>();
+  float* color_p = color.data_ptr<float>();
+  for (int64_t i = 0; i < m; ++i) {
+    const VoxelRecord& v = voxels[static_cast<std::size_t>(i)];
+    for (int a = 0; a < 3; ++a) {
+      index_p[3 * i + a] = v.index[a];
+      mean_p[3 * i + a] = v.mean[a];
+      color_p[3 * i + a] = v.color[a];
+    }
+    hits.data_ptr<int64_t>()[i] = v.hits;
+    seen.data_ptr<int64_t>()[i] = v.last_seen;
+  }
+  out["map.index"] = index;
+  out["map.mean"] = mean;
+  out["map.color"] = color;
+  out["map.hits"] = hits;
+  out["map.last_seen"] = seen;
+
+  for (auto& [key, t] : model_->stream_state()) out["model." + key] = t;
+  return out;
+}
+
+void Reconstruction::restore(const StateDict& state) {
+  const StateReader r(state, "saved reconstruction");
+  constexpr int64_t kMax = int64_t{1} << 53;
+  const int64_t frames = r.integer("frames_pushed", 0, kMax);
+  const double scale = r.real("scale");
+  if (!(scale > 0.0) || !std::isfinite(scale)) r.fail("scale", "must be positive and finite");
+  StateDict model_state;
+  for (const auto& [key, t] : state) {
+    if (key.rfind("model.", 0) == 0) model_state[key.substr(6)] = t;
+  }
+  if (frames == 0) {
+    if (r.integer("model.frames", 0, kMax) != 0) {
+      r.fail("model.frames", "a model stream without frames pushed");
+    }
+    reset();
+    set_scale(scale);
+    return;
+  }
+  const int width = static_cast<int>(r.integer("source_width", 1, 1 << 16));
+  const int height = static_cast<int>(r.integer("source_height", 1, 1 << 16));
+  const int64_t flushed = r.integer("flushed_index", -1, frames - 1);
+  const bool intrinsics_failed = r.integer("intrinsics_failed", 0, 1) == 1;
+  std::optional<PinholeIntrinsics> calibration;
+  if (r.has("calibration")) calibration = intrinsics_from(r, "calibration");
+  std::optional<ResolvedIntrinsics> intrinsics;
+  if (r.has("intrinsics")) {
+    intrinsics = ResolvedIntrinsics{
+        intrinsics_from(r, "intrinsics"),
+        static_cast<IntrinsicsSource>(r.integer(
+            "intrinsics.source", 0, static_cast<int64_t>(IntrinsicsSource::kEstimatedWeiszfeld)))};
+  }
+  PoseTracker::State tracker;
+  tracker.last_good = pose_from(r.floating("tracker.last_good", {4, 4}), r, "tracker.last_good");
+  tracker.has_good = r.integer("tracker.has_good", 0, 1) == 1;
+  tracker.consecutive_failures = r.integer("tracker.consecutive_failures", 0, kMax);
+
+  const at::Tensor stamps = r.floating("trajectory.stamp", {-1}).to(at::kDouble).contiguous();
+  const int64_t n = stamps.size(0);
+  const at::Tensor poses = r.floating("trajectory.T_W_C", {n, 4, 4});
+  std::vector<std::pair<double, Eigen::Isometry3d>> trajectory;
+  trajectory.reserve(static_cast<std::size_t>(n));
+  for (int64_t i = 0; i < n; ++i) {
+    trajectory.emplace_back(stamps.data_ptr<double>()[i],
+                            pose_from(poses[i], r, "trajectory.T_W_C[" + std::to_string(i) + "]"));
+  }
+
+  const at::Tensor index = r.int64("map.index", {-1, 3}).contiguous();
+  const int64_t m = index.size(0);
+  const at::Tensor mean = r.floating("map.mean", {m, 3}).to(at::kDouble).contiguous();
+  const at::Tensor color = r.floating("map.color", {m, 3}).to(at::kFloat).contiguous();
+  const at::Tensor hits = r.int64("map.hits", {m}).contiguous();
+  const at::Tensor seen = r.int64("map.last_seen", {m}).contiguous();
+  std::vector<VoxelRecord> voxels(static_cast<std::size_t>(m));
+  for (int64_t i = 0; i < m; ++i) {
+    VoxelRecord& v = voxels[static_cast<std::size_t>(i)];
+    for (int a = 0; a < 3; ++a) {
+      const int64_t k = index.data_ptr<int64_t>()[3 * i + a];
+      if (k < std::numeric_limits<int>::min() || k > std::numeric_limits<int>::max()) {
+        r.fail("map.index", "out of range");
+      }
+      v.index[a] = static_cast<int>(k);
+      v.mean[a] = mean.data_ptr<double>()[3 * i + a];
+      v.color[a] = color.data_ptr<float>()[3 * i + a];
+    }
+    const int64_t h = hits.data_ptr<int64_t>()[i];
+    if (h < 1 || h > std::numeric_limits<std::uint32_t>::max()) r.fail("map.hits", "out of range");
+    v.hits = static_cast<std::uint32_t>(h);
+    v.last_seen = seen.data_ptr<int64_t>()[i];
+  }
+  const int64_t model_frames = r.integer("model.frames", 0, kMax);
+  if (model_frames != frames) {
+    r.fail("model.frames", "the model's stream has " + std::to_string(model_frames) +
+                               " frames, the reconstruction " + std::to_string(frames));
+  }
+  // The model and the map validate their own parts; the model's is undone
+  // if the map then refuses its part.
+  const StateDict previous = model_->stream_state();
+  model_->restore_stream_state(model_state);
+  try {
+    map_.restore(voxels);
+  } catch (const std::invalid_argument& e) {
+    model_->restore_stream_state(previous);
+    r.fail("map", e.what());
+  }
+  pending_.clear();
+  frames_pushed_ = frames;
+  source_width_ = width;
+  source_height_ = height;
+  flushed_index_ = flushed;
+  scale_ = scale;
+  calibration_ = calibration;
+  intrinsics_ = intrinsics;
+  intrinsics_failed_ = intrinsics_failed;
+  tracker_.restore(tracker);
+  trajectory_ = std::move(trajectory);
 }
 
 std::optional<FrameResult> Reconstruction::push(const cv::Mat& image, const std::string& encoding,

@@ -282,6 +282,66 @@ std::vector<VoxelInfo> VoxelMap::voxels() const {
   return out;
 }
 
+std::vector<VoxelRecord> VoxelMap::records() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<VoxelRecord> out(voxels_.size());
+  for (std::size_t i = 0; i < voxels_.size(); ++i) {
+    const Voxel& v = voxels_[i];
+    out[i].index = unpack(v.key);
+    out[i].mean = Eigen::Vector3d(v.mean[0], v.mean[1], v.mean[2]);
+    out[i].color = Eigen::Vector3f(v.color[0], v.color[1], v.color[2]);
+    out[i].hits = v.hits;
+    out[i].last_seen = v.last_seen;
+  }
+  return out;
+}
+
+void VoxelMap::restore(const std::vector<VoxelRecord>& records) {
+  if (records.size() > config_.max_points) {
+    throw std::invalid_argument("map of " + std::to_string(records.size()) +
+                                " voxels, more than max_points (" +
+                                std::to_string(config_.max_points) + ")");
+  }
+  std::vector<Voxel> voxels;
+  voxels.reserve(records.size());
+  std::unordered_map<std::uint64_t, std::uint32_t> index;
+  index.reserve(records.size());
+  // A mean lies inside its voxel up to the rounding of the running mean.
+  const double slack = 1e-6 * config_.voxel_size_m;
+  for (std::size_t n = 0; n < records.size(); ++n) {
+    const VoxelRecord& r = records[n];
+    const std::string which = "map voxel " + std::to_string(n) + ": ";
+    std::int64_t idx[3];
+    for (int a = 0; a < 3; ++a) {
+      idx[a] = r.index[a];
+      if (idx[a] < -kBias || idx[a] >= kBias)
+        throw std::invalid_argument(which + "index out of range");
+      const double lo = static_cast<double>(idx[a]) * config_.voxel_size_m;
+      if (!(r.mean[a] >= lo - slack && r.mean[a] <= lo + config_.voxel_size_m + slack)) {
+        throw std::invalid_argument(which + "mean position outside its voxel");
+      }
+      if (!(r.color[a] >= 0.0f && r.color[a] <= 255.0f)) {
+        throw std::invalid_argument(which + "colour outside [0, 255]");
+      }
+    }
+    if (r.hits == 0) throw std::invalid_argument(which + "no hits");
+    const std::uint64_t key = pack(idx);
+    if (!index.emplace(key, static_cast<std::uint32_t>(n)).second) {
+      throw std::invalid_argument(which + "a second voxel with the same index");
+    }
+    voxels.push_back(Voxel{key,
+                           {r.mean[0], r.mean[1], r.mean[2]},
+                           {r.color[0], r.color[1], r.color[2]},
+                           r.hits,
+                           r.last_seen});
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  voxels_ = std::move(voxels);
+  index_ = std::move(index);
+  compact_buckets_locked();
+  ++revision_;
+}
+
 void VoxelMap::save(const std::string& path, const MapSaveOptions& options) const {
   // Copy under the lock, write without it: fusing is not blocked by disk I/O.
   const MapSnapshot s = snapshot();

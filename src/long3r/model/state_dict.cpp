@@ -1,0 +1,97 @@
+// Saved component states; see include/long3r/model/state_dict.hpp.
+#include "long3r/model/state_dict.hpp"
+
+#include <ATen/ATen.h>
+
+#include <cmath>
+#include <utility>
+
+namespace long3r {
+
+void put_int(StateDict& state, const std::string& key, int64_t value) {
+  state[key] = at::scalar_tensor(value, at::kLong);
+}
+
+void put_real(StateDict& state, const std::string& key, double value) {
+  state[key] = at::scalar_tensor(value, at::kDouble);
+}
+
+StateReader::StateReader(const StateDict& state, std::string what, std::string prefix)
+    : state_(state), what_(std::move(what)), prefix_(std::move(prefix)) {}
+
+StateReader StateReader::child(const std::string& prefix) const {
+  return StateReader(state_, what_, prefix_ + prefix);
+}
+
+bool StateReader::has(const std::string& key) const {
+  const auto it = state_.find(prefix_ + key);
+  return it != state_.end() && it->second.defined();
+}
+
+void StateReader::fail(const std::string& key, const std::string& problem) const {
+  throw StateError(what_ + ": " + prefix_ + key + ": " + problem);
+}
+
+const at::Tensor& StateReader::get(const std::string& key) const {
+  if (!has(key)) fail(key, "missing");
+  return state_.at(prefix_ + key);
+}
+
+int64_t StateReader::integer(const std::string& key) const {
+  const at::Tensor& t = get(key);
+  if (t.scalar_type() != at::kLong || t.dim() != 0) fail(key, "expected an int64 scalar");
+  return t.item<int64_t>();
+}
+
+int64_t StateReader::integer(const std::string& key, int64_t min, int64_t max) const {
+  const int64_t v = integer(key);
+  if (v < min || v > max) {
+    fail(key, std::to_string(v) + " is outside [" + std::to_string(min) + ", " +
+                  std::to_string(max) + "]");
+  }
+  return v;
+}
+
+double StateReader::real(const std::string& key) const {
+  const at::Tensor& t = get(key);
+  if (t.scalar_type() != at::kDouble || t.dim() != 0) fail(key, "expected a float64 scalar");
+  return t.item<double>();
+}
+
+at::Tensor StateReader::shaped(const std::string& key, std::initializer_list<int64_t> shape,
+                               bool floating, bool finite) const {
+  const at::Tensor& t = get(key);
+  if (floating ? !at::isFloatingType(t.scalar_type()) : t.scalar_type() != at::kLong) {
+    fail(key, std::string("expected ") + (floating ? "a floating-point" : "an int64") +
+                  " tensor, found " + c10::toString(t.scalar_type()));
+  }
+  bool ok = t.dim() == static_cast<int64_t>(shape.size());
+  int64_t d = 0;
+  for (const int64_t want : shape) {
+    if (!ok) break;
+    ok = want < 0 || t.size(d) == want;
+    ++d;
+  }
+  if (!ok) {
+    std::string want = "[";
+    for (const int64_t s : shape) {
+      want += (want.size() > 1 ? ", " : "") + (s < 0 ? std::string("*") : std::to_string(s));
+    }
+    fail(key, "shape " + c10::str(t.sizes()) + ", expected " + want + "]");
+  }
+  if (floating && finite && !at::isfinite(t).all().item<bool>()) {
+    fail(key, "holds non-finite values");
+  }
+  return t;
+}
+
+at::Tensor StateReader::floating(const std::string& key, std::initializer_list<int64_t> shape,
+                                 bool finite) const {
+  return shaped(key, shape, true, finite);
+}
+
+at::Tensor StateReader::int64(const std::string& key, std::initializer_list<int64_t> shape) const {
+  return shaped(key, shape, false, false);
+}
+
+}  // namespace long3r

@@ -1,0 +1,325 @@
+// Sessions without ROS (pipeline/session.hpp, LiveSession::save / load): a
+// saved and loaded stream continues exactly as the uninterrupted one would
+// after a pause (poses, map voxels bit for bit, path), whatever the stamps
+// of the frames that follow; every damaged, foreign or mismatched file is
+// refused by name with the running stream untouched; a failed save leaves
+// the old file. A model that returns the generator's ground truth makes
+// every figure exact.
+#include <ATen/ATen.h>
+#include <gtest/gtest.h>
+
+#include <any>
+#include <fstream>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "long3r/model/safetensors.hpp"
+#include "long3r/pipeline/live_session.hpp"
+#include "long3r/pipeline/session.hpp"
+#include "support/cv_test_support.hpp"
+#include "support/live_session_support.hpp"
+#include "support/test_support.hpp"
+
+namespace long3r {
+namespace {
+
+using test::Session;
+
+constexpr int kFrames = 10;
+constexpr int kSplit = 5;  // frames 0..4 before the save, 5..9 after
+
+std::string session_path(const std::string& dir) {
+  return test::scratch_dir("session/" + dir) + "/map.l3s";
+}
+
+void expect_same_map(const VoxelMap& a, const VoxelMap& b) {
+  const std::vector<VoxelRecord> ra = a.records(), rb = b.records();
+  ASSERT_EQ(ra.size(), rb.size());
+  for (std::size_t i = 0; i < ra.size(); ++i) {
+    ASSERT_EQ(ra[i].index, rb[i].index) << "voxel " << i;
+    ASSERT_EQ(ra[i].mean, rb[i].mean) << "voxel " << i;
+    ASSERT_EQ(ra[i].color, rb[i].color) << "voxel " << i;
+    ASSERT_EQ(ra[i].hits, rb[i].hits) << "voxel " << i;
+    ASSERT_EQ(ra[i].last_seen, rb[i].last_seen) << "voxel " << i;
+  }
+}
+
+void expect_same_path(const Reconstruction& a, const Reconstruction& b) {
+  const auto pa = a.trajectory(), pb = b.trajectory();
+  ASSERT_EQ(pa.size(), pb.size());
+  for (std::size_t i = 0; i < pa.size(); ++i) {
+    EXPECT_EQ(pa[i].first, pb[i].first);
+    EXPECT_TRUE(pa[i].second.isApprox(pb[i].second, 0.0)) << "pose " << i;
+  }
+}
+
+// Results of frames from..to-1 in `s` (by tag).
+std::vector<const LiveResult*> results_of(const Session& s, int from, int to) {
+  std::vector<const LiveResult*> out;
+  for (const LiveResult& r : s.client.results) {
+    const int k = std::any_cast<int>(r.tag);
+    if (k >= from && k < to) out.push_back(&r);
+  }
+  return out;
+}
+
+// What must not change when a load is refused.
+struct Fingerprint {
+  int64_t frames;
+  std::size_t map_points, poses;
+  double scale;
+  explicit Fingerprint(const Session& s)
+      : frames(s.session->reconstruction().frames_pushed()),
+        map_points(s.session->reconstruction().map().size()),
+        poses(s.session->reconstruction().trajectory().size()),
+        scale(s.session->reconstruction().scale()) {}
+  bool operator==(const Fingerprint& o) const {
+    return frames == o.frames && map_points == o.map_points && poses == o.poses && scale == o.scale;
+  }
+};
+
+// A session of frames 0..kSplit-1 saved to `path`.
+void save_first_part(const std::string& path) {
+  Session a(kFrames);
+  for (int k = 0; k < kSplit; ++k) a.push(k, 10.0 + 0.1 * k);
+  a.session->save(path);
+}
+
+std::string error_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const SessionError& e) {
+    return e.what();
+  }
+  return "(no SessionError)";
+}
+
+TEST(Session, ALoadedSessionContinuesExactlyAsTheStreamAfterAPause) {
+  // The reference: one run with a pause (flush) where the other saves.
+  Session ref(kFrames);
+  for (int k = 0; k < kFrames; ++k) {
+    if (k == kSplit) ref.session->flush();
+    ref.push(k, 10.0 + 0.1 * k);
+  }
+  ref.session->flush();
+
+  const std::string path = session_path("exact");
+  Session before(kFrames);
+  for (int k = 0; k < kSplit; ++k) before.push(k, 10.0 + 0.1 * k);
+  before.session->save(path);
+  ASSERT_EQ(before.tags(), (std::vector<int>{0, 1, 2, 3, 4}));  // save delivered frame 4
+
+  const std::map<std::string, std::string> meta = read_session_metadata(path);
+  EXPECT_EQ(meta.at("format"), "long3r_session");
+  EXPECT_EQ(meta.at("model.variant"), "fake");
+  EXPECT_EQ(meta.at("frames"), std::to_string(kSplit));
+  EXPECT_EQ(meta.at("map_points"), std::to_string(before.session->reconstruction().map().size()));
+
+  Session after(kFrames);  // another process: a fresh model of the same identity
+  after.session->load(path);
+  EXPECT_EQ(after.client.log,
+            (std::vector<std::string>{"new stream: session loaded from " + path}));
+  EXPECT_EQ(after.session->reconstruction().frames_pushed(), kSplit);
+  expect_same_map(after.session->reconstruction().map(), before.session->reconstruction().map());
+  for (int k = kSplit; k < kFrames; ++k) after.push(k, 10.0 + 0.1 * k);
+  after.session->flush();
+
+  const auto got = results_of(after, kSplit, kFrames), want = results_of(ref, kSplit, kFrames);
+  ASSERT_EQ(got.size(), want.size());
+  for (std::size_t i = 0; i < got.size(); ++i) {
+    EXPECT_EQ(got[i]->frame.frame_index, want[i]->frame.frame_index);
+    EXPECT_TRUE(got[i]->frame.pose.ok());
+    EXPECT_TRUE(got[i]->frame.pose.T_W_C.isApprox(want[i]->frame.pose.T_W_C, 0.0));
+  }
+  expect_same_map(after.session->reconstruction().map(), ref.session->reconstruction().map());
+  expect_same_path(after.session->reconstruction(), ref.session->reconstruction());
+}
+
+TEST(Session, FramesAfterALoadContinueWhateverTheirStamps) {
+  const std::string path = session_path("stamps");
+  save_first_part(path);
+  Session s(kFrames);
+  s.session->load(path);
+  const std::size_t saved_points = s.session->reconstruction().map().size();
+  // A replay another day: stamps far behind the saved ones. Not a jump back
+  // in time (which would start a new stream): the file's stream goes on.
+  for (int k = kSplit; k < kFrames; ++k) s.push(k, 1.0 + 0.1 * k);
+  s.session->flush();
+  EXPECT_EQ(s.client.log.front(), "new stream: session loaded from " + path);
+  EXPECT_EQ(s.client.log.size(), 1u + (kFrames - kSplit));  // no other new stream
+  EXPECT_EQ(s.session->status().streams, 2u);
+  EXPECT_GE(s.session->reconstruction().map().size(), saved_points);
+  EXPECT_EQ(s.session->reconstruction().trajectory().size(), static_cast<std::size_t>(kFrames));
+  for (const LiveResult* r : results_of(s, kSplit, kFrames)) {
+    EXPECT_EQ(r->frame.frame_index, std::any_cast<int>(r->tag));  // frame indices go on
+    EXPECT_TRUE(r->frame.pose.ok());
+  }
+}
+
+TEST(Session, AMetricScaleIsKeptAndANonMetricOneFollowsThisRunsSource) {
+  const std::string path = session_path("scale");
+  LiveSessionConfig fixed;
+  fixed.scale.source = ScaleSource::kFixed;
+  fixed.scale.fixed_scale = 2.0;
+  {
+    Session a(kFrames, fixed);
+    for (int k = 0; k < kSplit; ++k) a.push(k, 10.0 + 0.1 * k);
+    a.session->save(path);
+  }
+  Session b(kFrames);  // scale source none: the saved metric scale stays
+  b.session->load(path);
+  EXPECT_EQ(b.session->reconstruction().scale(), 2.0);
+  EXPECT_TRUE(b.session->status().scale_metric);
+
+  const std::string plain = session_path("scale_plain");
+  save_first_part(plain);  // model units
+  Session c(kFrames, fixed);
+  c.session->load(plain);
+  EXPECT_EQ(c.session->reconstruction().scale(), 2.0);  // this run's fixed scale, applied
+  Session ref(kFrames, fixed);
+  for (int k = 0; k < kSplit; ++k) ref.push(k, 10.0 + 0.1 * k);
+  ref.session->flush();
+  const auto rp = ref.session->reconstruction().trajectory();
+  const auto cp = c.session->reconstruction().trajectory();
+  ASSERT_EQ(rp.size(), cp.size());
+  for (std::size_t i = 0; i < rp.size(); ++i) {
+    EXPECT_TRUE(cp[i].second.isApprox(rp[i].second, 1e-9));
+  }
+}
+
+TEST(Session, DamagedForeignOrMismatchedFilesAreRefusedAndTheStreamIsUntouched) {
+  const std::string dir = test::scratch_dir("session/refused");
+  const std::string good = dir + "/good.l3s";
+  save_first_part(good);
+  const std::string bytes = test::read_file(good);
+
+  // The running session: frames of its own, to be kept through every refusal.
+  Session s(kFrames);
+  for (int k = 0; k < 3; ++k) s.push(k, 50.0 + 0.1 * k);
+  const Fingerprint before(s);
+
+  auto refused = [&](const std::string& name, const std::string& content,
+                     const std::string& expect) {
+    const std::string path = dir + "/" + name;
+    test::write_file(path, content);
+    const std::string e = error_of([&] { s.session->load(path); });
+    EXPECT_NE(e.find(expect), std::string::npos) << name << ": " << e;
+    EXPECT_TRUE(Fingerprint(s) == before) << name;
+  };
+  refused("truncated.l3s", bytes.substr(0, bytes.size() / 2), "truncated.l3s");
+  refused("empty.l3s", "", "empty.l3s");
+  refused("garbage.l3s", std::string(4096, '\x5a'), "garbage.l3s");
+  std::string flipped = bytes;
+  flipped[12] = '\x01';  // inside the JSON header
+  refused("flipped.l3s", flipped, "flipped.l3s");
+  EXPECT_NE(error_of([&] { s.session->load(dir + "/missing.l3s"); }).find("missing.l3s"),
+            std::string::npos);
+
+  // A safetensors file that is not a session (a model checkpoint).
+  const std::string ckpt = dir + "/checkpoint.safetensors";
+  save_safetensors(ckpt, {{"w", at::ones({2})}}, {{"config", "{}"}});
+  EXPECT_NE(error_of([&] { s.session->load(ckpt); }).find("not a long3r session file"),
+            std::string::npos);
+
+  // Sessions of another model or configuration, named.
+  const TensorFile file = load_safetensors(good);
+  auto with_metadata = [&](const std::string& name, const std::string& key,
+                           const std::string& value) {
+    std::map<std::string, std::string> meta = file.metadata;
+    meta[key] = value;
+    const std::string path = dir + "/" + name;
+    save_safetensors(path, file.tensors, meta);
+    return path;
+  };
+  auto expect_refused = [&](const std::string& path, const std::string& expect) {
+    const std::string e = error_of([&] { s.session->load(path); });
+    EXPECT_NE(e.find(expect), std::string::npos) << e;
+    EXPECT_TRUE(Fingerprint(s) == before) << path;
+  };
+  expect_refused(with_metadata("weights.l3s", "model.weights", "0123456789abcdef"),
+                 "other weights (fingerprint 0123456789abcdef, this model's fake-weights)");
+  expect_refused(with_metadata("variant.l3s", "model.variant", "spann3r"),
+                 "a spann3r model, this one is fake");
+  expect_refused(with_metadata("config.l3s", "model.config", "{\"fake\": 2}"),
+                 "fake: 2 in the file, 1 here");
+  expect_refused(with_metadata("size.l3s", "input_width", "512"),
+                 "a model input size of 512x64, this one 64x64");
+  expect_refused(with_metadata("version.l3s", "format_version", "7"),
+                 "session format version 7, this build reads 1");
+  {
+    ReconstructionConfig coarse = test::gt_reconstruction_config();
+    coarse.map.voxel_size_m *= 2.0;
+    Session other(kFrames, {}, true, coarse);
+    EXPECT_NE(error_of([&] { other.session->load(good); }).find("a map voxel size of"),
+              std::string::npos);
+  }
+
+  // Damaged contents behind a valid header: named by entry.
+  auto with_tensor = [&](const std::string& name, const std::string& key, const at::Tensor& t) {
+    std::map<std::string, at::Tensor> tensors = file.tensors;
+    if (t.defined()) {
+      tensors[key] = t;
+    } else {
+      tensors.erase(key);
+    }
+    const std::string path = dir + "/" + name;
+    save_safetensors(path, tensors, file.metadata);
+    return path;
+  };
+  const at::Tensor mean = file.tensors.at("reconstruction.map.mean");
+  expect_refused(with_tensor("mean.l3s", "reconstruction.map.mean", mean + 1000.0),
+                 "mean position outside its voxel");
+  expect_refused(with_tensor("nan.l3s", "reconstruction.map.mean", mean * NAN),
+                 "saved reconstruction: map.mean: holds non-finite values");
+  expect_refused(with_tensor("no_path.l3s", "reconstruction.trajectory.T_W_C", at::Tensor()),
+                 "saved reconstruction: trajectory.T_W_C: missing");
+  expect_refused(with_tensor("not_rigid.l3s", "reconstruction.trajectory.T_W_C",
+                             file.tensors.at("reconstruction.trajectory.T_W_C") * 2.0),
+                 "not a rigid transform");
+  expect_refused(with_tensor("frames.l3s", "reconstruction.model.frames",
+                             at::scalar_tensor(int64_t{3}, at::kLong)),
+                 "the model's stream has 3 frames, the reconstruction 5");
+  expect_refused(
+      with_tensor("scale.l3s", "live.scale.applied", at::scalar_tensor(-1.0, at::kDouble)),
+      "live.scale.applied: must be positive and finite");
+
+  // After all that, the stream goes on as if nothing had happened.
+  for (int k = 3; k < kFrames; ++k) s.push(k, 50.0 + 0.1 * k);
+  s.session->flush();
+  EXPECT_EQ(s.tags(), (std::vector<int>{0, 1, 2, 3, 4, 5, 6, 7, 8, 9}));
+  EXPECT_EQ(s.session->status().streams, 1u);
+}
+
+TEST(Session, AFailedSaveLeavesTheOldFileAndAModelWithoutIdentityCannotSave) {
+  const std::string dir = test::scratch_dir("session/save_fails");
+  const std::string path = dir + "/map.l3s";
+  save_first_part(path);
+  const std::string old = test::read_file(path);
+
+  Session s(kFrames);
+  for (int k = 0; k < kFrames; ++k) s.push(k, 10.0 + 0.1 * k);
+  {
+    test::FileSizeLimit limit(old.size() / 2);  // a disk that fills up mid-write
+    EXPECT_NE(error_of([&] { s.session->save(path); }).find("session not saved"),
+              std::string::npos);
+  }
+  EXPECT_EQ(test::read_file(path), old);
+  EXPECT_EQ(test::folder_entries(dir), (std::vector<std::string>{"map.l3s"}));  // no temporary
+  EXPECT_NE(error_of([&] {
+              s.session->save(dir + "/no/such/folder/map.l3s");
+            }).find("No such file or directory"),
+            std::string::npos);
+
+  Session anonymous(kFrames, {}, true, test::gt_reconstruction_config(), /*weights=*/"");
+  anonymous.push(0, 1.0);
+  anonymous.push(1, 1.1);
+  EXPECT_NE(error_of([&] {
+              anonymous.session->save(dir + "/anon.l3s");
+            }).find("weights were not loaded from a checkpoint"),
+            std::string::npos);
+  EXPECT_EQ(test::folder_entries(dir), (std::vector<std::string>{"map.l3s"}));
+}
+
+}  // namespace
+}  // namespace long3r
