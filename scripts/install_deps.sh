@@ -32,7 +32,7 @@ PACKAGES=(
   libtorch-dev libopenblas0-openmp libopenblas0-pthread libopencv-dev libpcl-dev libeigen3-dev
   nlohmann-json3-dev libnanoflann-dev googletest libgtest-dev libgmock-dev
   # python side (checkpoint converter)
-  python3-torch python3-numpy
+  python3-torch python3-numpy python3-yaml
   # scripts/rviz_snapshot.sh: rviz on a virtual display, PNG capture
   xvfb python3-pil
 )
