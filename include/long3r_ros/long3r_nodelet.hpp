@@ -105,6 +105,7 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   Eigen::Vector3d odometry_camera_position_m(const long3r::LiveResult& result) override;
   cv::Mat depth(const long3r::LiveResult& result) override;
   void on_result(long3r::LiveResult& result) override;
+  void on_stream_ending(const long3r::Reconstruction& ending) override;
   void on_new_stream(const std::string& why) override;
   long3r::StateDict session_state() override;
   void restore_session_state(const long3r::StateDict& state) override;
@@ -161,6 +162,13 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   std::mutex session_mutex_;
   std::unique_ptr<long3r::LiveSession> session_;
   std::unique_ptr<RobotFrames> frames_;
+  // The maps of the streams that ended (tracking lost, time jumps, size
+  // changes), in map: ~map, ~grid and ~save_map keep them. Without odometry
+  // (odom_frame) each stream's map frame starts at its own first frame, so
+  // these maps are not registered to the current one. ~reset clears them.
+  std::unique_ptr<long3r::VoxelMap> archive_;
+  // The map in map: the archive and the current stream's (locks itself).
+  long3r::MapSnapshot mapSnapshot();
   std::optional<std::pair<Eigen::Isometry3d, double>> last_body_;  // pose in map, stamp
   std::optional<Eigen::Matrix<double, 6, 6>> last_body_cov_;
 

@@ -1,5 +1,6 @@
 #include "long3r_ros/long3r_nodelet.hpp"
 
+#include <ATen/ATen.h>
 #include <cv_bridge/cv_bridge.h>
 #include <geometry_msgs/PoseStamped.h>
 #include <geometry_msgs/TransformStamped.h>
@@ -102,6 +103,7 @@ void Long3rNodelet::onInit() {
                       << describe(grid_config_));
   tf_listener_ = std::make_unique<tf2_ros::TransformListener>(tf_buffer_, getNodeHandle());
   frames_ = std::make_unique<RobotFrames>(frames_config_, tf_buffer_);
+  archive_ = std::make_unique<long3r::VoxelMap>(recon_config_.map);
   loadModel();
   advertise();
   loadStartSession();
@@ -531,6 +533,36 @@ void Long3rNodelet::on_event(const long3r::LiveEvent& e) {
   }
 }
 
+// The ending stream's map stays in ~map, where it was in map.
+void Long3rNodelet::on_stream_ending(const long3r::Reconstruction& ending) {
+  if (ending.map().empty() || !frames_->anchored()) return;
+  long3r::MapSnapshot snap = ending.map().snapshot();
+  const Eigen::Isometry3f T_map_W = frames_->T_map_W().cast<float>();
+  for (Eigen::Vector3f& p : snap.points) p = T_map_W * p;
+  archive_->integrate(snap.points, snap.colors, static_cast<std::int64_t>(archive_->revision()));
+  NODELET_INFO("the ending stream's %zu map points stay in ~map (%zu kept from ended streams)%s",
+               snap.points.size(), archive_->size(),
+               frames_config_.odom_frame.empty()
+                   ? "; without odom_frame the next stream's map is not registered to them"
+                   : "");
+}
+
+long3r::MapSnapshot Long3rNodelet::mapSnapshot() {
+  long3r::MapSnapshot snap = session_->reconstruction().map().snapshot();
+  Eigen::Isometry3f T_map_W;
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    T_map_W = state_.T_map_W.cast<float>();
+  }
+  for (Eigen::Vector3f& p : snap.points) p = T_map_W * p;
+  if (!archive_->empty()) {
+    const long3r::MapSnapshot old = archive_->snapshot();
+    snap.points.insert(snap.points.end(), old.points.begin(), old.points.end());
+    snap.colors.insert(snap.colors.end(), old.colors.begin(), old.colors.end());
+  }
+  return snap;
+}
+
 void Long3rNodelet::on_new_stream(const std::string&) {
   frames_->reset();
   {
@@ -545,6 +577,15 @@ void Long3rNodelet::on_new_stream(const std::string&) {
 long3r::StateDict Long3rNodelet::session_state() {
   long3r::StateDict state;
   if (frames_->anchored()) state["T_map_W"] = long3r::pose_to_tensor(frames_->T_map_W());
+  if (!archive_->empty()) {  // the maps of ended streams, in map
+    const long3r::MapSnapshot a = archive_->snapshot();
+    const auto n = static_cast<std::int64_t>(a.points.size());
+    state["archive.points"] =
+        at::from_blob(const_cast<Eigen::Vector3f*>(a.points.data()), {n, 3}, at::kFloat).clone();
+    state["archive.colors"] =
+        at::from_blob(const_cast<std::array<std::uint8_t, 3>*>(a.colors.data()), {n, 3}, at::kByte)
+            .clone();
+  }
   if (frames_->started() && frames_->mode() == RobotFrames::Mode::kMapToOdom &&
       frames_->odometryAnchored()) {
     state["T_map_odom"] = long3r::pose_to_tensor(frames_->T_map_odom());
@@ -559,6 +600,20 @@ void Long3rNodelet::restore_session_state(const long3r::StateDict& state) {
     const auto it = state.find(key);
     return it == state.end() ? std::nullopt : long3r::pose_from_tensor(it->second);
   };
+  archive_->clear();
+  const auto points = state.find("archive.points"), colors = state.find("archive.colors");
+  if (points != state.end() && colors != state.end() && points->second.dim() == 2 &&
+      points->second.size(1) == 3 && points->second.scalar_type() == at::kFloat &&
+      colors->second.sizes() == points->second.sizes() &&
+      colors->second.scalar_type() == at::kByte) {
+    const at::Tensor p = points->second.contiguous(), c = colors->second.contiguous();
+    const auto n = static_cast<std::size_t>(p.size(0));
+    const auto* pp = reinterpret_cast<const Eigen::Vector3f*>(p.data_ptr<float>());
+    const auto* cp =
+        reinterpret_cast<const std::array<std::uint8_t, 3>*>(c.data_ptr<std::uint8_t>());
+    archive_->integrate(std::vector<Eigen::Vector3f>(pp, pp + n),
+                        std::vector<std::array<std::uint8_t, 3>>(cp, cp + n), 0);
+  }
   if (const std::optional<Eigen::Isometry3d> T_map_W = pose("T_map_W")) {
     frames_->continueSession(*T_map_W, pose("T_map_odom"));
   } else {
@@ -700,8 +755,8 @@ void Long3rNodelet::mapTimerCallback(const ros::WallTimerEvent&) {
   if (diagnostics_) diagnostics_->update();
   if (!session_) return;
   // The map locks itself: no wait for the model step.
-  const long3r::VoxelMap& map = session_->reconstruction().map();
-  const std::uint64_t revision = map.revision();
+  // Both only grow in revision: their sum changes whenever either does.
+  const std::uint64_t revision = session_->reconstruction().map().revision() + archive_->revision();
   // Built only for subscribers, and only when the map changed since they got it.
   const bool grid = grid_pub_.getNumSubscribers() > 0 && revision != last_grid_revision_;
   const bool cloud = map_pub_.getNumSubscribers() > 0 && revision != last_map_revision_;
@@ -710,13 +765,7 @@ void Long3rNodelet::mapTimerCallback(const ros::WallTimerEvent&) {
     if (grid_pub_.getNumSubscribers() == 0) state_.grid = "not subscribed";
   }
   if (!cloud && !grid) return;
-  long3r::MapSnapshot snap = map.snapshot();
-  Eigen::Isometry3f T_map_W;
-  {
-    std::lock_guard<std::mutex> lock(state_mutex_);
-    T_map_W = state_.T_map_W.cast<float>();
-  }
-  for (Eigen::Vector3f& p : snap.points) p = T_map_W * p;
+  long3r::MapSnapshot snap = mapSnapshot();
   if (grid) {
     last_grid_revision_ = revision;
     publishGrid(snap.points);
@@ -771,6 +820,7 @@ bool Long3rNodelet::resetService(std_srvs::Trigger::Request&, std_srvs::Trigger:
   {
     std::lock_guard<std::mutex> lock(session_mutex_);
     session_->reset("reset requested");
+    archive_->clear();
     copyStatus();
   }
   queue_->clear();
@@ -801,13 +851,7 @@ bool Long3rNodelet::resumeService(std_srvs::Trigger::Request&, std_srvs::Trigger
 
 bool Long3rNodelet::saveMapService(SaveMap::Request& req, SaveMap::Response& res) {
   try {
-    long3r::MapSnapshot snap = session_->reconstruction().map().snapshot();  // locks itself
-    Eigen::Isometry3f T_map_W;
-    {
-      std::lock_guard<std::mutex> lock(state_mutex_);
-      T_map_W = state_.T_map_W.cast<float>();
-    }
-    for (Eigen::Vector3f& p : snap.points) p = T_map_W * p;          // as ~map shows it
+    const long3r::MapSnapshot snap = mapSnapshot();                  // as ~map shows it
     long3r::save_colored_cloud(req.path, snap.points, snap.colors);  // atomic
     res.success = true;
     res.message = "wrote " + std::to_string(snap.points.size()) + " points (" +
@@ -956,6 +1000,9 @@ void Long3rNodelet::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) 
             e.samples, e.rejected);
   stat.add("stream frames", s.stream_frames);
   stat.add("streams started", s.streams);
+  stat.add("relocalisation attempts", s.relocalisation_attempts);
+  stat.add("relocalisations", s.relocalisations);
+  stat.add("map points kept from ended streams", archive_ ? archive_->size() : 0);
   stat.add("session file", state.session_file);
   stat.add("grid", state.grid);
   stat.add("tf", rival ? state.tf_rival : std::string("publishing"));

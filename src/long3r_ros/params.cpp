@@ -65,7 +65,8 @@ long3r::config::FieldsOf<S, long3r::StreamMonitorConfig> ros_fields(S& c, V& v) 
 template <class S, class V>
 long3r::config::FieldsOf<S, long3r::LiveSessionConfig> ros_fields(S& c, V& v) {
   v("image_is_rectified", c.image_is_rectified);
-  v("lost_reset_frames", c.lost_reset_frames, "(never)");
+  v("lost_reset_frames", c.lost_reset_frames, "(no bound)");
+  v("relocalise_for_s", c.relocalise_for_s, "(no bound)");
 }
 
 template <class S, class V>
@@ -264,7 +265,11 @@ long3r::StreamMonitorConfig readStreamMonitorConfig(const ros::NodeHandle& pnh) 
 
 long3r::LiveSessionConfig readLiveSessionConfig(const ros::NodeHandle& pnh) {
   long3r::LiveSessionConfig c = read_all<long3r::LiveSessionConfig>(pnh);
-  require(c.lost_reset_frames >= 0, pnh, "lost_reset_frames", "must be >= 0 (0 = never)");
+  try {
+    c.validate({"parameter " + pnh.getNamespace(), ""});
+  } catch (const long3r::ConfigError& e) {
+    throw ParamError(e.what());
+  }
   c.stream = readStreamMonitorConfig(pnh);
   c.scale = readMetricScaleConfig(pnh);
   return c;

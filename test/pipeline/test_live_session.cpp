@@ -68,7 +68,7 @@ TEST(LiveSession, TimeJumpingBackStartsANewStreamAfterTheOldOnesLastResult) {
       << s.client.log[4];
   EXPECT_EQ(s.client.log[5], "result 4");
   EXPECT_EQ(s.client.results.back().frame.frame_index, 1);  // of the new stream
-  const LiveEvent* w = s.client.event("starting a new stream (memory, map and path cleared)");
+  const LiveEvent* w = s.client.event("starting a new stream (memory, map and path start over)");
   ASSERT_NE(w, nullptr);
   EXPECT_FALSE(w->throttle);
   EXPECT_EQ(s.session->status().streams, 2u);
@@ -100,6 +100,52 @@ TEST(LiveSession, LostTrackingStartsANewStreamAfterLostResetFrames) {
   EXPECT_EQ(s.tags(), (std::vector<int>{0, 1, 2, 3, 4, 6, 7}));
   EXPECT_EQ(s.client.results[5].frame.frame_index, 0);
   EXPECT_TRUE(s.client.results[5].frame.pose.ok());
+}
+
+TEST(LiveSession, LostTrackingRelocalisesInTheSameStreamAndMap) {
+  LiveSessionConfig config;
+  config.relocalise_for_s = 10.0;
+  Session s(8, config);
+  const cv::Mat nothing(kGtSize, kGtSize, CV_32FC3, cv::Scalar::all(NAN));
+  s.g.pts_W0[3] = s.g.pts_W0[4] = nothing;
+  for (int k = 0; k < 8; ++k) s.push(k, 1.0 + 0.1 * k);
+  s.session->flush();
+  // Frames 5-7 are posed again in the first frame's world: one stream, one map.
+  const LiveStatus st = s.session->status();
+  EXPECT_EQ(st.streams, 1u);
+  EXPECT_EQ(st.tracking, "ok");
+  EXPECT_EQ(st.relocalisations, 1u);
+  EXPECT_EQ(st.relocalisation_attempts, 2u);  // frames 4 and 5 came while lost
+  const LiveEvent* back = s.client.event("relocalised at frame 5 after 2 unposed frame(s) (0.2 s)");
+  ASSERT_NE(back, nullptr);
+  EXPECT_EQ(back->level, LiveEvent::Level::kInfo);
+  for (int k : {5, 6, 7}) {
+    const FrameResult& f = s.client.results[static_cast<std::size_t>(k)].frame;
+    EXPECT_EQ(f.frame_index, k);
+    EXPECT_TRUE(f.pose.ok());
+    EXPECT_TRUE(f.pose.T_W_C.isApprox(s.g.T_0_k[static_cast<std::size_t>(k)], 1e-3)) << k;
+  }
+  EXPECT_TRUE(s.client.ended_map_points.empty());
+}
+
+TEST(LiveSession, RelocalisationIsBoundedInTimeAndTheEndingStreamIsHandedOver) {
+  LiveSessionConfig config;
+  config.relocalise_for_s = 0.15;
+  Session s(8, config);
+  const cv::Mat nothing(kGtSize, kGtSize, CV_32FC3, cv::Scalar::all(NAN));
+  s.g.pts_W0[3] = s.g.pts_W0[4] = s.g.pts_W0[5] = nothing;
+  for (int k = 0; k < 7; ++k) s.push(k, 1.0 + 0.1 * k);
+  // Frame 5 is 0.2 s after the loss began at frame 3: a new stream, and the
+  // ending one (its map of frames 0-2) went to the client first.
+  EXPECT_NE(s.client.event("tracking lost for 0.2 s without relocalising (relocalise_for_s 0.15)"),
+            nullptr);
+  EXPECT_EQ(s.session->status().streams, 2u);
+  ASSERT_EQ(s.client.ended_map_points.size(), 1u);
+  EXPECT_GT(s.client.ended_map_points[0], 0u);
+  EXPECT_EQ(s.session->status().relocalisations, 0u);
+  LiveSessionConfig bad;
+  bad.relocalise_for_s = -1.0;
+  EXPECT_THROW(bad.validate({"live session config", ""}), ConfigError);
 }
 
 TEST(LiveSession, OdometryScaleConvergesAndEveryResultLeavesInIt) {

@@ -38,6 +38,7 @@ from sensor_msgs.msg import CameraInfo, PointCloud2
 from std_srvs.srv import Trigger
 
 from long3r_ros.msg import Pointmap
+from map_checks import cloud_points, lost_points
 from long3r_ros.srv import SaveMap, SaveTrajectory
 
 ARGS = None
@@ -221,6 +222,14 @@ class ReplayCheck(unittest.TestCase):
                         'no warning naming the restart')
         self.assertTrue(any(m.startswith('tracking lost for') for m in self.rec.get('diagnostics')),
                         'the diagnostics never said tracking was lost')
+        # A new stream never wipes the map: the ended streams' points stay in ~map.
+        self.assertTrue(wait_for(lambda: any('stay in ~map' in m for m in self.rec.get('logs')), 10),
+                        'no log line keeping the ended stream\'s map')
+        maps = [m for m in self.rec.get('maps') if m.width > 0]
+        self.assertGreaterEqual(len(maps), 2)
+        first, last = cloud_points(maps[0]), cloud_points(maps[-1])
+        self.assertEqual(lost_points(first, last, 0.02), 0,
+                         'the first stream\'s map points are gone from ~map')
         nodelets = rospy.ServiceProxy('/manager/list', NodeletList)().nodelets
         self.assertIn('/long3r', nodelets)
 

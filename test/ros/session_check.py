@@ -31,6 +31,7 @@ import time
 import unittest
 
 import numpy as np
+from map_checks import lost_points
 
 DATA = os.environ.get('LONG3R_REPLAY_DATA', '/tmp/long3r_replay_data')
 SPLIT = 20  # images in part A
@@ -236,17 +237,7 @@ class Sessions(unittest.TestCase):
                                    err_msg='the saved path changed in the new run')
         self.expect_odometry_poses(t2)
         map2 = read_ply_xyz(second['map'])
-        voxel = 0.02
-        cells = {}
-        for p in map2:
-            cells.setdefault(tuple(np.floor(p / voxel).astype(int)), []).append(p)
-        missing = 0
-        for p in map1:
-            c = np.floor(p / voxel).astype(int)
-            near = [q for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
-                    for q in cells.get((c[0] + dx, c[1] + dy, c[2] + dz), [])]
-            if not near or min(np.linalg.norm(np.array(near) - p, axis=1)) > voxel * math.sqrt(3):
-                missing += 1
+        missing = lost_points(map1, map2, 0.02)
         self.assertEqual(missing, 0, '%d of %d saved map points lost' % (missing, len(map1)))
         print('run 1: %d poses, %d map points; run 2 (continued): %d poses, %d map points'
               % (len(t1), len(map1), len(t2), len(map2)))

@@ -57,7 +57,11 @@ struct Recorder : LiveSessionClient {
     log.push_back("result " + std::to_string(std::any_cast<int>(r.tag)));
     results.push_back(r);
   }
+  void on_stream_ending(const Reconstruction& ending) override {
+    ended_map_points.push_back(ending.map().size());
+  }
   void on_new_stream(const std::string& why) override { log.push_back("new stream: " + why); }
+  std::vector<std::size_t> ended_map_points;  // of each stream that ended
   void on_event(const LiveEvent& e) override { events.push_back(e); }
 
   const LiveEvent* event(const std::string& text) const {

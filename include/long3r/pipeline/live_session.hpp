@@ -46,8 +46,13 @@ namespace long3r {
 struct LiveSessionConfig {
   StreamMonitorConfig stream;
   MetricScaleConfig scale;
-  // Consecutive frames without a pose before a new stream starts; 0 = never.
+  // While tracking is lost the stream keeps its memory and map, and each new
+  // frame is tried against them: relocalised when its pose passes the checks
+  // tracking uses. A new stream starts after lost_reset_frames frames or
+  // relocalise_for_s seconds of stamps without a pose, whichever comes first
+  // (0: no bound of that kind).
   int lost_reset_frames = 0;
+  double relocalise_for_s = 30.0;
   // The images arrive rectified: a calibration's distortion is not applied again.
   bool image_is_rectified = false;
   // What the calibrations are called in messages ("camera_info", "calibration.txt").
@@ -127,6 +132,9 @@ class LiveSessionClient {
 
   // Results, in frame order.
   virtual void on_result(LiveResult& result) = 0;
+  // The stream is about to end (its last result delivered): its map and path
+  // are still there to keep (the node keeps the map in ~map).
+  virtual void on_stream_ending(const Reconstruction& ending) { (void)ending; }
   // A new stream starts (after the old one's last result): the caller's
   // per-stream state goes with the memory, map and path.
   virtual void on_new_stream(const std::string& why) { (void)why; }
@@ -135,13 +143,15 @@ class LiveSessionClient {
 
 // A snapshot for diagnostics.
 struct LiveStatus {
-  std::int64_t stream_frames = 0;        // frames pushed in the current stream
-  std::uint64_t streams = 0;             // streams started, the first included
-  std::string tracking = "not started";  // "ok", "lost"
-  int lost_frames = 0;                   // consecutive frames without a pose
-  double lost_for_s = 0.0;               // stamps spanned by them
-  std::string calibration = "none";      // the one in use, or why the latest was refused
-  bool calibration_refused = false;      // the latest calibration was not used
+  std::int64_t stream_frames = 0;             // frames pushed in the current stream
+  std::uint64_t streams = 0;                  // streams started, the first included
+  std::string tracking = "not started";       // "ok", "lost"
+  int lost_frames = 0;                        // consecutive frames without a pose
+  double lost_for_s = 0.0;                    // stamps spanned by them
+  std::uint64_t relocalisation_attempts = 0;  // frames tried while tracking was lost
+  std::uint64_t relocalisations = 0;          // of them, the ones that found the pose again
+  std::string calibration = "none";           // the one in use, or why the latest was refused
+  bool calibration_refused = false;           // the latest calibration was not used
   ScaleEstimate scale_estimate;
   double scale = 1.0;  // metres per model unit in use
   bool scale_metric = false;

@@ -39,7 +39,9 @@ cv::Mat depth_in_metres(const cv::Mat& depth) {
 void LiveSessionConfig::validate(const config::FieldCheck& check) const {
   stream.validate(config::FieldCheck{check.what, check.field("stream")});
   scale.validate(config::FieldCheck{check.what, check.field("scale")});
-  check.require(lost_reset_frames >= 0, "lost_reset_frames", "must be >= 0 (0 = never)");
+  check.require(lost_reset_frames >= 0, "lost_reset_frames", "must be >= 0 (0 = no bound)");
+  check.require(relocalise_for_s >= 0.0 && std::isfinite(relocalise_for_s), "relocalise_for_s",
+                "must be >= 0 (0 = no bound)");
 }
 
 std::optional<Eigen::Isometry3d> LiveSessionClient::place(const LiveFrame&) { return std::nullopt; }
@@ -212,9 +214,10 @@ void LiveSession::new_stream(const std::string& why) {
   LiveEvent e;
   e.level = LiveEvent::Level::kWarning;
   e.kind = "new stream";
-  e.message = why + ": starting a new stream (memory, map and path cleared)";
+  e.message = why + ": starting a new stream (memory, map and path start over)";
   e.throttle = false;  // each one is news
   client_.on_event(e);
+  client_.on_stream_ending(recon_);
   recon_.reset();
   pending_.clear();
   held_.reset();
@@ -367,20 +370,29 @@ void LiveSession::deliver(FrameResult frame) {
 
 void LiveSession::track_loss(const FrameResult& r) {
   int& lost = status_.lost_frames;
+  if (lost > 0) ++status_.relocalisation_attempts;
   if (r.pose.ok()) {
     if (lost > 0) {
-      info("tracking", "tracking recovered at frame " + std::to_string(r.frame_index) + " after " +
-                           std::to_string(lost) + " unposed frame(s)");
+      ++status_.relocalisations;
+      info("tracking", format("relocalised at frame %.0f", static_cast<double>(r.frame_index)) +
+                           " after " + std::to_string(lost) +
+                           format(" unposed frame(s) (%.1f s): the stream goes on in its map",
+                                  r.stamp - lost_since_stamp_));
     }
     lost = 0;
   } else {
     if (lost++ == 0) lost_since_stamp_ = r.stamp;
+    const double lost_s = r.stamp - lost_since_stamp_;
     warn("pose", "frame " + std::to_string(r.frame_index) + ": pose estimation failed (" +
                      r.pose.message + "); not added to the map (tracking lost for " +
-                     std::to_string(lost) + " frame(s))");
+                     std::to_string(lost) + " frame(s); each new frame is tried against the " +
+                     "memory and map)");
     if (config_.lost_reset_frames > 0 && lost >= config_.lost_reset_frames) {
       new_stream("tracking lost for " + std::to_string(lost) +
                  " consecutive frames (lost_reset_frames)");
+    } else if (config_.relocalise_for_s > 0.0 && lost_s >= config_.relocalise_for_s) {
+      new_stream(format("tracking lost for %.1f s without relocalising (relocalise_for_s %g)",
+                        lost_s, config_.relocalise_for_s));
     }
   }
   status_.lost_for_s = lost > 0 ? r.stamp - lost_since_stamp_ : 0.0;
