@@ -24,6 +24,7 @@
 
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <diagnostic_updater/publisher.h>
+#include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <image_transport/image_transport.h>
 #include <message_filters/cache.h>
 #include <nav_msgs/Odometry.h>
@@ -130,7 +131,7 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   image_transport::Subscriber image_sub_;
   ros::Subscriber compressed_sub_, camera_info_sub_, depth_sub_;
   ros::Publisher frame_cloud_pub_, pointmap_pub_, map_pub_, pose_pub_, path_pub_, camera_info_pub_,
-      depth_pub_, odometry_pub_, grid_pub_;
+      depth_pub_, odometry_pub_, pose_cov_pub_, grid_pub_;
   ros::ServiceServer reset_srv_, pause_srv_, resume_srv_, save_map_srv_, save_trajectory_srv_;
   ros::ServiceServer save_session_srv_, load_session_srv_;
   ros::WallTimer map_timer_;

@@ -26,6 +26,7 @@
 
 #include <Eigen/Geometry>
 #include <atomic>
+#include <map>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -99,12 +100,17 @@ class RobotFrames {
   std::string describe() const;
 
   const Eigen::Isometry3d& T_map_W() const { return T_map_W_; }
-  // The camera's extrinsics on the body: T_body_cam (identity without a base).
-  const Eigen::Isometry3d& T_body_cam() const { return T_body_cam_; }
-
-  // The body pose in map for a camera pose in W.
-  Eigen::Isometry3d bodyInMap(const Eigen::Isometry3d& T_W_C) const {
-    return T_map_W_ * T_W_C * T_body_cam_.inverse();
+  // The camera's mounting on the base at `stamp`, looked up for every frame
+  // (a pan-tilt camera moves; a static mount resolves from /tf_static at no
+  // cost) and kept by stamp, when it changes, for that frame's result and the
+  // path. Without a base: the identity. Throws TfUnavailable (the last one
+  // known stays in use).
+  void updateExtrinsics(const ros::Time& stamp);
+  // T_body_cam of the frame at `stamp`: the last one known at or before it.
+  Eigen::Isometry3d T_body_cam(const ros::Time& stamp) const;
+  // The body pose in map for a camera pose in W at `stamp`.
+  Eigen::Isometry3d bodyInMap(const Eigen::Isometry3d& T_W_C, const ros::Time& stamp) const {
+    return T_map_W_ * T_W_C * T_body_cam(stamp).inverse();
   }
   // The camera pose in W from the odometry at `stamp` (pose_source odometry):
   // T_W_C = T_map_W^-1 * T_map_odom * T_odom_base(t) * T_base_cam (map
@@ -135,7 +141,8 @@ class RobotFrames {
   Mode mode_ = Mode::kMapToCamera;
   std::string camera_frame_, published_child_;
   Eigen::Isometry3d T_map_W_ = Eigen::Isometry3d::Identity();
-  Eigen::Isometry3d T_body_cam_ = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d T_body_cam_ = Eigen::Isometry3d::Identity();  // at the stream's start
+  std::map<ros::Time, Eigen::Isometry3d> extrinsics_;  // T_body_cam from each stamp it changed
   Eigen::Isometry3d T_map_odom_ = Eigen::Isometry3d::Identity();
   Eigen::Isometry3d saved_T_map_W_ = Eigen::Isometry3d::Identity();
   std::optional<Eigen::Isometry3d> saved_T_map_odom_;

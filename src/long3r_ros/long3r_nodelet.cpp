@@ -180,6 +180,8 @@ void Long3rNodelet::advertise() {
   camera_info_pub_ = pnh.advertise<sensor_msgs::CameraInfo>("camera_info", 10);
   depth_pub_ = pnh.advertise<sensor_msgs::Image>("depth", 5);
   odometry_pub_ = pnh.advertise<nav_msgs::Odometry>("odometry", 10);
+  pose_cov_pub_ =
+      pnh.advertise<geometry_msgs::PoseWithCovarianceStamped>("pose_with_covariance", 10);
   grid_pub_ = pnh.advertise<nav_msgs::OccupancyGrid>("grid", 1, /*latch=*/true);
   reset_srv_ = pnh.advertiseService("reset", &Long3rNodelet::resetService, this);
   pause_srv_ = pnh.advertiseService("pause", &Long3rNodelet::pauseService, this);
@@ -464,6 +466,13 @@ std::optional<Eigen::Isometry3d> Long3rNodelet::place(const long3r::LiveFrame& f
     throw Unavailable("tf start", format("frame at t=%.3f skipped: ", header.stamp.toSec()) +
                                       e.what() + "; the stream starts once TF has it");
   }
+  try {
+    frames_->updateExtrinsics(header.stamp);  // a camera that moves on the base
+  } catch (const TfUnavailable& e) {
+    warnThrottled("tf extrinsics",
+                  format("frame at t=%.3f: the camera's mounting: ", header.stamp.toSec()) +
+                      e.what() + "; the last one known is used");
+  }
   if (config_.pose_source != PoseSource::kOdometry) return std::nullopt;
   if (!frames_->odometryAnchored()) {
     warnThrottled("session odometry",
@@ -633,7 +642,7 @@ nav_msgs::Path Long3rNodelet::pathMessage() {
     geometry_msgs::PoseStamped p;
     p.header.stamp = ros::Time(stamp);
     p.header.frame_id = frames_config_.map_frame;
-    p.pose = tf2::toMsg(frames_->bodyInMap(T_W_C));
+    p.pose = tf2::toMsg(frames_->bodyInMap(T_W_C, p.header.stamp));
     path.poses.push_back(p);
   }
   if (!path.poses.empty()) path.header.stamp = path.poses.back().header.stamp;
@@ -674,7 +683,7 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
 
   const Eigen::Isometry3d& T_map_W = frames_->T_map_W();
   const Eigen::Isometry3d T_map_cam = T_map_W * r.pose.T_W_C;
-  const Eigen::Isometry3d T_map_body = frames_->bodyInMap(r.pose.T_W_C);
+  const Eigen::Isometry3d T_map_body = frames_->bodyInMap(r.pose.T_W_C, header.stamp);
   const long3r::LiveStatus status = session_->status();
   const bool depth_held = session_config_.scale.source != long3r::ScaleSource::kNone &&
                           !status.scale_metric && !config_.publish_unscaled_depth;
@@ -727,7 +736,14 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
           twist->covariance;
     }
   }
-  if (cov_map) odometry_pub_.publish(odom);
+  if (cov_map) {
+    odometry_pub_.publish(odom);
+    // robot_localization's pose input: the same pose and covariance.
+    geometry_msgs::PoseWithCovarianceStamped pose_cov;
+    pose_cov.header = odom.header;
+    pose_cov.pose = odom.pose;
+    pose_cov_pub_.publish(pose_cov);
+  }
   last_body_ = std::make_pair(T_map_body, header.stamp.toSec());
   last_body_cov_ = cov_map;
 
@@ -912,7 +928,7 @@ bool Long3rNodelet::saveTrajectoryService(SaveTrajectory::Request& req,
     std::lock_guard<std::mutex> lock(session_mutex_);
     for (const auto& [stamp, T_W_C] : session_->reconstruction().trajectory()) {
       trajectory.stamps.push_back(stamp);
-      trajectory.poses.push_back(frames_->bodyInMap(T_W_C));
+      trajectory.poses.push_back(frames_->bodyInMap(T_W_C, ros::Time(stamp)));
     }
     what = "poses of " + frames_->bodyFrame() + " in " + frames_config_.map_frame;
   }

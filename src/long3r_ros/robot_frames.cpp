@@ -4,6 +4,7 @@
 #include <tf2_eigen/tf2_eigen.h>
 
 #include <cstdio>
+#include <iterator>
 #include <sstream>
 
 namespace long3r_ros {
@@ -74,6 +75,8 @@ void RobotFrames::startStream(const std::string& image_frame, const ros::Time& s
     followRoot();
     if (mode_ == Mode::kMapToRoot) lookup(published_child_, camera_frame_, stamp);  // resolves now
   }
+  extrinsics_.clear();
+  extrinsics_[stamp] = T_body_cam_;
   T_map_odom_ = Eigen::Isometry3d::Identity();
   odom_anchored_ = true;
   if (continuing_) {  // the loaded session's map frame
@@ -85,6 +88,18 @@ void RobotFrames::startStream(const std::string& image_frame, const ros::Time& s
     continuing_ = false;
   }
   started_ = true;
+}
+
+void RobotFrames::updateExtrinsics(const ros::Time& stamp) {
+  if (config_.base_frame.empty()) return;
+  const Eigen::Isometry3d T = lookup(config_.base_frame, camera_frame_, stamp);
+  if (!T.isApprox(T_body_cam(stamp), 1e-9)) extrinsics_[stamp] = T;
+}
+
+Eigen::Isometry3d RobotFrames::T_body_cam(const ros::Time& stamp) const {
+  const auto it = extrinsics_.upper_bound(stamp);
+  if (it == extrinsics_.begin()) return it == extrinsics_.end() ? T_body_cam_ : it->second;
+  return std::prev(it)->second;
 }
 
 void RobotFrames::continueSession(const Eigen::Isometry3d& T_map_W,
@@ -128,7 +143,7 @@ Eigen::Isometry3d RobotFrames::cameraFromOdometry(const ros::Time& stamp) const 
 }
 
 Eigen::Isometry3d RobotFrames::cameraInOdom(const ros::Time& stamp) const {
-  return lookup(config_.odom_frame, config_.base_frame, stamp) * T_body_cam_;
+  return lookup(config_.odom_frame, config_.base_frame, stamp) * T_body_cam(stamp);
 }
 
 std::optional<geometry_msgs::TransformStamped> RobotFrames::transformFor(
@@ -139,10 +154,10 @@ std::optional<geometry_msgs::TransformStamped> RobotFrames::transformFor(
   switch (mode_) {
     case Mode::kMapToOdom:
       T_map_child =
-          bodyInMap(T_W_C) * lookup(config_.odom_frame, config_.base_frame, stamp).inverse();
+          bodyInMap(T_W_C, stamp) * lookup(config_.odom_frame, config_.base_frame, stamp).inverse();
       break;
     case Mode::kMapToBase:
-      T_map_child = bodyInMap(T_W_C);
+      T_map_child = bodyInMap(T_W_C, stamp);
       break;
     case Mode::kMapToCamera:
       T_map_child = T_map_cam;

@@ -200,7 +200,9 @@ TEST(Pose, FiniteDifferenceTwist) {
   cov.diagonal() << 1e-4, 4e-4, 9e-4, 1e-6, 1e-6, 1e-6;
   const auto t = finite_difference_twist(a, cov, 10.0, b, cov, 10.5);
   ASSERT_TRUE(t.has_value());
-  EXPECT_TRUE(t->linear.isApprox(Eigen::Vector3d(0.4, 0.0, 0.0), 1e-12));
+  // 0.2 m along a's x over 0.5 s, seen from b (turned 0.05 rad further).
+  EXPECT_TRUE(
+      t->linear.isApprox(Eigen::Vector3d(0.4 * std::cos(0.05), -0.4 * std::sin(0.05), 0.0), 1e-12));
   EXPECT_TRUE(t->angular.isApprox(Eigen::Vector3d(0.0, 0.0, 0.1), 1e-12));
   // x and y of the position variance swap roles under the body's yaw.
   const Eigen::Matrix3d Rb = b.linear();

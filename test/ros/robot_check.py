@@ -39,6 +39,7 @@ import numpy as np
 import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 from sensor_msgs.msg import PointCloud2
 from tf2_msgs.msg import TFMessage
@@ -106,6 +107,9 @@ class Recorder:
         rospy.Subscriber('/tf_static', TFMessage, self._tf, queue_size=100)
         rospy.Subscriber('/long3r/pointmap', Pointmap, self._add('pointmaps'), queue_size=100)
         rospy.Subscriber('/long3r/odometry', Odometry, self._add('odometry'), queue_size=100)
+        self.pose_covs = []
+        rospy.Subscriber('/long3r/pose_with_covariance', PoseWithCovarianceStamped,
+                         self._add('pose_covs'), queue_size=100)
         rospy.Subscriber('/long3r/frame_cloud', PointCloud2, self._cloud('clouds'), queue_size=100)
         rospy.Subscriber('/dip_points', PointCloud2, self._cloud('dip'), queue_size=100)
         self.grids = []
@@ -198,6 +202,13 @@ class RobotCheck(unittest.TestCase):
             c = np.array(o.pose.covariance).reshape(6, 6)
             self.assertTrue(np.allclose(c, c.T, atol=1e-12 * max(1.0, np.abs(c).max())))
             self.assertGreater(np.linalg.eigvalsh(c).min(), 0.0)
+        # ~pose_with_covariance: the same pose and covariance, for robot_localization.
+        pose_covs = {m.header.stamp.to_nsec(): m for m in rec.get('pose_covs')}
+        for stamp, o in odom.items():
+            m = pose_covs.get(stamp)
+            self.assertIsNotNone(m, 'no ~pose_with_covariance beside ~odometry')
+            self.assertEqual(m.header.frame_id, 'map')
+            self.assertEqual(m.pose, o.pose)
 
         if ARGS.grid:
             self.check_grid(rec)

@@ -122,8 +122,8 @@ TEST_F(FramesTest, BaseOnlyGetsMapToBaseAndAZUpMap) {
   EXPECT_EQ(f.bodyFrame(), "base_link");
   EXPECT_TRUE(f.conflict().empty());
   // At frame 0 the base is map's origin, level: map's z is the base's up.
-  EXPECT_TRUE(
-      f.bodyInMap(Eigen::Isometry3d::Identity()).isApprox(Eigen::Isometry3d::Identity(), 1e-9));
+  EXPECT_TRUE(f.bodyInMap(Eigen::Isometry3d::Identity(), ros::Time(10))
+                  .isApprox(Eigen::Isometry3d::Identity(), 1e-9));
   // The floor 1.3 m below the camera, seen by camera 0, lies at z = 0 in map.
   const Eigen::Isometry3d T_base_cam = lookup("base_link", "optical", 10);
   const Eigen::Vector3d floor_point_base(2.0, 0.5, 0.0);
@@ -150,11 +150,38 @@ TEST_F(FramesTest, BaseWithOdometryGetsMapToOdom) {
   ASSERT_TRUE(t.has_value());
   EXPECT_EQ(t->child_frame_id, "odom");
   const Eigen::Isometry3d map_base = tf2::transformToEigen(*t) * lookup("odom", "base_link", 11);
-  EXPECT_TRUE(map_base.isApprox(f.bodyInMap(T_W_C), 1e-9));
+  EXPECT_TRUE(map_base.isApprox(f.bodyInMap(T_W_C, ros::Time(11)), 1e-9));
   // With LONG3R agreeing with the odometry, map -> odom stays the identity.
   const auto same = f.transformFor(cam1, ros::Time(11));
   EXPECT_TRUE(tf2::transformToEigen(*same).isApprox(Eigen::Isometry3d::Identity(), 1e-9));
   EXPECT_TRUE(f.cameraInOdom(ros::Time(11)).isApprox(lookup("odom", "optical", 11), 1e-9));
+}
+
+// A pan-tilt camera: its mounting is looked up per frame and each frame's
+// result uses its own, also when it comes a frame late.
+TEST_F(FramesTest, AMovingCameraMountIsFollowedFrameByFrame) {
+  add("odom", "base_link", pose(1.0, 2.0, 0.0, 0.0, 0.0, 0.3), 10.0, false);
+  add("odom", "base_link", pose(1.0, 2.0, 0.0, 0.0, 0.0, 0.3), 12.0, false);
+  add("base_link", "camera_link", pose(0.2, 0.0, 1.3, 0.0, 0.0, 0.0), 10.0, false);
+  add("base_link", "camera_link", pose(0.2, 0.0, 1.3, 0.0, 0.0, 0.4), 11.0, false);
+  add("base_link", "camera_link", pose(0.2, 0.0, 1.3, 0.0, 0.0, 0.4), 12.0, false);
+  add("camera_link", "optical", pose(0, 0, 0, -M_PI / 2, 0, -M_PI / 2), 0.0, true);
+  RobotFrames f(config("odom", "base_link"), buffer_);
+  f.startStream("optical", ros::Time(10));
+  f.updateExtrinsics(ros::Time(11));  // panned 0.4 rad
+  const Eigen::Isometry3d at10 = lookup("base_link", "optical", 10);
+  const Eigen::Isometry3d at11 = lookup("base_link", "optical", 11);
+  ASSERT_FALSE(at10.isApprox(at11, 1e-3));
+  EXPECT_TRUE(f.T_body_cam(ros::Time(10)).isApprox(at10, 1e-9));
+  EXPECT_TRUE(f.T_body_cam(ros::Time(10.5)).isApprox(at10, 1e-9));  // the one before
+  EXPECT_TRUE(f.T_body_cam(ros::Time(11)).isApprox(at11, 1e-9));
+  EXPECT_TRUE(f.T_body_cam(ros::Time(12)).isApprox(at11, 1e-9));
+  // The base stood still while the camera panned: the camera's pose from the
+  // odometry turns, the base's pose in map does not.
+  const Eigen::Isometry3d cam11 = f.cameraFromOdometry(ros::Time(11));
+  EXPECT_NEAR(Eigen::AngleAxisd(cam11.rotation()).angle(), 0.4, 1e-9);
+  EXPECT_TRUE(f.bodyInMap(cam11, ros::Time(11))
+                  .isApprox(f.bodyInMap(Eigen::Isometry3d::Identity(), ros::Time(10)), 1e-9));
 }
 
 TEST_F(FramesTest, NeverGivesAFrameASecondParent) {

@@ -144,8 +144,9 @@ inline cv::Mat points_in_camera(const cv::Mat& pts3d_W, const Eigen::Isometry3d&
 }
 
 // A body's velocity between two of its poses T_map_body (a, then b) by
-// finite difference: linear = the translation of T_a^-1 T_b over dt, angular
-// = its rotation vector over dt (both in the body frame at a), with the
+// finite difference, in the body frame at b (REP-105: nav_msgs/Odometry's
+// twist is in its child frame): linear = its displacement over dt, angular =
+// the rotation vector of T_a^-1 T_b over dt (the same in both frames), with the
 // covariance ([linear, angular]) from the two pose covariances ([t, r] in
 // map, taken as independent) rotated into the body frame at b and divided by
 // dt^2. nullopt unless t_b > t_a.

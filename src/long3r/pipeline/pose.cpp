@@ -321,7 +321,7 @@ std::optional<Twist> finite_difference_twist(const Eigen::Isometry3d& T_map_a,
   const Eigen::Isometry3d delta = T_map_a.inverse() * T_map_b;
   const Eigen::AngleAxisd aa(delta.rotation());
   Twist twist;
-  twist.linear = delta.translation() / dt;
+  twist.linear = delta.rotation().transpose() * delta.translation() / dt;  // in b
   twist.angular = aa.angle() * aa.axis() / dt;
   Eigen::Matrix<double, 6, 6> R = Eigen::Matrix<double, 6, 6>::Zero();
   R.topLeftCorner<3, 3>() = T_map_b.linear().transpose();
