@@ -1,6 +1,5 @@
 #include "long3r_ros/long3r_nodelet.hpp"
 
-#include <ATen/ATen.h>
 #include <cv_bridge/cv_bridge.h>
 #include <geometry_msgs/PoseStamped.h>
 #include <geometry_msgs/TransformStamped.h>
@@ -586,15 +585,7 @@ void Long3rNodelet::on_new_stream(const std::string&) {
 long3r::StateDict Long3rNodelet::session_state() {
   long3r::StateDict state;
   if (frames_->anchored()) state["T_map_W"] = long3r::pose_to_tensor(frames_->T_map_W());
-  if (!archive_->empty()) {  // the maps of ended streams, in map
-    const long3r::MapSnapshot a = archive_->snapshot();
-    const auto n = static_cast<std::int64_t>(a.points.size());
-    state["archive.points"] =
-        at::from_blob(const_cast<Eigen::Vector3f*>(a.points.data()), {n, 3}, at::kFloat).clone();
-    state["archive.colors"] =
-        at::from_blob(const_cast<std::array<std::uint8_t, 3>*>(a.colors.data()), {n, 3}, at::kByte)
-            .clone();
-  }
+  if (!archive_->empty()) long3r::put_state(state, "archive.", archive_->state());
   if (frames_->started() && frames_->mode() == RobotFrames::Mode::kMapToOdom &&
       frames_->odometryAnchored()) {
     state["T_map_odom"] = long3r::pose_to_tensor(frames_->T_map_odom());
@@ -610,18 +601,13 @@ void Long3rNodelet::restore_session_state(const long3r::StateDict& state) {
     return it == state.end() ? std::nullopt : long3r::pose_from_tensor(it->second);
   };
   archive_->clear();
-  const auto points = state.find("archive.points"), colors = state.find("archive.colors");
-  if (points != state.end() && colors != state.end() && points->second.dim() == 2 &&
-      points->second.size(1) == 3 && points->second.scalar_type() == at::kFloat &&
-      colors->second.sizes() == points->second.sizes() &&
-      colors->second.scalar_type() == at::kByte) {
-    const at::Tensor p = points->second.contiguous(), c = colors->second.contiguous();
-    const auto n = static_cast<std::size_t>(p.size(0));
-    const auto* pp = reinterpret_cast<const Eigen::Vector3f*>(p.data_ptr<float>());
-    const auto* cp =
-        reinterpret_cast<const std::array<std::uint8_t, 3>*>(c.data_ptr<std::uint8_t>());
-    archive_->integrate(std::vector<Eigen::Vector3f>(pp, pp + n),
-                        std::vector<std::array<std::uint8_t, 3>>(cp, cp + n), 0);
+  const long3r::StateDict archive = long3r::sub_state(state, "archive.");
+  if (!archive.empty()) {  // the maps of ended streams, in map
+    try {
+      archive_->restore(long3r::StateReader(archive, "the session's maps of ended streams"));
+    } catch (const long3r::StateError& e) {
+      NODELET_WARN("%s; they are left out of ~map", e.what());
+    }
   }
   if (const std::optional<Eigen::Isometry3d> T_map_W = pose("T_map_W")) {
     frames_->continueSession(*T_map_W, pose("T_map_odom"));

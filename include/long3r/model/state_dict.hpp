@@ -26,9 +26,11 @@ class StateError : public std::invalid_argument {
   using std::invalid_argument::invalid_argument;
 };
 
-// Writing: key = prefix + name.
 void put_int(StateDict& state, const std::string& key, int64_t value);
 void put_real(StateDict& state, const std::string& key, double value);
+// A part's state nested under `prefix` ("memory."), and taken back out.
+void put_state(StateDict& state, const std::string& prefix, const StateDict& part);
+StateDict sub_state(const StateDict& state, const std::string& prefix);
 
 class StateReader {
  public:

@@ -34,6 +34,7 @@
 #include <vector>
 
 #include "long3r/dataset/point_cloud_io.hpp"
+#include "long3r/model/state_dict.hpp"
 
 namespace long3r {
 
@@ -117,6 +118,11 @@ class VoxelMap {
   // an index out of range or twice, a mean outside its voxel, non-finite
   // values, no hits); the map is unchanged then.
   void restore(const std::vector<VoxelRecord>& records);
+  // records() as a state dict (sessions, model/state_dict.hpp): index, mean,
+  // color, hits, last_seen per voxel; restore() of one is exact, validated
+  // first (StateError naming the entry; the map unchanged then).
+  StateDict state() const;
+  void restore(const StateReader& state);
 
   // Writes the map (see save_colored_cloud): format from the extension.
   void save(const std::string& path, const MapSaveOptions& options = {}) const;

@@ -187,7 +187,7 @@ StateDict Long3rModel::stream_state() const {
     out["coarse_final"] = s.coarse_final;
     model::put_head_layers(out, "last_coarse", s.last_coarse);
   }
-  for (auto& [key, t] : s.memory.state()) out["memory." + key] = t;
+  put_state(out, "memory.", s.memory.state());
   return out;
 }
 

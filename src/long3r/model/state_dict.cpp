@@ -16,6 +16,19 @@ void put_real(StateDict& state, const std::string& key, double value) {
   state[key] = at::scalar_tensor(value, at::kDouble);
 }
 
+void put_state(StateDict& state, const std::string& prefix, const StateDict& part) {
+  for (const auto& [key, t] : part) state[prefix + key] = t;
+}
+
+StateDict sub_state(const StateDict& state, const std::string& prefix) {
+  StateDict part;
+  for (auto it = state.lower_bound(prefix); it != state.end() && it->first.rfind(prefix, 0) == 0;
+       ++it) {
+    part[it->first.substr(prefix.size())] = it->second;
+  }
+  return part;
+}
+
 StateReader::StateReader(const StateDict& state, std::string what, std::string prefix)
     : state_(state), what_(std::move(what)), prefix_(std::move(prefix)) {}
 

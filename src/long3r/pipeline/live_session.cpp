@@ -254,7 +254,7 @@ void LiveSession::save(const std::string& path) {
   flush();
   StateDict state;
   try {
-    for (auto& [key, t] : recon_.state()) state["reconstruction." + key] = t;
+    put_state(state, "reconstruction.", recon_.state());
   } catch (const std::logic_error& e) {
     throw SessionError("session not saved to " + path + ": " + e.what());
   }
@@ -262,7 +262,7 @@ void LiveSession::save(const std::string& path) {
   state["live.scale.samples"] = at::tensor(scale.samples, at::kDouble);
   put_real(state, "live.scale.applied", scale.applied);
   put_int(state, "live.scale.metric", scale.metric ? 1 : 0);
-  for (auto& [key, t] : client_.session_state()) state["client." + key] = t;
+  put_state(state, "client.", client_.session_state());
   char scale_text[64];
   std::snprintf(scale_text, sizeof scale_text, "%.6g%s", recon_.scale(),
                 scale.metric ? " m per model unit" : " (model units)");
@@ -277,10 +277,6 @@ void LiveSession::save(const std::string& path) {
 
 void LiveSession::load(const std::string& path) {
   const StateDict file = read_session(path, identity());
-  StateDict recon_state;
-  for (const auto& [key, t] : file) {
-    if (key.rfind("reconstruction.", 0) == 0) recon_state[key.substr(15)] = t;
-  }
   ScalePolicy::State scale;
   try {
     const StateReader r(file, "session", "live.scale.");
@@ -291,7 +287,7 @@ void LiveSession::load(const std::string& path) {
     if (!(scale.applied > 0.0) || !std::isfinite(scale.applied)) {
       r.fail("applied", "must be positive and finite");
     }
-    recon_.restore(recon_state);
+    recon_.restore(sub_state(file, "reconstruction."));
   } catch (const StateError& e) {
     throw SessionError(path + ": damaged session: " + e.what());
   }
@@ -326,11 +322,7 @@ void LiveSession::load(const std::string& path) {
                       " poses; the next frames "
                       "continue it");
   client_.on_new_stream("session loaded from " + path);
-  StateDict client_state;
-  for (const auto& [key, t] : file) {
-    if (key.rfind("client.", 0) == 0) client_state[key.substr(7)] = t;
-  }
-  client_.restore_session_state(client_state);
+  client_.restore_session_state(sub_state(file, "client."));
 }
 
 // ---------------------------------------------------------------- results

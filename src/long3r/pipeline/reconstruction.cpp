@@ -216,31 +216,8 @@ StateDict Reconstruction::state() const {
   out["trajectory.stamp"] = stamps;
   out["trajectory.T_W_C"] = poses;
 
-  const std::vector<VoxelRecord> voxels = map_.records();
-  const int64_t m = static_cast<int64_t>(voxels.size());
-  at::Tensor index = at::empty({m, 3}, at::kLong), mean = at::empty({m, 3}, at::kDouble),
-             color = at::empty({m, 3}, at::kFloat), hits = at::empty({m}, at::kLong),
-             seen = at::empty({m}, at::kLong);
-  int64_t* index_p = index.data_ptr<int64_t>();
-  double* mean_p = mean.data_ptr<double>();
-  float* color_p = color.data_ptr<float>();
-  for (int64_t i = 0; i < m; ++i) {
-    const VoxelRecord& v = voxels[static_cast<std::size_t>(i)];
-    for (int a = 0; a < 3; ++a) {
-      index_p[3 * i + a] = v.index[a];
-      mean_p[3 * i + a] = v.mean[a];
-      color_p[3 * i + a] = v.color[a];
-    }
-    hits.data_ptr<int64_t>()[i] = v.hits;
-    seen.data_ptr<int64_t>()[i] = v.last_seen;
-  }
-  out["map.index"] = index;
-  out["map.mean"] = mean;
-  out["map.color"] = color;
-  out["map.hits"] = hits;
-  out["map.last_seen"] = seen;
-
-  for (auto& [key, t] : model_->stream_state()) out["model." + key] = t;
+  put_state(out, "map.", map_.state());
+  put_state(out, "model.", model_->stream_state());
   return out;
 }
 
@@ -250,10 +227,7 @@ void Reconstruction::restore(const StateDict& state) {
   const int64_t frames = r.integer("frames_pushed", 0, kMax);
   const double scale = r.real("scale");
   if (!(scale > 0.0) || !std::isfinite(scale)) r.fail("scale", "must be positive and finite");
-  StateDict model_state;
-  for (const auto& [key, t] : state) {
-    if (key.rfind("model.", 0) == 0) model_state[key.substr(6)] = t;
-  }
+  const StateDict model_state = sub_state(state, "model.");
   if (frames == 0) {
     if (r.integer("model.frames", 0, kMax) != 0) {
       r.fail("model.frames", "a model stream without frames pushed");
@@ -290,29 +264,6 @@ void Reconstruction::restore(const StateDict& state) {
                             pose_from(poses[i], r, "trajectory.T_W_C[" + std::to_string(i) + "]"));
   }
 
-  const at::Tensor index = r.int64("map.index", {-1, 3}).contiguous();
-  const int64_t m = index.size(0);
-  const at::Tensor mean = r.floating("map.mean", {m, 3}).to(at::kDouble).contiguous();
-  const at::Tensor color = r.floating("map.color", {m, 3}).to(at::kFloat).contiguous();
-  const at::Tensor hits = r.int64("map.hits", {m}).contiguous();
-  const at::Tensor seen = r.int64("map.last_seen", {m}).contiguous();
-  std::vector<VoxelRecord> voxels(static_cast<std::size_t>(m));
-  for (int64_t i = 0; i < m; ++i) {
-    VoxelRecord& v = voxels[static_cast<std::size_t>(i)];
-    for (int a = 0; a < 3; ++a) {
-      const int64_t k = index.data_ptr<int64_t>()[3 * i + a];
-      if (k < std::numeric_limits<int>::min() || k > std::numeric_limits<int>::max()) {
-        r.fail("map.index", "out of range");
-      }
-      v.index[a] = static_cast<int>(k);
-      v.mean[a] = mean.data_ptr<double>()[3 * i + a];
-      v.color[a] = color.data_ptr<float>()[3 * i + a];
-    }
-    const int64_t h = hits.data_ptr<int64_t>()[i];
-    if (h < 1 || h > std::numeric_limits<std::uint32_t>::max()) r.fail("map.hits", "out of range");
-    v.hits = static_cast<std::uint32_t>(h);
-    v.last_seen = seen.data_ptr<int64_t>()[i];
-  }
   const int64_t model_frames = r.integer("model.frames", 0, kMax);
   if (model_frames != frames) {
     r.fail("model.frames", "the model's stream has " + std::to_string(model_frames) +
@@ -323,10 +274,10 @@ void Reconstruction::restore(const StateDict& state) {
   const StateDict previous = model_->stream_state();
   model_->restore_stream_state(model_state);
   try {
-    map_.restore(voxels);
-  } catch (const std::invalid_argument& e) {
+    map_.restore(r.child("map."));
+  } catch (const StateError&) {
     model_->restore_stream_state(previous);
-    r.fail("map", e.what());
+    throw;
   }
   pending_.clear();
   frames_pushed_ = frames;

@@ -1,7 +1,10 @@
 #include "long3r/pipeline/voxel_map.hpp"
 
+#include <ATen/ATen.h>
+
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <utility>
 
@@ -340,6 +343,59 @@ void VoxelMap::restore(const std::vector<VoxelRecord>& records) {
   index_ = std::move(index);
   compact_buckets_locked();
   ++revision_;
+}
+
+StateDict VoxelMap::state() const {
+  const std::vector<VoxelRecord> voxels = records();
+  const int64_t m = static_cast<int64_t>(voxels.size());
+  at::Tensor index = at::empty({m, 3}, at::kLong), mean = at::empty({m, 3}, at::kDouble),
+             color = at::empty({m, 3}, at::kFloat), hits = at::empty({m}, at::kLong),
+             seen = at::empty({m}, at::kLong);
+  int64_t* index_p = index.data_ptr<int64_t>();
+  double* mean_p = mean.data_ptr<double>();
+  float* color_p = color.data_ptr<float>();
+  for (int64_t i = 0; i < m; ++i) {
+    const VoxelRecord& v = voxels[static_cast<std::size_t>(i)];
+    for (int a = 0; a < 3; ++a) {
+      index_p[3 * i + a] = v.index[a];
+      mean_p[3 * i + a] = v.mean[a];
+      color_p[3 * i + a] = v.color[a];
+    }
+    hits.data_ptr<int64_t>()[i] = v.hits;
+    seen.data_ptr<int64_t>()[i] = v.last_seen;
+  }
+  return {{"index", index}, {"mean", mean}, {"color", color}, {"hits", hits}, {"last_seen", seen}};
+}
+
+void VoxelMap::restore(const StateReader& r) {
+  const at::Tensor index = r.int64("index", {-1, 3}).contiguous();
+  const int64_t m = index.size(0);
+  const at::Tensor mean = r.floating("mean", {m, 3}).to(at::kDouble).contiguous();
+  const at::Tensor color = r.floating("color", {m, 3}).to(at::kFloat).contiguous();
+  const at::Tensor hits = r.int64("hits", {m}).contiguous();
+  const at::Tensor seen = r.int64("last_seen", {m}).contiguous();
+  std::vector<VoxelRecord> voxels(static_cast<std::size_t>(m));
+  for (int64_t i = 0; i < m; ++i) {
+    VoxelRecord& v = voxels[static_cast<std::size_t>(i)];
+    for (int a = 0; a < 3; ++a) {
+      const int64_t k = index.data_ptr<int64_t>()[3 * i + a];
+      if (k < std::numeric_limits<int>::min() || k > std::numeric_limits<int>::max()) {
+        r.fail("index", "out of range");
+      }
+      v.index[a] = static_cast<int>(k);
+      v.mean[a] = mean.data_ptr<double>()[3 * i + a];
+      v.color[a] = color.data_ptr<float>()[3 * i + a];
+    }
+    const int64_t h = hits.data_ptr<int64_t>()[i];
+    if (h < 1 || h > std::numeric_limits<std::uint32_t>::max()) r.fail("hits", "out of range");
+    v.hits = static_cast<std::uint32_t>(h);
+    v.last_seen = seen.data_ptr<int64_t>()[i];
+  }
+  try {
+    restore(voxels);
+  } catch (const std::invalid_argument& e) {
+    r.fail("mean", e.what());
+  }
 }
 
 void VoxelMap::save(const std::string& path, const MapSaveOptions& options) const {
