@@ -29,6 +29,11 @@ of the camera's ground truth:
               a = --odom-yaw-drift deg/m (1.0), b = --odom-yaw-drift-rate deg/s
               (0.0), dist the true distance of the step; odom is the base pose
               at the first frame (identity there), so T_W_odom = T_W_B(t0).
+  /odom       nav_msgs/Odometry with each odom -> base_link sample, as a base
+              driver publishes it: the same pose, the twist in base_link, and a
+              diagonal pose covariance that grows with the distance d driven:
+              position std 0.005 m + max(|s|, 0.01) d (x, y), yaw std
+              0.002 rad + max(|a|, 0.1 deg/m) d, z, roll and pitch 1e-3 (planar).
               Ground truth goes under its own root, gt_world -> gt_base_link
               (T_W_B; --tf-parent, --tf-child; --no-tf leaves it out), never
               under a frame the node publishes.
@@ -63,6 +68,7 @@ IMAGE_MD5 = "060021388200f6f0f447d0fcd9c64743"
 CAMERA_INFO_MD5 = "c9a58c1b0b154e0e6da7578cb991d214"
 COMPRESSED_IMAGE_MD5 = "8f7a12909da2c9d3332d540a0977563f"
 TF_MESSAGE_MD5 = "94810edda583a504dfda3829e70d7eec"
+ODOMETRY_MD5 = "cd5e73d190d741a2f92e81eda573aca7"
 
 
 # --------------------------------------------------------------------------- messages
@@ -71,7 +77,7 @@ def _msg_search_path():
     roots = [p for p in os.environ.get("ROS_PACKAGE_PATH", "").split(":") if p]
     roots += sorted(glob.glob("/opt/ros/*/share")) + ["/usr/share"]
     path = {}
-    for pkg in ("std_msgs", "geometry_msgs", "sensor_msgs", "tf2_msgs"):
+    for pkg in ("std_msgs", "geometry_msgs", "sensor_msgs", "tf2_msgs", "nav_msgs"):
         for root in roots:
             d = os.path.join(root, pkg, "msg")
             if os.path.isdir(d):
@@ -80,13 +86,15 @@ def _msg_search_path():
 
 
 def load_message_classes():
-    """Namespace of the classes Image, CameraInfo, CompressedImage, TFMessage, TransformStamped."""
+    """Namespace of the classes Image, CameraInfo, CompressedImage, TFMessage, TransformStamped,
+    Odometry (None when nav_msgs is not installed: --robot needs it)."""
     try:
         from sensor_msgs.msg import CameraInfo, CompressedImage, Image
         from tf2_msgs.msg import TFMessage
         from geometry_msgs.msg import TransformStamped
+        from nav_msgs.msg import Odometry
         return types.SimpleNamespace(Image=Image, CameraInfo=CameraInfo, CompressedImage=CompressedImage,
-                                     TFMessage=TFMessage, TransformStamped=TransformStamped)
+                                     TFMessage=TFMessage, TransformStamped=TransformStamped, Odometry=Odometry)
     except ImportError:
         pass
     import genmsg
@@ -112,9 +120,13 @@ def load_message_classes():
         Image=build("sensor_msgs/Image")["sensor_msgs/Image"],
         CameraInfo=build("sensor_msgs/CameraInfo")["sensor_msgs/CameraInfo"],
         CompressedImage=build("sensor_msgs/CompressedImage")["sensor_msgs/CompressedImage"],
-        TFMessage=tf["tf2_msgs/TFMessage"], TransformStamped=tf["geometry_msgs/TransformStamped"])
-    for cls, md5 in ((classes.Image, IMAGE_MD5), (classes.CameraInfo, CAMERA_INFO_MD5),
-                     (classes.CompressedImage, COMPRESSED_IMAGE_MD5), (classes.TFMessage, TF_MESSAGE_MD5)):
+        TFMessage=tf["tf2_msgs/TFMessage"], TransformStamped=tf["geometry_msgs/TransformStamped"],
+        Odometry=build("nav_msgs/Odometry")["nav_msgs/Odometry"] if "nav_msgs" in path else None)
+    checks = [(classes.Image, IMAGE_MD5), (classes.CameraInfo, CAMERA_INFO_MD5),
+              (classes.CompressedImage, COMPRESSED_IMAGE_MD5), (classes.TFMessage, TF_MESSAGE_MD5)]
+    if classes.Odometry is not None:
+        checks.append((classes.Odometry, ODOMETRY_MD5))
+    for cls, md5 in checks:
         if cls._md5sum != md5:
             raise RuntimeError("%s definition differs from the standard one (md5 %s)" % (cls._type, cls._md5sum))
     return classes
@@ -471,6 +483,41 @@ class Robot:
         self.odom = wheel_odometry(stamps, true, args.odom_scale_error, args.odom_yaw_drift,
                                    args.odom_yaw_drift_rate)
 
+    def odometry_message(self, classes, args, k, stamp):
+        """nav_msgs/Odometry of odometry sample k (see the module docstring)."""
+        if classes.Odometry is None:
+            raise ValueError("--robot needs nav_msgs (ros-nav-msgs) for /odom")
+        if not hasattr(self, "_driven"):
+            self._driven = [0.0]
+            for (x0, y0, _), (x1, y1, _) in zip(self.odom, self.odom[1:]):
+                self._driven.append(self._driven[-1] + math.hypot(x1 - x0, y1 - y0))
+        d = self._driven[k]
+        x, y, yaw = self.odom[k]
+        msg = classes.Odometry()
+        msg.header.stamp = stamp
+        msg.header.frame_id = args.odom_frame
+        msg.child_frame_id = args.base_frame
+        p = msg.pose.pose
+        p.position.x, p.position.y = x, y
+        p.orientation.z, p.orientation.w = math.sin(yaw / 2.0), math.cos(yaw / 2.0)
+        pos_std = 0.005 + max(abs(args.odom_scale_error), 0.01) * d
+        yaw_std = 0.002 + math.radians(max(abs(args.odom_yaw_drift), 0.1)) * d
+        cov = [0.0] * 36
+        for i, var in enumerate((pos_std ** 2, pos_std ** 2, 1e-6, 1e-6, 1e-6, yaw_std ** 2)):
+            cov[7 * i] = var
+        msg.pose.covariance = cov
+        if k > 0:  # the step's velocity in the base frame
+            (x0, y0, a0), dt = self.odom[k - 1], self.odom_stamps[k] - self.odom_stamps[k - 1]
+            c, s_ = math.cos(a0), math.sin(a0)
+            msg.twist.twist.linear.x = (c * (x - x0) + s_ * (y - y0)) / dt
+            msg.twist.twist.linear.y = (-s_ * (x - x0) + c * (y - y0)) / dt
+            msg.twist.twist.angular.z = wrap(yaw - a0) / dt
+        tcov = [0.0] * 36
+        for i, var in enumerate((1e-4, 1e-4, 1e-6, 1e-6, 1e-6, 1e-4)):
+            tcov[7 * i] = var
+        msg.twist.covariance = tcov
+        return msg
+
     def static_message(self, classes, args, stamp):
         base_to_link = self.mount @ np.linalg.inv(LINK_TO_OPTICAL)
         return classes.TFMessage(transforms=[
@@ -551,6 +598,7 @@ def convert(args):
                 T = planar_matrix(*robot.odom[odom_next])
                 bag.write("/tf", classes.TFMessage(transforms=[
                     transform_of(classes, ot, args.odom_frame, args.base_frame, T)]), ot)
+                bag.write("/odom", robot.odometry_message(classes, args, odom_next, ot), ot)
                 counts["odom"] += 1
                 odom_next += 1
             img = read_png(os.path.join(root, rel))

@@ -129,7 +129,7 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
 
   std::unique_ptr<image_transport::ImageTransport> it_;
   image_transport::Subscriber image_sub_;
-  ros::Subscriber compressed_sub_, camera_info_sub_, depth_sub_;
+  ros::Subscriber compressed_sub_, camera_info_sub_, depth_sub_, odom_sub_;
   ros::Publisher frame_cloud_pub_, pointmap_pub_, map_pub_, pose_pub_, path_pub_, camera_info_pub_,
       depth_pub_, odometry_pub_, pose_cov_pub_, grid_pub_;
   ros::ServiceServer reset_srv_, pause_srv_, resume_srv_, save_map_srv_, save_trajectory_srv_;
@@ -157,6 +157,13 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   static constexpr unsigned kCacheMargin = 30;
   message_filters::Cache<sensor_msgs::CameraInfo> camera_info_cache_{kCacheMargin};
   message_filters::Cache<sensor_msgs::Image> depth_cache_{kCacheMargin};
+  // pose_source odometry: the base driver's odometry messages, whose pose
+  // covariance goes with the poses they place (20 s at 100 Hz).
+  message_filters::Cache<nav_msgs::Odometry> odom_cache_{2000};
+  void odomCallback(const nav_msgs::OdometryConstPtr& msg);
+  // The covariance of the odometry message at `stamp`, in map; nullopt (and a
+  // throttled warning saying why) when there is none to use.
+  std::optional<Eigen::Matrix<double, 6, 6>> odometryCovarianceInMap(const ros::Time& stamp);
 
   // The session and what is tied to its stream, guarded together: the worker
   // pushes frames, the services reset and save.

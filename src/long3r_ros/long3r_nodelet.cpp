@@ -238,6 +238,11 @@ void Long3rNodelet::subscribe() {
     depth_sub_ = nh.subscribe("depth", kSubscriberQueue, &Long3rNodelet::depthCallback, this);
     NODELET_INFO("metric scale from the depth images on %s", depth_sub_.getTopic().c_str());
   }
+  if (config_.pose_source == PoseSource::kOdometry) {
+    odom_sub_ = nh.subscribe("odom", 100, &Long3rNodelet::odomCallback, this);
+    NODELET_INFO("covariance of the odometry-placed poses from %s (nav_msgs/Odometry)",
+                 odom_sub_.getTopic().c_str());
+  }
   it_ = std::make_unique<image_transport::ImageTransport>(nh);
   const std::vector<std::string> loadable = it_->getLoadableTransports();
   const bool installed = std::find(loadable.begin(), loadable.end(),
@@ -301,6 +306,60 @@ void Long3rNodelet::cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& ms
 
 void Long3rNodelet::depthCallback(const sensor_msgs::ImageConstPtr& msg) {
   depth_cache_.add(msg);  // read by the worker with the result of the image of its stamp
+}
+
+void Long3rNodelet::odomCallback(const nav_msgs::OdometryConstPtr& msg) {
+  odom_cache_.add(msg);  // read by the worker with the result placed at its stamp
+}
+
+// How far from a frame's stamp an odometry message may be for its covariance
+// (base drivers publish at 10 Hz or more).
+constexpr double kOdomCovarianceMaxDtS = 0.1;
+
+std::optional<Eigen::Matrix<double, 6, 6>> Long3rNodelet::odometryCovarianceInMap(
+    const ros::Time& stamp) {
+  const std::string topic = odom_sub_.getTopic();
+  const ros::Duration window(kOdomCovarianceMaxDtS);
+  nav_msgs::OdometryConstPtr nearest;
+  const ros::Time from = stamp.toSec() > kOdomCovarianceMaxDtS ? stamp - window : ros::Time(0);
+  for (const auto& m : odom_cache_.getInterval(from, stamp + window)) {
+    if (!nearest || std::abs((m->header.stamp - stamp).toSec()) <
+                        std::abs((nearest->header.stamp - stamp).toSec())) {
+      nearest = m;
+    }
+  }
+  const auto refuse = [&](const std::string& why) -> std::optional<Eigen::Matrix<double, 6, 6>> {
+    warnThrottled("odometry covariance",
+                  format("frame at t=%.3f placed by odometry: ", stamp.toSec()) + why +
+                      "; ~odometry and ~pose_with_covariance carry the model's PnP covariance "
+                      "instead (none when PnP failed)");
+    return std::nullopt;
+  };
+  if (!nearest) {
+    return refuse("no odometry message on " + topic +
+                  format(" within %.0f ms", 1e3 * kOdomCovarianceMaxDtS));
+  }
+  const auto bare = [](const std::string& f) { return f.empty() || f[0] != '/' ? f : f.substr(1); };
+  if (bare(nearest->header.frame_id) != frames_config_.odom_frame ||
+      bare(nearest->child_frame_id) != frames_config_.base_frame) {
+    return refuse("the odometry on " + topic + " is of " + nearest->child_frame_id + " in " +
+                  nearest->header.frame_id + ", not of " + frames_config_.base_frame + " in " +
+                  frames_config_.odom_frame + " (the frames that place it)");
+  }
+  const Eigen::Matrix<double, 6, 6> cov_odom =
+      Eigen::Map<const Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(
+          nearest->pose.covariance.data());
+  if (!cov_odom.allFinite() || (cov_odom.diagonal().array() < 0.0).any()) {
+    return refuse("the odometry message's pose covariance on " + topic +
+                  " has a negative or non-finite entry");
+  }
+  if (cov_odom.isZero(0.0)) {
+    return refuse("the odometry messages on " + topic + " leave the pose covariance unset (zeros)");
+  }
+  // The body pose in map is T_map_odom * T_odom_base: the same point, axes turned.
+  const std::array<double, 36> c =
+      poseCovarianceInMap(cov_odom, frames_->T_map_odom().linear(), Eigen::Vector3d::Zero());
+  return Eigen::Map<const Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(c.data());
 }
 
 // How long another publisher of our transform silences ours after its last
@@ -665,7 +724,9 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
                                                     r.intrinsics.cx, r.intrinsics.cy, w, h, header);
   // ~camera_info goes with every result, posed or not (depth_image_proc pairs it with ~depth).
   camera_info_pub_.publish(info);
-  if (!r.pose.ok() || r.points_C.empty()) return;
+  if (!r.posed()) return;
+  // A frame placed by odometry whose PnP failed has a pose but no points_C.
+  const bool has_points = r.pose.ok() && !r.points_C.empty();
 
   const Eigen::Isometry3d& T_map_W = frames_->T_map_W();
   const Eigen::Isometry3d T_map_cam = T_map_W * r.pose.T_W_C;
@@ -673,8 +734,10 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
   const long3r::LiveStatus status = session_->status();
   const bool depth_held = session_config_.scale.source != long3r::ScaleSource::kNone &&
                           !status.scale_metric && !config_.publish_unscaled_depth;
-  if (depth_held &&
-      (depth_pub_.getNumSubscribers() > 0 || frame_cloud_pub_.getNumSubscribers() > 0)) {
+  if (!has_points) {
+    // ~depth, ~frame_cloud and ~pointmap need the frame's own geometry.
+  } else if (depth_held &&
+             (depth_pub_.getNumSubscribers() > 0 || frame_cloud_pub_.getNumSubscribers() > 0)) {
     warnThrottled("depth held",
                   format("~depth and ~frame_cloud of the frame at t=%.3f held: they wait for the "
                          "metric scale (scale_source ",
@@ -689,7 +752,7 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
       frame_cloud_pub_.publish(toFrameCloud(depth, info, r.conf, r.rgb));
     }
   }
-  if (pointmap_pub_.getNumSubscribers() > 0) {
+  if (has_points && pointmap_pub_.getNumSubscribers() > 0) {
     pointmap_pub_.publish(toPointmap(r, header, frames_config_.map_frame, T_map_cam,
                                      status.scale_metric, status.scale_estimate.stddev));
   }
@@ -705,7 +768,11 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
   odom.child_frame_id = frames_->bodyFrame();
   odom.pose.pose = pose.pose;
   std::optional<Eigen::Matrix<double, 6, 6>> cov_map;
-  if (r.pose.covariance) {
+  if (r.pose_given) cov_map = odometryCovarianceInMap(header.stamp);  // the pose is odometry's
+  if (cov_map) {
+    Eigen::Map<Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(odom.pose.covariance.data()) =
+        *cov_map;
+  } else if (r.pose.covariance) {
     const std::array<double, 36> c = poseCovarianceInMap(
         *r.pose.covariance, T_map_W.linear(), T_map_body.translation() - T_map_cam.translation());
     std::copy(c.begin(), c.end(), odom.pose.covariance.begin());
@@ -1030,6 +1097,7 @@ void Long3rNodelet::shutdown() {
   compressed_sub_.shutdown();
   camera_info_sub_.shutdown();
   depth_sub_.shutdown();
+  odom_sub_.shutdown();
   tf_timer_.stop();
   reset_srv_.shutdown();
   pause_srv_.shutdown();

@@ -204,6 +204,86 @@ TEST(Reconstruction, GivenPosePlacesTheFrame) {
   EXPECT_EQ(rec.map().size(), n);
 }
 
+// A frame placed by a given pose stays in the path when its PnP fails (the
+// odometry places it), but is not mapped: its camera-frame points need PnP.
+TEST(Reconstruction, GivenPosePlacesAFrameWhosePnpFails) {
+  const GtSequence g = make_sequence(4);
+  ReconstructionConfig cfg = test::gt_reconstruction_config();
+  cfg.pnp.min_inliers = 1000000;  // every PnP after frame 0 fails
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), cfg);
+  rec.set_calibration(g.seq.config.intrinsics);
+  Eigen::Isometry3d shift = Eigen::Isometry3d::Identity();
+  shift.translation() = Eigen::Vector3d(0.5, 0.0, 0.0);
+  EXPECT_FALSE(rec.push(g.bgr[0], "bgr8", 0.0, Eigen::Isometry3d::Identity()).has_value());
+  const std::optional<FrameResult> first = rec.push(g.bgr[1], "bgr8", 0.1, shift * g.T_0_k[1]);
+  ASSERT_TRUE(first.has_value());
+  EXPECT_TRUE(first->pose.ok());  // frame 0 defines the world
+  const std::size_t mapped = rec.map().size();
+  EXPECT_GT(mapped, 0u);
+  const std::optional<FrameResult> r = rec.push(g.bgr[2], "bgr8", 0.2, shift * g.T_0_k[2]);
+  ASSERT_TRUE(r.has_value());
+  EXPECT_FALSE(r->pose.ok());
+  EXPECT_TRUE(r->pose_given);
+  EXPECT_TRUE(r->posed());
+  EXPECT_TRUE(r->pose.T_W_C.isApprox(shift * g.T_0_k[1], 1e-12));
+  EXPECT_TRUE(r->points_C.empty());
+  EXPECT_FALSE(r->added_to_map);
+  EXPECT_EQ(rec.map().size(), mapped);
+  ASSERT_EQ(rec.trajectory().size(), 2u);
+  EXPECT_TRUE(rec.trajectory()[1].second.isApprox(shift * g.T_0_k[1], 1e-12));
+  // Without a given pose the same failure leaves the path alone.
+  Reconstruction plain(std::make_unique<FakeModel>(&g.pts_W0), cfg);
+  plain.set_calibration(g.seq.config.intrinsics);
+  plain.push(g.bgr[0], "bgr8", 0.0);
+  plain.push(g.bgr[1], "bgr8", 0.1);
+  const std::optional<FrameResult> p = plain.push(g.bgr[2], "bgr8", 0.2);
+  ASSERT_TRUE(p.has_value());
+  EXPECT_FALSE(p->posed());
+  EXPECT_EQ(plain.trajectory().size(), 1u);
+}
+
+// A metric scale found later rescales what the model measured, never the
+// poses given in metres (odometry), in the stream and in the result.
+TEST(Reconstruction, ScaleLeavesGivenPosesAlone) {
+  const GtSequence g = make_sequence(5);
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config());
+  rec.set_calibration(g.seq.config.intrinsics);
+  std::vector<FrameResult> results;
+  for (int k = 0; k < 4; ++k) {  // frames 0 and 2 placed by the given pose, 1 and 3 by PnP
+    std::optional<Eigen::Isometry3d> given;
+    if (k % 2 == 0) given = g.T_0_k[k];
+    if (auto r = rec.push(g.bgr[k], "bgr8", 0.1 * k, given)) results.push_back(std::move(*r));
+  }
+  ASSERT_EQ(rec.trajectory().size(), 3u);
+  const auto before = rec.trajectory();
+  FrameResult r = results[2];  // frame 2, given
+  ASSERT_TRUE(r.pose_given && r.pose.ok());
+  Reconstruction::rescale(r, 2.0);
+  EXPECT_TRUE(r.pose.T_W_C.isApprox(results[2].pose.T_W_C, 1e-12));
+  EXPECT_TRUE(r.model_T_W_C.translation().isApprox(2.0 * results[2].model_T_W_C.translation()));
+  const cv::Vec3f c = r.points_C.at<cv::Vec3f>(kSize / 2, kSize / 2);
+  const cv::Vec3f w = r.points_W.at<cv::Vec3f>(kSize / 2, kSize / 2);
+  ASSERT_TRUE(std::isfinite(c[2]));
+  const Eigen::Vector3d expected = r.pose.T_W_C * Eigen::Vector3d(c[0], c[1], c[2]);
+  EXPECT_LT((expected - Eigen::Vector3d(w[0], w[1], w[2])).norm(), 1e-5);
+  FrameResult m = results[1];  // frame 1, the model's pose
+  Reconstruction::rescale(m, 2.0);
+  EXPECT_TRUE(m.pose.T_W_C.translation().isApprox(2.0 * results[1].pose.T_W_C.translation()));
+
+  // Kept through a session: the restored stream rescales the same way.
+  Reconstruction copy(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config());
+  rec.flush();
+  copy.restore(rec.state());
+  for (Reconstruction* each : {&rec, &copy}) {
+    each->set_scale(2.0);
+    const auto after = each->trajectory();
+    ASSERT_EQ(after.size(), 4u);
+    EXPECT_TRUE(after[0].second.isApprox(before[0].second, 1e-12));  // given
+    EXPECT_TRUE(after[1].second.translation().isApprox(2.0 * before[1].second.translation()));
+    EXPECT_TRUE(after[2].second.isApprox(before[2].second, 1e-12));  // given
+  }
+}
+
 TEST(Reconstruction, EstimatesIntrinsicsWithoutCalibration) {
   const GtSequence g = make_sequence(3);
   Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config());

@@ -9,11 +9,14 @@
 #include <gtest/gtest.h>
 
 #include <any>
+#include <cstdio>
 #include <fstream>
 #include <functional>
+#include <random>
 #include <string>
 #include <vector>
 
+#include "long3r/io/safetensors_header.hpp"
 #include "long3r/model/safetensors.hpp"
 #include "long3r/pipeline/live_session.hpp"
 #include "long3r/pipeline/session.hpp"
@@ -289,6 +292,82 @@ TEST(Session, DamagedForeignOrMismatchedFilesAreRefusedAndTheStreamIsUntouched) 
   s.session->flush();
   EXPECT_EQ(s.tags(), (std::vector<int>{0, 1, 2, 3, 4, 5, 6, 7, 8, 9}));
   EXPECT_EQ(s.session->status().streams, 1u);
+}
+
+// The session reader fuzzed as the safetensors header is (test/fuzz), over
+// the whole load: seeded mutations of a valid file (bytes flipped in the
+// header and in the tensor data, truncations, insertions, deletions) are
+// each refused with a SessionError, the running stream untouched, or load
+// into a session that then takes frames and saves again. Nothing else may
+// escape.
+TEST(Session, MutatedFilesAreRefusedOrLoadIntoAWorkingSession) {
+  const std::string dir = test::scratch_dir("session/mutated");
+  const std::string good = dir + "/good.l3s";
+  save_first_part(good);
+  const std::string bytes = test::read_file(good);
+  const std::size_t header_end = 8 + static_cast<std::size_t>(decode_header_length(
+                                         reinterpret_cast<const std::uint8_t*>(bytes.data())));
+  ASSERT_LT(header_end, bytes.size());
+
+  Session s(kFrames);
+  for (int k = 0; k < 3; ++k) s.push(k, 50.0 + 0.1 * k);
+  const std::string running = dir + "/running.l3s";  // to go back to after a load
+  s.session->save(running);
+  const Fingerprint before(s);
+  std::mt19937_64 rng(20261203);
+  auto pick = [&rng](std::size_t from, std::size_t to) {  // in [from, to)
+    return from + static_cast<std::size_t>(rng() % (to - from));
+  };
+  constexpr int kMutations = 600;
+  int refused = 0, loaded = 0;
+  for (int i = 0; i < kMutations; ++i) {
+    std::string m = bytes;
+    switch (i % 6) {
+      case 0:  // bits in the JSON header
+        m[pick(8, header_end)] ^= static_cast<char>(1u << (rng() % 8));
+        break;
+      case 1:  // bytes in the tensor data (values, counts, poses)
+      case 2:
+        for (int n = 0; n < 1 + static_cast<int>(rng() % 4); ++n) {
+          m[pick(header_end, m.size())] = static_cast<char>(rng());
+        }
+        break;
+      case 3:  // truncated
+        m.resize(pick(0, m.size()));
+        break;
+      case 4:  // a byte inserted
+        m.insert(pick(0, m.size()), 1, static_cast<char>(rng()));
+        break;
+      case 5:  // a run deleted
+        m.erase(pick(0, m.size()), 1 + rng() % 64);
+        break;
+    }
+    const std::string path = dir + "/mutated.l3s";
+    test::write_file(path, m);
+    try {
+      s.session->load(path);
+    } catch (const SessionError&) {
+      ++refused;
+      ASSERT_TRUE(Fingerprint(s) == before) << "mutation " << i;
+      continue;
+    } catch (const std::exception& e) {
+      test::write_file(dir + "/failure.l3s", m);
+      FAIL() << "mutation " << i << " (kept in failure.l3s) escaped as: " << e.what();
+    }
+    ++loaded;  // a change the format cannot tell (a colour, a stamp): it must work
+    const int64_t frames = s.session->reconstruction().frames_pushed();
+    s.push(kSplit, 60.0);
+    s.session->flush();
+    EXPECT_EQ(s.session->reconstruction().frames_pushed(), frames + 1) << "mutation " << i;
+    s.session->save(dir + "/resaved.l3s");
+    s.session->load(running);  // back to the running stream for the next mutation
+    ASSERT_TRUE(Fingerprint(s) == before);
+  }
+  RecordProperty("refused", refused);
+  RecordProperty("loaded", loaded);
+  std::printf("%d mutated sessions: %d refused, %d loaded and continued\n", kMutations, refused,
+              loaded);
+  EXPECT_GT(refused, kMutations / 2);
 }
 
 TEST(Session, AFailedSaveLeavesTheOldFileAndAModelWithoutIdentityCannotSave) {

@@ -20,6 +20,13 @@ and odom_frame set:
     its Sim(3) scale must be within that of 1;
   * with --rival (another node publishes map -> odom from the start), the
     nodelet publishes none, and its diagnostics name the other publisher;
+  * with --odom-covariance (pose_source odometry), the covariance of each
+    ~odometry is that of the bag's /odom message at its stamp (nearest within
+    100 ms), turned into map by the published map -> odom;
+  * with --placed-only (pose_source odometry, PnP failing after frame 0),
+    every frame is placed by the odometry: ~odometry and ~path hold
+    --min-frames poses, one parent per frame in TF, and at most frame 0 has a
+    ~pointmap (no other frame's points are known);
   * with --grid, ~grid (subscribed from the start) is the occupancy grid of the
     room (the sequence's scene.json, brought into map by the first ground-truth
     base pose): the base's path free, the wall ahead occupied, and the occupied
@@ -40,7 +47,7 @@ import rospy
 import rostest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
-from nav_msgs.msg import OccupancyGrid, Odometry
+from nav_msgs.msg import OccupancyGrid, Odometry, Path
 from sensor_msgs.msg import PointCloud2
 from tf2_msgs.msg import TFMessage
 
@@ -114,11 +121,17 @@ class Recorder:
         rospy.Subscriber('/dip_points', PointCloud2, self._cloud('dip'), queue_size=100)
         self.grids = []
         rospy.Subscriber('/long3r/grid', OccupancyGrid, self._add('grids'), queue_size=10)
+        self.wheel = []  # the bag's odometry messages
+        rospy.Subscriber('/odom', Odometry, self._add('wheel'), queue_size=1000)
+        self.map_odom_rotations = []  # map -> odom as published, (x, y, z, w)
 
     def _tf(self, msg):
         caller = msg._connection_header.get('callerid', '?')
         with self.lock:
             for t in msg.transforms:
+                if t.header.frame_id == 'map' and t.child_frame_id == ARGS.odom_frame:
+                    r = t.transform.rotation
+                    self.map_odom_rotations.append((r.x, r.y, r.z, r.w))
                 self.parents.setdefault(t.child_frame_id, set()).add(t.header.frame_id)
                 self.publishers.setdefault(t.child_frame_id, set()).add(caller)
 
@@ -150,6 +163,9 @@ class RobotCheck(unittest.TestCase):
     def test_robot(self):
         rec = Recorder()
         rospy.wait_for_service('/long3r/reset', timeout=120)
+        if ARGS.placed_only:
+            self.check_placed_only(rec)
+            return
         last = [-1, time.time()]
 
         def quiet():
@@ -210,6 +226,8 @@ class RobotCheck(unittest.TestCase):
             self.assertEqual(m.header.frame_id, 'map')
             self.assertEqual(m.pose, o.pose)
 
+        if ARGS.odom_covariance:
+            self.check_odometry_covariance(rec, odom)
         if ARGS.grid:
             self.check_grid(rec)
 
@@ -262,6 +280,58 @@ class RobotCheck(unittest.TestCase):
             np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
             ok = ~np.isnan(a)
             np.testing.assert_allclose(a[ok], b[ok], rtol=1e-6, atol=1e-7)
+
+    def check_placed_only(self, rec):
+        """PnP fails on every frame after the first: the odometry places them all."""
+        paths = []
+        rospy.Subscriber('/long3r/path', Path, lambda m: paths.append(m), queue_size=100)
+        last = [-1, time.time()]
+
+        def quiet():
+            n = len(rec.get('odometry'))
+            if n != last[0]:
+                last[0], last[1] = n, time.time()
+            return n >= ARGS.min_frames and time.time() - last[1] > 6.0
+        deadline = time.time() + ARGS.timeout
+        while time.time() < deadline and not quiet():
+            time.sleep(0.2)
+        odom = {o.header.stamp.to_nsec(): o for o in rec.get('odometry')}
+        pms = rec.get('pointmaps')
+        rospy.loginfo('placed only: %d ~odometry, %d ~pointmap', len(odom), len(pms))
+        self.assertGreaterEqual(len(odom), ARGS.min_frames, 'frames whose PnP failed were not placed')
+        self.assertLessEqual(len(pms), 1, 'a frame without a PnP pose published points')
+        self.assertTrue(paths, 'no ~path')
+        self.assertEqual(len(paths[-1].poses), len(odom))
+        for child, ps in rec.get('parents').items():
+            self.assertEqual(len(ps), 1, '%s has parents %s' % (child, sorted(ps)))
+        self.assertEqual(rec.get('parents')[ARGS.odom_frame], {'map'})
+        if ARGS.odom_covariance:
+            self.check_odometry_covariance(rec, odom)
+
+    def check_odometry_covariance(self, rec, odom):
+        """Each ~odometry's covariance is the wheel odometry's at its stamp, in map."""
+        wheel = sorted(rec.get('wheel'), key=lambda m: m.header.stamp.to_sec())
+        self.assertTrue(wheel, 'the bag has no /odom messages')
+        rotations = rec.get('map_odom_rotations')
+        self.assertTrue(rotations, 'no map -> odom was published')
+        R = quaternion_matrix(rotations[-1])
+        J = np.zeros((6, 6))
+        J[:3, :3] = J[3:, 3:] = R
+        stamps = np.array([m.header.stamp.to_sec() for m in wheel])
+        checked = 0
+        for o in odom.values():
+            t = o.header.stamp.to_sec()
+            i = int(np.argmin(np.abs(stamps - t)))
+            self.assertLessEqual(abs(stamps[i] - t), 0.1, 'no /odom message near %.3f' % t)
+            expected = J @ np.array(wheel[i].pose.covariance).reshape(6, 6) @ J.T
+            got = np.array(o.pose.covariance).reshape(6, 6)
+            np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max(),
+                                       err_msg='~odometry at %.3f' % t)
+            checked += 1
+        rospy.loginfo('~odometry covariance: the wheel odometry\'s in map for %d frames '
+                      '(last position std %.4f m)', checked,
+                      math.sqrt(np.array(list(odom.values())[-1].pose.covariance)[0]))
+        self.assertGreaterEqual(checked, ARGS.min_frames)
 
     def check_grid(self, rec):
         time.sleep(2.0)  # the grid of the last map (map_publish_period_s)
@@ -341,6 +411,8 @@ if __name__ == '__main__':
     parser.add_argument('--expect-metric', action='store_true')
     parser.add_argument('--expect-unscaled', action='store_true')
     parser.add_argument('--grid', action='store_true')
+    parser.add_argument('--odom-covariance', action='store_true')
+    parser.add_argument('--placed-only', action='store_true')
     parser.add_argument('--rival', action='store_true')
     ARGS, rest = parser.parse_known_args(rospy.myargv()[1:])
     rospy.init_node('robot_check')

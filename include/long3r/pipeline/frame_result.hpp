@@ -46,10 +46,14 @@ struct FrameResult {
   // the model's own PnP pose, model_T_W_C.
   PoseResult pose;
   Eigen::Isometry3d model_T_W_C = Eigen::Isometry3d::Identity();
+  // T_W_C was given to push(): the frame is placed (in the path) even when
+  // its PnP failed, though without points_C it is then not mapped.
+  bool pose_given = false;
+  bool posed() const { return pose.ok() || pose_given; }
   double scale = 1.0;
   PinholeIntrinsics intrinsics;  // at model resolution
   IntrinsicsSource intrinsics_source = IntrinsicsSource::kCalibration;
-  bool added_to_map = false;   // false when the pose failed (or mapping is off)
+  bool added_to_map = false;   // false when PnP failed (or mapping is off)
   std::size_t map_points = 0;  // map size after this frame
 
   StageTimings timings;

@@ -93,11 +93,13 @@ class Reconstruction {
   // Metres per model unit (metric_scale.hpp): every result from now on is in
   // this scale (pointmaps, poses, covariance), and the map and trajectory
   // built so far are rescaled to it at once, so the stream stays one
-  // consistent reconstruction. Throws std::invalid_argument unless > 0.
+  // consistent reconstruction (poses given to push() stay as given).
+  // Throws std::invalid_argument unless > 0.
   void set_scale(double scale);
   double scale() const { return scale_; }
   // Brings one result to `scale` as set_scale() brings the stream: its
-  // points, poses (given and model) and covariance; r.scale becomes scale.
+  // points, model pose and covariance (a given pose is the caller's and
+  // stays); r.scale becomes scale.
   // For the result that made the scale known, returned before set_scale().
   static void rescale(FrameResult& r, double scale);
 
@@ -107,7 +109,7 @@ class Reconstruction {
 
   const VoxelMap& map() const { return map_; }
   VoxelMap& map() { return map_; }
-  // (stamp, T_W_C) of the frames with a good pose, in order.
+  // (stamp, T_W_C) of the frames with a good pose or a given one, in order.
   std::vector<std::pair<double, Eigen::Isometry3d>> trajectory() const { return trajectory_; }
   // Frames pushed in the current stream.
   int64_t frames_pushed() const { return frames_pushed_; }
@@ -150,6 +152,7 @@ class Reconstruction {
   VoxelMap map_;
   std::deque<Pending> pending_;
   std::vector<std::pair<double, Eigen::Isometry3d>> trajectory_;
+  std::vector<bool> trajectory_given_;  // per entry: the pose was given to push()
   int64_t frames_pushed_ = 0;
   int source_width_ = 0, source_height_ = 0;
   int64_t flushed_index_ = -1;  // frame returned early by flush(), whose refined result is dropped

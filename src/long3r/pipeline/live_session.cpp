@@ -376,9 +376,11 @@ void LiveSession::track_loss(const FrameResult& r) {
     if (lost++ == 0) lost_since_stamp_ = r.stamp;
     const double lost_s = r.stamp - lost_since_stamp_;
     warn("pose", "frame " + std::to_string(r.frame_index) + ": pose estimation failed (" +
-                     r.pose.message + "); not added to the map (tracking lost for " +
-                     std::to_string(lost) + " frame(s); each new frame is tried against the " +
-                     "memory and map)");
+                     r.pose.message + "); " +
+                     (r.pose_given ? "placed by the given pose, its points not mapped"
+                                   : "not added to the map") +
+                     " (tracking lost for " + std::to_string(lost) +
+                     " frame(s); each new frame is tried against the memory and map)");
     if (config_.lost_reset_frames > 0 && lost >= config_.lost_reset_frames) {
       new_stream("tracking lost for " + std::to_string(lost) +
                  " consecutive frames (lost_reset_frames)");

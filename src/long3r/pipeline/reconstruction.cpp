@@ -108,6 +108,7 @@ void Reconstruction::reset() {
   tracker_.reset();
   map_.clear();
   trajectory_.clear();
+  trajectory_given_.clear();
   frames_pushed_ = 0;
   source_width_ = source_height_ = 0;
   flushed_index_ = -1;
@@ -121,7 +122,10 @@ void Reconstruction::set_scale(double scale) {
   const double factor = scale / scale_;
   if (factor == 1.0) return;
   map_.rescale(factor);
-  for (auto& entry : trajectory_) entry.second.translation() *= factor;
+  // Given poses are the caller's (odometry: metres), not the model's.
+  for (std::size_t i = 0; i < trajectory_.size(); ++i) {
+    if (!trajectory_given_[i]) trajectory_[i].second.translation() *= factor;
+  }
   tracker_.rescale(factor);
   scale_ = scale;
 }
@@ -135,7 +139,11 @@ void Reconstruction::rescale(FrameResult& r, double scale) {
     if (!points->empty()) points->convertTo(scaled, CV_32FC3, factor);
     *points = scaled;
   }
-  r.pose.T_W_C.translation() *= factor;
+  if (r.pose_given) {  // the caller's pose stays; the points it places are rescaled
+    if (!r.points_C.empty()) r.points_W = transform_points(r.points_C, r.pose.T_W_C);
+  } else {
+    r.pose.T_W_C.translation() *= factor;
+  }
   r.model_T_W_C.translation() *= factor;
   if (r.pose.covariance) {  // translation rows and columns of [t, r]
     Eigen::Matrix<double, 6, 6>& c = *r.pose.covariance;
@@ -215,6 +223,11 @@ StateDict Reconstruction::state() const {
   }
   out["trajectory.stamp"] = stamps;
   out["trajectory.T_W_C"] = poses;
+  at::Tensor given = at::empty({n}, at::kLong);
+  for (int64_t i = 0; i < n; ++i) {
+    given.data_ptr<int64_t>()[i] = trajectory_given_[static_cast<std::size_t>(i)] ? 1 : 0;
+  }
+  out["trajectory.given"] = given;
 
   put_state(out, "map.", map_.state());
   put_state(out, "model.", model_->stream_state());
@@ -263,6 +276,15 @@ void Reconstruction::restore(const StateDict& state) {
     trajectory.emplace_back(stamps.data_ptr<double>()[i],
                             pose_from(poses[i], r, "trajectory.T_W_C[" + std::to_string(i) + "]"));
   }
+  std::vector<bool> trajectory_given(static_cast<std::size_t>(n), false);
+  if (r.has("trajectory.given")) {  // absent: every pose the model's
+    const at::Tensor given = r.int64("trajectory.given", {n}).contiguous();
+    for (int64_t i = 0; i < n; ++i) {
+      const int64_t g = given.data_ptr<int64_t>()[i];
+      if (g != 0 && g != 1) r.fail("trajectory.given", "not 0 or 1");
+      trajectory_given[static_cast<std::size_t>(i)] = g == 1;
+    }
+  }
 
   const int64_t model_frames = r.integer("model.frames", 0, kMax);
   if (model_frames != frames) {
@@ -290,6 +312,7 @@ void Reconstruction::restore(const StateDict& state) {
   intrinsics_failed_ = intrinsics_failed;
   tracker_.restore(tracker);
   trajectory_ = std::move(trajectory);
+  trajectory_given_ = std::move(trajectory_given);
 }
 
 std::optional<FrameResult> Reconstruction::push(const cv::Mat& image, const std::string& encoding,
@@ -400,19 +423,21 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
   }
   r.model_T_W_C = r.pose.T_W_C;
   if (r.pose.ok()) r.points_C = points_in_camera(r.points_W, r.pose.T_W_C);
-  if (p.T_W_C) {  // placed by the given pose
+  if (p.T_W_C) {  // placed by the given pose, whether PnP found the model's or not
+    r.pose_given = true;
     r.pose.T_W_C = *p.T_W_C;
     if (r.pose.ok()) r.points_W = transform_points(r.points_C, r.pose.T_W_C);
   }
   r.timings.pose_ms = now_ms() - t;
 
   t = now_ms();
-  if (r.pose.ok()) {
-    if (mapping_) {
-      map_.integrate(r.points_W, r.conf, r.rgb, r.frame_index);
-      r.added_to_map = true;
-    }
+  if (r.pose.ok() && mapping_) {  // only with points_C, which PnP's pose gives
+    map_.integrate(r.points_W, r.conf, r.rgb, r.frame_index);
+    r.added_to_map = true;
+  }
+  if (r.posed()) {
     trajectory_.emplace_back(r.stamp, r.pose.T_W_C);
+    trajectory_given_.push_back(r.pose_given);
   }
   r.map_points = map_.size();
   r.timings.map_ms = now_ms() - t;
