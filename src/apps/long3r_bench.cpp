@@ -197,6 +197,7 @@ int main(int argc, char** argv) {
   try {
     const long3r::InferenceTarget target = long3r::resolve_inference_target(inference);
     const long3r::ThreadState used = long3r::apply_thread_config(threads);
+    std::printf("cpu %s\n", long3r::describe_cpu().c_str());
     at::manual_seed(seed);
     const long3r::ModelConfig config = long3r::named_model_config(config_name);
     const auto t_build = std::chrono::steady_clock::now();

@@ -461,6 +461,10 @@ int main(int argc, char** argv) {
   cli.positional("CASE_DIR", &dirs, "weights.safetensors and io.safetensors of one case")
       .required();
   cli.option("--tol", "T", &tol, "relative tolerance").above(0);
+  bool skip_unsupported = false;
+  cli.flag("--skip-unsupported", &skip_unsupported,
+           "exit 77 (ctest's skip) when this machine cannot serve --device / --precision, e.g. "
+           "bfloat16 without native support, instead of 2");
   long3r::InferenceConfig inference;
   long3r::add_inference_options(cli, &inference);
   if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
@@ -470,10 +474,14 @@ int main(int argc, char** argv) {
   at::globalContext().setAllowTF32CuDNN(false);
   try {
     target = long3r::resolve_inference_target(inference);
+  } catch (const long3r::InferenceUnsupportedError& e) {
+    std::fprintf(stderr, "long3r_golden: %s%s\n", skip_unsupported ? "skipped: " : "", e.what());
+    return skip_unsupported ? 77 : 2;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "long3r_golden: %s\n", e.what());
     return 2;
   }
+  std::printf("cpu %s\n", long3r::describe_cpu().c_str());
   std::printf("running in %s\n", long3r::describe(target).c_str());
 
   int failed_cases = 0;

@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "long3r/io/cli_options.hpp"
+#include "long3r/model/long3r_model.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/safetensors.hpp"
 #include "long3r/model/spann3r_model.hpp"
@@ -66,7 +67,7 @@ std::string config_json(const std::string& size, int img) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string out, variant = "spann3r", size = "tiny";
+  std::string out, variant = "spann3r", size = "tiny", named;
   int img = 224;
   long long seed = 0;
   long3r::CliOptions cli("long3r_make_random_model",
@@ -77,15 +78,28 @@ int main(int argc, char** argv) {
   cli.option("--size", "", &size, "tiny: ~10 FPS, small: ~1 FPS at 224 x 224 on 2 cores")
       .choices({"tiny", "small"});
   cli.option("--img-size", "N", &img, "input size N x N, a multiple of 16");
+  cli.option("--config", "NAME", &named,
+             "instead: a LONG3R model of a named configuration (long3r_tiny, long3r_small, "
+             "long3r_ship, long3r_paper: the paper's 668 M parameters, a 2.7 GB file), e.g. "
+             "to measure loading (long3r_load_bench)");
   cli.option("--seed", "N", &seed, "initialisation seed");
   if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
   if (img <= 0 || img % 16 != 0)
     return cli.usage_error("--img-size must be a positive multiple of 16");
   try {
-    const std::string json = config_json(size, img);
-    const long3r::ModelConfig config = long3r::parse_model_config(json);
+    const long3r::ModelConfig config = named.empty()
+                                           ? long3r::parse_model_config(config_json(size, img))
+                                           : long3r::named_model_config(named);
+    const std::string json =
+        named.empty() ? config_json(size, img) : long3r::model_config_to_json(config);
     torch::manual_seed(static_cast<uint64_t>(seed));
-    long3r::Spann3rModel model(config);
+    std::unique_ptr<long3r::ModelShell> shell;
+    if (named.empty()) {
+      shell = std::make_unique<long3r::Spann3rModel>(config);
+    } else {
+      shell = std::make_unique<long3r::Long3rModel>(config);
+    }
+    long3r::ModelShell& model = *shell;
     std::map<std::string, at::Tensor> tensors;
     int64_t count = 0;
     for (const auto& kv : model.module().named_parameters(true)) {
@@ -99,8 +113,9 @@ int main(int argc, char** argv) {
                              {{"config", json},
                               {long3r::kRandomWeightsMetadataKey, "true"},
                               {"seed", std::to_string(seed)}});
-    std::printf("wrote %s: Spann3R %s, %zu tensors, %lld parameters, seed %lld\n", out.c_str(),
-                size.c_str(), tensors.size(), static_cast<long long>(count), seed);
+    std::printf("wrote %s: %s, %zu tensors, %lld parameters, seed %lld\n", out.c_str(),
+                named.empty() ? ("Spann3R " + size).c_str() : named.c_str(), tensors.size(),
+                static_cast<long long>(count), seed);
     std::printf(
         "WARNING: THE WEIGHTS ARE RANDOM. This checkpoint is a placeholder for testing the "
         "pipeline; its pointmaps, poses and maps are meaningless.\n");

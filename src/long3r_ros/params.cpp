@@ -82,6 +82,7 @@ template <class S, class V>
 long3r::config::FieldsOf<S, long3r::ThreadConfig> ros_fields(S& c, V& v) {
   v("torch_threads", c.torch_threads, "(all cores)");
   v("openblas_threads", c.openblas_threads);
+  v("reuse_freed_memory", c.reuse_freed_memory);
 }
 
 template <class S, class V>
@@ -89,6 +90,7 @@ long3r::config::FieldsOf<S, long3r::InferenceConfig> ros_fields(S& c, V& v) {
   v("device", c.device);
   v("precision", c.precision);
   v("allow_emulated_precision", c.allow_emulated_precision);
+  v("conv_precision", c.conv_precision);
 }
 
 // Flat parameter names for the nested pipeline settings. The one confidence

@@ -93,7 +93,8 @@ TEST(InferenceConfig, JsonFieldsAndUnknownPrecision) {
   EXPECT_EQ(c.device, "cuda:1");
   EXPECT_EQ(c.precision, Precision::kBFloat16);
   EXPECT_EQ(long3r::config::to_json(c).dump(),
-            R"({"device":"cuda:1","precision":"bfloat16","allow_emulated_precision":false})");
+            R"({"device":"cuda:1","precision":"bfloat16","allow_emulated_precision":false,)"
+            R"("conv_precision":"auto"})");
   InferenceConfig d;
   EXPECT_THROW(long3r::config::read_object(long3r::config::parse(R"({"precision": "fp8"})", "t"), d,
                                            {"inference config"}),
@@ -159,9 +160,15 @@ namespace {
 
 // Streams the same frames through a float32 and a bfloat16 copy of a model;
 // returns the largest relative deviation of the pointmaps and confidences.
+// conv_dtype: of the convolutions (float32: what a CPU without native
+// bfloat16 runs; bfloat16: conv_precision auto on a native one).
 template <class Model>
-double bfloat16_deviation(Model& f32, Model& bf16, int64_t frames, int64_t h, int64_t w) {
-  bf16.to(at::Device(at::kCPU), at::kBFloat16);
+double bfloat16_deviation(Model& f32, Model& bf16, int64_t frames, int64_t h, int64_t w,
+                          at::ScalarType conv_dtype = at::kFloat) {
+  long3r::InferenceTarget target;
+  target.dtype = at::kBFloat16;
+  target.conv_dtype = conv_dtype;
+  bf16.to(target);
   const auto ref = stream(f32, frames, h, w);
   const auto got = stream(bf16, frames, h, w);
   EXPECT_EQ(got.size(), ref.size());
@@ -175,13 +182,21 @@ double bfloat16_deviation(Model& f32, Model& bf16, int64_t frames, int64_t h, in
   return worst;
 }
 
-// What ModelShell::to keeps float32 on the CPU: the convolutions only.
-void expect_convolutions_float32(torch::nn::Module& module) {
+// The precisions ModelShell::to leaves on the CPU: the convolutions in
+// `conv` (float32 unless the CPU computes bfloat16 natively and
+// conv_precision is auto), the transposed ones float32 always, the rest bfloat16.
+void expect_convolutions(torch::nn::Module& module, at::ScalarType conv) {
   for (const auto& p : module.named_parameters()) {
-    const bool conv = p.key().find("patch_embed.proj.") != std::string::npos ||
-                      p.key().find("downstream_head") != std::string::npos;
-    EXPECT_EQ(p.value().scalar_type(), conv ? at::kFloat : at::kBFloat16) << p.key();
+    const bool is_conv = p.key().find("patch_embed.proj.") != std::string::npos ||
+                         p.key().find("downstream_head") != std::string::npos;
+    const bool transposed = p.key().find("act_postprocess.0.1.") != std::string::npos ||
+                            p.key().find("act_postprocess.1.1.") != std::string::npos;
+    const at::ScalarType want = transposed ? at::kFloat : is_conv ? conv : at::kBFloat16;
+    EXPECT_EQ(p.value().scalar_type(), want) << p.key();
   }
+}
+void expect_convolutions_float32(torch::nn::Module& module) {
+  expect_convolutions(module, at::kFloat);
 }
 
 }  // namespace
@@ -244,6 +259,43 @@ TEST(Bfloat16, Long3rStreamStaysCloseToFloat32) {
   expect_convolutions_float32(bf16.module());
 }
 
+// conv_precision auto on a CPU with native bfloat16: the convolutions run in
+// bfloat16 too (the transposed ones and the upsampling stay float32), the
+// outputs stay close to float32; elsewhere auto keeps them float32.
+TEST(Bfloat16, NativeConvolutionsStayCloseToFloat32) {
+  InferenceConfig c;
+  c.precision = Precision::kBFloat16;
+  c.allow_emulated_precision = true;
+  const long3r::InferenceTarget target = long3r::resolve_inference_target(c);
+  if (!long3r::cpu_has_native_bfloat16()) {
+    EXPECT_EQ(target.conv_dtype, at::kFloat);  // emulated bfloat16 convolutions lose 5 %
+    GTEST_SKIP() << "no native bfloat16 on this CPU";
+  }
+  EXPECT_EQ(target.conv_dtype, at::kBFloat16);
+  EXPECT_EQ(long3r::describe(target), "cpu bfloat16");
+  c.conv_precision = long3r::ConvPrecision::kFloat32;
+  EXPECT_EQ(long3r::describe(long3r::resolve_inference_target(c)),
+            "cpu bfloat16 (convolutions float32)");
+
+  const std::string path = kGolden + "spann3r_seq_land96x64/weights.safetensors";
+  auto f32 = long3r::Spann3rModel::from_file(path);
+  auto bf16 = long3r::Spann3rModel::from_file(path);
+  const double spann3r = bfloat16_deviation(*f32, *bf16, 8, 64, 96, at::kBFloat16);
+  std::printf("Spann3R (golden weights) 8 frames 64x96, bfloat16 convolutions: %.3e\n", spann3r);
+  EXPECT_LT(spann3r,
+            0.08);  // measured 5.53e-2 (AMD EPYC, AVX512-BF16); float32 convolutions 4.26e-2
+  expect_convolutions(bf16->module(), at::kBFloat16);
+
+  at::manual_seed(3);
+  long3r::Long3rModel a(long3r::test::tiny_long3r_config());
+  long3r::Long3rModel b(long3r::test::tiny_long3r_config());
+  long3r::test::copy_parameters(a.module(), b.module());
+  const double long3r = bfloat16_deviation(a, b, 8, 64, 64, at::kBFloat16);
+  std::printf("LONG3R (long3r_tiny) 8 frames 64x64, bfloat16 convolutions: %.3e\n", long3r);
+  EXPECT_LT(long3r, 0.012);  // measured 8.16e-3; float32 convolutions 1.12e-3
+  expect_convolutions(b.module(), at::kBFloat16);
+}
+
 // A bfloat16 checkpoint (every floating tensor stored as bfloat16, as
 // scripts/convert_checkpoint.py --dtype bf16 writes it) loads as stored: the
 // values are not converted at load, a bfloat16 run uses them as they are (the
@@ -276,6 +328,7 @@ TEST(Bfloat16, CheckpointStoredInBfloat16LoadsAsStored) {
   InferenceConfig bf16;
   bf16.precision = Precision::kBFloat16;
   bf16.allow_emulated_precision = true;
+  bf16.conv_precision = long3r::ConvPrecision::kFloat32;  // as from_file runs it
   const auto as_bf16 = long3r::make_streaming_model(path, bf16);
   const auto as_f32 = long3r::make_streaming_model(path);
   auto& run_bf16 = dynamic_cast<long3r::Long3rModel&>(*as_bf16);

@@ -31,6 +31,59 @@ std::string load_error(Model& model, const long3r::TensorMap& tensors) {
   return "";
 }
 
+// Loading maps the file (map_safetensors): the same tensors as reading it,
+// copy-on-write views that never change the file, pages given back after the
+// copy, and a tensor the mapping cannot hold aligned read on its own.
+TEST(ModelLoad, MappedCheckpointGivesTheSameTensorsAndModel) {
+  const std::string path = kGolden + "spann3r_seq_land96x64/weights.safetensors";
+  const long3r::TensorFile read = long3r::load_safetensors(path);
+  long3r::TensorFile mapped = long3r::map_safetensors(path);
+  EXPECT_EQ(mapped.metadata, read.metadata);
+  ASSERT_EQ(mapped.tensors.size(), read.tensors.size());
+  for (const auto& [name, t] : read.tensors) {
+    const at::Tensor& m = mapped.tensors.at(name);
+    EXPECT_EQ(m.scalar_type(), t.scalar_type()) << name;
+    EXPECT_TRUE(m.equal(t)) << name;
+  }
+  // Given back, read again from the file: the same values.
+  const std::string some = read.tensors.begin()->first;
+  long3r::release_mapped(mapped.tensors.at(some));
+  EXPECT_TRUE(mapped.tensors.at(some).equal(read.tensors.at(some)));
+  // A tensor of the heap is left alone.
+  at::Tensor heap = read.tensors.at(some).clone();
+  long3r::release_mapped(heap);
+  EXPECT_TRUE(heap.equal(read.tensors.at(some)));
+  // Writing to a view changes neither the file nor another mapping of it.
+  mapped.tensors.at(some).add_(1.0);
+  EXPECT_TRUE(long3r::map_safetensors(path).tensors.at(some).equal(read.tensors.at(some)));
+  // The model loaded from the mapping is the model loaded from the read file.
+  const long3r::ModelConfig config = long3r::model_config_from_metadata(read.metadata, path);
+  long3r::Spann3rModel a(config), b(config);
+  a.load_weights(read.tensors, path);
+  b.load_weights(long3r::map_safetensors(path).tensors, path);
+  const auto pb = b.module().named_parameters();
+  for (const auto& p : a.module().named_parameters()) {
+    EXPECT_TRUE(p.value().equal(pb[p.key()])) << p.key();
+  }
+  EXPECT_EQ(a.weights_fingerprint(), b.weights_fingerprint());
+
+  // F32 data at an offset that is not a multiple of 4 (after 3 bytes of U8).
+  std::string header = R"({"a":{"dtype":"U8","shape":[3],"data_offsets":[0,3]},)"
+                       R"("b":{"dtype":"F32","shape":[2],"data_offsets":[3,11]}})";
+  header.append((8 - header.size() % 8) % 8, ' ');
+  std::string bytes(8, '\0');
+  for (int i = 0; i < 8; ++i) bytes[i] = static_cast<char>((header.size() >> (8 * i)) & 0xff);
+  const float values[2] = {1.5f, -2.25f};
+  bytes += header + std::string("\x01\x02\x03", 3) +
+           std::string(reinterpret_cast<const char*>(values), sizeof values);
+  const std::string odd = long3r::test::scratch_dir("model_load/mapped") + "/unaligned.safetensors";
+  long3r::test::write_file(odd, bytes);
+  const long3r::TensorFile u = long3r::map_safetensors(odd);
+  EXPECT_TRUE(u.tensors.at("b").equal(at::tensor({1.5f, -2.25f})));
+  EXPECT_EQ(u.tensors.at("a")[2].item<int64_t>(), 3);
+  EXPECT_THROW(long3r::map_safetensors(odd + ".missing"), long3r::CheckpointError);
+}
+
 TEST(ModelLoad, Dust3rGoldenWeightsLoadStrictly) {
   const std::string path = kGolden + "dust3r_pair_port80x112/weights.safetensors";
   const long3r::TensorFile file = long3r::load_safetensors(path);

@@ -110,6 +110,22 @@ ThreadConfig parsed(std::vector<std::string> words) {
   return c;
 }
 
+// glibc keeps freed memory for reuse unless told otherwise; the start-up line says so.
+TEST(Threads, FreedMemoryIsReusedByDefault) {
+  ThreadConfig c;
+  c.torch_threads = 1;
+  const long3r::ThreadState state = long3r::apply_thread_config(c);
+#if defined(__GLIBC__)
+  EXPECT_TRUE(state.reuse_freed_memory);
+  EXPECT_NE(long3r::describe(state).find("freed memory reused"), std::string::npos)
+      << long3r::describe(state);
+#endif
+  c.reuse_freed_memory = false;
+  const long3r::ThreadState left = long3r::apply_thread_config(c);
+  EXPECT_FALSE(left.reuse_freed_memory);
+  EXPECT_EQ(long3r::describe(left).find("freed memory"), std::string::npos);
+}
+
 TEST(Threads, CommandLineOptions) {
   EXPECT_EQ(parsed({}).openblas_threads, ThreadConfig::kOpenblasThreadsAuto);
   EXPECT_EQ(parsed({}).torch_threads, 0);
@@ -118,6 +134,8 @@ TEST(Threads, CommandLineOptions) {
   EXPECT_EQ(parsed({"--openblas-threads", "0"}).openblas_threads, 0);
   EXPECT_EQ(parsed({"--openblas-threads", "4", "--threads", "3"}).openblas_threads, 4);
   EXPECT_EQ(parsed({"--threads", "3"}).torch_threads, 3);
+  EXPECT_TRUE(parsed({}).reuse_freed_memory);
+  EXPECT_FALSE(parsed({"--return-freed-memory"}).reuse_freed_memory);
   for (const std::vector<std::string>& bad :
        {std::vector<std::string>{"--openblas-threads", "-1"},
         std::vector<std::string>{"--openblas-threads", "many"},

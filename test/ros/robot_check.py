@@ -159,6 +159,20 @@ class Recorder:
             return dict(value) if isinstance(value, dict) else list(value)
 
 
+def wait_until_quiet(rec, name):
+    """Until --min-frames messages of `name` arrived and none for 6 s (or --timeout)."""
+    last = [-1, time.time()]
+
+    def quiet():
+        n = len(rec.get(name))
+        if n != last[0]:
+            last[0], last[1] = n, time.time()
+        return n >= ARGS.min_frames and time.time() - last[1] > 6.0
+    deadline = time.time() + ARGS.timeout
+    while time.time() < deadline and not quiet():
+        time.sleep(0.2)
+
+
 class RobotCheck(unittest.TestCase):
     def test_robot(self):
         rec = Recorder()
@@ -166,16 +180,7 @@ class RobotCheck(unittest.TestCase):
         if ARGS.placed_only:
             self.check_placed_only(rec)
             return
-        last = [-1, time.time()]
-
-        def quiet():
-            n = len(rec.get('pointmaps'))
-            if n != last[0]:
-                last[0], last[1] = n, time.time()
-            return n >= ARGS.min_frames and time.time() - last[1] > 6.0
-        deadline = time.time() + ARGS.timeout
-        while time.time() < deadline and not quiet():
-            time.sleep(0.2)
+        wait_until_quiet(rec, 'pointmaps')
         pms = rec.get('pointmaps')
         self.assertGreaterEqual(len(pms), ARGS.min_frames, 'too few posed frames')
 
@@ -285,16 +290,7 @@ class RobotCheck(unittest.TestCase):
         """PnP fails on every frame after the first: the odometry places them all."""
         paths = []
         rospy.Subscriber('/long3r/path', Path, lambda m: paths.append(m), queue_size=100)
-        last = [-1, time.time()]
-
-        def quiet():
-            n = len(rec.get('odometry'))
-            if n != last[0]:
-                last[0], last[1] = n, time.time()
-            return n >= ARGS.min_frames and time.time() - last[1] > 6.0
-        deadline = time.time() + ARGS.timeout
-        while time.time() < deadline and not quiet():
-            time.sleep(0.2)
+        wait_until_quiet(rec, 'odometry')
         odom = {o.header.stamp.to_nsec(): o for o in rec.get('odometry')}
         pms = rec.get('pointmaps')
         rospy.loginfo('placed only: %d ~odometry, %d ~pointmap', len(odom), len(pms))

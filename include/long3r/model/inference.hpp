@@ -24,6 +24,9 @@ class InferenceUnsupportedError : public std::runtime_error {
 struct InferenceTarget {
   at::Device device = at::kCPU;
   at::ScalarType dtype = at::kFloat;
+  // Of the convolutions (InferenceConfig::conv_precision as this machine
+  // serves it); the CPU's transposed convolutions are float32 whatever this says.
+  at::ScalarType conv_dtype = at::kFloat;
 };
 
 at::ScalarType precision_dtype(Precision precision);
@@ -32,12 +35,21 @@ at::ScalarType precision_dtype(Precision precision);
 // elsewhere oneDNN emulates it, slower than float32.
 bool cpu_has_native_bfloat16();
 
+// This machine's CPU for reports, so that every figure names what it was
+// measured on: the model name, the x86 extensions that decide the speed of
+// each precision (AVX2, AVX-512, AVX512-BF16, AMX), the vector ISA ATen's
+// kernels dispatch to, and the ISA oneDNN (matrix products, convolutions)
+// runs with, e.g. "AMD EPYC; avx2 avx512f avx512_bf16 (no amx_bf16); ATen
+// AVX512; oneDNN 2.6.3 avx512_core_bf16".
+std::string describe_cpu();
+
 // Validates the config and checks this machine; throws ConfigError for a
 // malformed request and InferenceUnsupportedError for one this machine (or
 // this libtorch build) cannot serve.
 InferenceTarget resolve_inference_target(const InferenceConfig& config);
 
-// "cpu float32", "cuda:0 bfloat16", for logs and reports.
+// "cpu float32", "cuda:0 bfloat16", "cpu bfloat16 (convolutions float32)",
+// for logs and reports.
 std::string describe(const InferenceTarget& target);
 
 }  // namespace long3r

@@ -26,6 +26,20 @@ inline const std::array<std::pair<Precision, const char*>, 3>& enum_names(Precis
   return names;
 }
 
+// Precision of the convolutions (patch embeddings, DPT heads) of a model run
+// in bfloat16 or float16. auto: the model's on CUDA and on a CPU with native
+// bfloat16 (AVX512-BF16 or AMX), float32 on a CPU that only emulates it
+// (libtorch 1.13's emulated bfloat16 convolution loses 5 %, a native one
+// 0.3 %); float32: always float32. On the CPU the transposed convolutions
+// (no bfloat16 kernel) and the bilinear upsampling (whose bfloat16 kernel
+// misplaces samples) run in float32 either way (docs/performance.md).
+enum class ConvPrecision { kAuto, kFloat32 };
+inline const std::array<std::pair<ConvPrecision, const char*>, 2>& enum_names(ConvPrecision) {
+  static const std::array<std::pair<ConvPrecision, const char*>, 2> names{
+      {{ConvPrecision::kAuto, "auto"}, {ConvPrecision::kFloat32, "float32"}}};
+  return names;
+}
+
 constexpr const char* kDefaultInferenceDevice = "cpu";
 
 struct InferenceConfig {
@@ -36,6 +50,7 @@ struct InferenceConfig {
   // AMX) is emulated: correct but slower than float32. Refused unless this is
   // set, e.g. to measure its accuracy on such a machine.
   bool allow_emulated_precision = false;
+  ConvPrecision conv_precision = ConvPrecision::kAuto;
 
   // Syntax only (what any machine can check); whether this machine can serve
   // it is resolve_inference_target()'s job. Throws ConfigError naming the field.
@@ -50,10 +65,11 @@ config::FieldsOf<S, InferenceConfig> visit_fields(S& s, V& v) {
   v("device", s.device);
   v("precision", s.precision);
   v("allow_emulated_precision", s.allow_emulated_precision);
+  v("conv_precision", s.conv_precision);
 }
 
-// --device, --precision and --allow-emulated-precision, written once for
-// every tool that runs a model.
+// --device, --precision, --allow-emulated-precision and --conv-precision,
+// written once for every tool that runs a model.
 void add_inference_options(CliOptions& cli, InferenceConfig* config);
 
 }  // namespace long3r

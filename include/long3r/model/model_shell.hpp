@@ -67,9 +67,11 @@ class ModelShell {
   // Moves the weights; ends a stream in progress.
   void to(const at::Device& device);
   // Moves and converts the floating-point weights once (e.g. to bfloat16: the
-  // model then runs in that precision, see InferenceConfig); ends a stream.
+  // model then runs in that precision, see InferenceConfig), the convolutions
+  // to target.conv_dtype (float32 on the CPU: the transposed ones); ends a stream.
+  void to(const InferenceTarget& target);
+  // The same with the convolutions float32 on the CPU, in `dtype` elsewhere.
   void to(const at::Device& device, at::ScalarType dtype);
-  void to(const InferenceTarget& target) { to(target.device, target.dtype); }
   at::Device device() const;
   // The weights' precision, in which inputs are given to the network.
   at::ScalarType dtype() const;

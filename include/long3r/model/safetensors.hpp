@@ -26,6 +26,19 @@ struct TensorFile {
 // refused before anything is read.
 TensorFile load_safetensors(const std::string& path);
 
+// A file's tensors as views of a private mapping of it, validated as
+// load_safetensors validates: a page is read when first touched, and
+// release_mapped() gives a view's pages back once they are copied elsewhere,
+// so that loading a model holds about one tensor of the file at a time beside
+// the model (a 2.6 GB checkpoint needs no second 2.6 GB). The views are
+// copy-on-write (writing to one changes neither the file nor the other
+// views); the mapping lives while any view does. A tensor whose data is not
+// aligned to its element size is read into memory of its own instead.
+TensorFile map_safetensors(const std::string& path);
+// Drops the resident pages of a view made by map_safetensors() (they are read
+// again from the file if touched); does nothing for any other tensor.
+void release_mapped(const at::Tensor& view);
+
 // The string metadata only (the header is read and validated, the tensors are
 // not). Throws CheckpointError as load_safetensors does.
 std::map<std::string, std::string> read_safetensors_metadata(const std::string& path);

@@ -34,6 +34,15 @@ struct ThreadConfig {
   // 2.5x slower per frame with both at the core count, docs/performance.md),
   // so it gets 1. 0 leaves OPENBLAS_NUM_THREADS in charge; N > 0 sets N.
   int openblas_threads = kOpenblasThreadsAuto;
+  // glibc malloc keeps freed memory for reuse: blocks up to 32 MiB (its
+  // limit) come from the heap, which is not trimmed back to the system.
+  // Otherwise every large tensor of every step (1.6 MB for a q/k of the
+  // paper's encoder) is a fresh mapping whose pages fault in zeroed, one per
+  // 4 KiB: on a VM that made the shipped model's float32 step up to 1.7x
+  // slower end to end (docs/performance.md, "The host allocator"). The
+  // process then holds its peak heap, which a steady stream reuses. false:
+  // glibc's defaults. Process-wide, set once by apply_thread_config.
+  bool reuse_freed_memory = true;
 };
 
 // What apply_thread_config put in effect.
@@ -41,16 +50,18 @@ struct ThreadState {
   int torch_threads = 0;
   int openblas_threads = 0;  // 0: not set (no OpenBLAS, or left to the environment)
   BlasThreading blas = BlasThreading::kNotOpenblas;
+  bool reuse_freed_memory = false;  // glibc accepted the settings
 };
 
 // Applies the config in the calling thread and returns what is now in effect.
 ThreadState apply_thread_config(const ThreadConfig& config);
 
-// --threads N (0 = all cores) and --openblas-threads auto|N, the same in
-// every program that runs the model.
+// --threads N (0 = all cores), --openblas-threads auto|N and
+// --return-freed-memory, the same in every program that runs the model.
 void add_thread_options(CliOptions& cli, ThreadConfig* config);
 
-// "2 torch threads, OpenBLAS (OpenMP build) 2 threads", for start-up logs.
+// "2 torch threads, OpenBLAS (OpenMP build) 2 threads, freed memory reused",
+// for start-up logs.
 std::string describe(const ThreadState& state);
 
 }  // namespace long3r

@@ -26,6 +26,7 @@
 #include <unordered_map>
 
 #include "long3r/model/checkpoint.hpp"
+#include "long3r/model/safetensors.hpp"
 
 namespace long3r {
 
@@ -164,6 +165,7 @@ void load_module_strict(torch::nn::Module& module, const std::map<std::string, a
       t.tensor.set_data(t.source->to(t.tensor.device(), t.source->scalar_type(),
                                      /*non_blocking=*/false, /*copy=*/true));
     }
+    release_mapped(*t.source);  // a mapped file's pages go as soon as they are copied
   }
 }
 

@@ -2,9 +2,14 @@
 #include "long3r/model/inference.hpp"
 
 #include <ATen/Context.h>
+#include <ATen/Version.h>
 #include <ATen/detail/CUDAHooksInterface.h>
+#include <dlfcn.h>
 
 #include <cctype>
+#include <fstream>
+#include <set>
+#include <sstream>
 
 #include "long3r/io/cli_options.hpp"
 
@@ -45,6 +50,16 @@ void add_inference_options(CliOptions& cli, InferenceConfig* config) {
       .shown_default(config::enum_name(config->precision));
   cli.flag("--allow-emulated-precision", &config->allow_emulated_precision,
            "run bfloat16 on a CPU that only emulates it (slow; to measure accuracy)");
+  cli.custom(
+         "--conv-precision", {"P"},
+         [config](const std::vector<std::string>& v) {
+           if (!config::enum_from_name(v[0], &config->conv_precision)) {
+             throw UsageError("must be auto or float32 (got \"" + v[0] + "\")");
+           }
+         },
+         "convolutions of a bfloat16 / float16 model: auto (in that precision where the device "
+         "computes it natively, else float32) or float32")
+      .shown_default(config::enum_name(config->conv_precision));
 }
 
 at::ScalarType precision_dtype(Precision precision) {
@@ -73,6 +88,8 @@ InferenceTarget resolve_inference_target(const InferenceConfig& config) {
   InferenceTarget target;
   target.device = at::Device(config.device);
   target.dtype = precision_dtype(config.precision);
+  const bool reduced_convs = config.conv_precision == ConvPrecision::kAuto;
+  target.conv_dtype = reduced_convs ? target.dtype : at::kFloat;
   if (target.device.is_cuda()) {
     if (!at::hasCUDA()) {
       throw InferenceUnsupportedError(
@@ -103,15 +120,106 @@ InferenceTarget resolve_inference_target(const InferenceConfig& config) {
         "or set allow_emulated_precision (--allow-emulated-precision) to run it anyway, e.g. "
         "to measure its accuracy");
   }
+  if (!cpu_has_native_bfloat16()) target.conv_dtype = at::kFloat;  // emulated: 5 % off
   return target;
 }
 
-std::string describe(const InferenceTarget& target) {
-  for (const auto& entry : enum_names(Precision{})) {
-    if (precision_dtype(entry.first) == target.dtype)
-      return target.device.str() + " " + entry.second;
+namespace {
+
+// The first "model name" and the "flags" of /proc/cpuinfo.
+std::pair<std::string, std::set<std::string>> read_cpuinfo() {
+  std::ifstream in("/proc/cpuinfo");
+  std::string line, model;
+  std::set<std::string> flags;
+  while (std::getline(in, line)) {
+    const std::size_t colon = line.find(':');
+    if (colon == std::string::npos) continue;
+    std::string key = line.substr(0, colon);
+    key.erase(key.find_last_not_of(" \t") + 1);
+    const std::string value = colon + 2 <= line.size() ? line.substr(colon + 2) : "";
+    if (key == "model name" && model.empty()) model = value;
+    if (key == "flags" && flags.empty()) {
+      std::istringstream words(value);
+      for (std::string w; words >> w;) flags.insert(w);
+    }
   }
-  return target.device.str() + " " + c10::toString(target.dtype);
+  return {model.empty() ? "unknown CPU" : model, flags};
+}
+
+// oneDNN's own report of the ISA it runs with, read from the library libtorch
+// loaded (no oneDNN headers needed); the names are oneDNN 2.x's.
+std::string onednn_isa() {
+  struct Version {
+    int major, minor, patch;
+    const char* hash;
+    unsigned cpu_runtime, gpu_runtime;
+  };
+  using IsaFn = int (*)();
+  using VersionFn = const Version* (*)();
+  const auto isa_fn = reinterpret_cast<IsaFn>(::dlsym(RTLD_DEFAULT, "dnnl_get_effective_cpu_isa"));
+  const auto version_fn = reinterpret_cast<VersionFn>(::dlsym(RTLD_DEFAULT, "dnnl_version"));
+  if (isa_fn == nullptr || version_fn == nullptr) return "oneDNN not loaded";
+  const Version* v = version_fn();
+  const int isa = isa_fn();
+  std::ostringstream out;
+  out << "oneDNN " << v->major << "." << v->minor << "." << v->patch << " ";
+  const std::pair<int, const char*> names[] = {{0x0, "all"},
+                                               {0x1, "sse41"},
+                                               {0x3, "avx"},
+                                               {0x7, "avx2"},
+                                               {0xf, "avx512_mic"},
+                                               {0x1f, "avx512_mic_4ops"},
+                                               {0x27, "avx512_core"},
+                                               {0x67, "avx512_core_vnni"},
+                                               {0xe7, "avx512_core_bf16"},
+                                               {0x3e7, "avx512_core_amx"},
+                                               {0x407, "avx2_vnni"}};
+  const char* name = nullptr;
+  if (v->major == 2) {
+    for (const auto& n : names) {
+      if (n.first == isa) name = n.second;
+    }
+  }
+  if (name != nullptr) {
+    out << name;
+  } else {
+    out << "ISA 0x" << std::hex << isa;
+  }
+  return out.str();
+}
+
+}  // namespace
+
+std::string describe_cpu() {
+  const auto [model, flags] = read_cpuinfo();
+  std::string out = model + ";";
+  std::string missing;
+  for (const char* f : {"avx2", "avx512f", "avx512_bf16", "amx_bf16"}) {
+    (flags.count(f) ? out : missing) += std::string(" ") + f;
+  }
+  if (!missing.empty()) out += " (no" + missing + ")";
+  // ATen's own line: "CPU capability usage: AVX512".
+  const std::string config = at::show_config();
+  const std::string key = "CPU capability usage: ";
+  const std::size_t at_key = config.find(key);
+  std::string cap = "unknown";
+  if (at_key != std::string::npos) {
+    const std::size_t from = at_key + key.size();
+    cap = config.substr(from, config.find('\n', from) - from);
+  }
+  return out + "; ATen " + cap + "; " + onednn_isa();
+}
+
+std::string describe(const InferenceTarget& target) {
+  auto name = [](at::ScalarType dtype) -> std::string {
+    for (const auto& entry : enum_names(Precision{})) {
+      if (precision_dtype(entry.first) == dtype) return entry.second;
+    }
+    return c10::toString(dtype);
+  };
+  std::string out = target.device.str() + " " + name(target.dtype);
+  if (target.conv_dtype != target.dtype) out += " (convolutions " + name(target.conv_dtype) + ")";
+  return out;
 }
 
 }  // namespace long3r

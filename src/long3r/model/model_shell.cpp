@@ -111,19 +111,31 @@ void ModelShell::to(const at::Device& device) {
 }
 
 void ModelShell::to(const at::Device& device, at::ScalarType dtype) {
-  // Convolutions stay float32 on the CPU: libtorch 1.13's bfloat16 CPU
-  // convolutions lose accuracy (measured: 5 % max relative error on a patch
-  // embedding against float32 on the same rounded inputs, where a bfloat16
-  // linear stays at 0.3 %) and conv_transpose2d has no bfloat16 CPU kernel.
-  // The patch embeddings and the DPT heads (convolutions only) then run in
-  // float32 (docs/performance.md, "Precision").
-  const bool convs_float32 = device.is_cpu() && dtype != at::kFloat;
+  InferenceTarget target;
+  target.device = device;
+  target.dtype = dtype;
+  target.conv_dtype = device.is_cpu() ? at::kFloat : dtype;
+  to(target);
+}
+
+void ModelShell::to(const InferenceTarget& target) {
+  // The convolutions (patch embeddings, DPT heads) in target.conv_dtype: on a
+  // CPU that only emulates bfloat16, libtorch 1.13's bfloat16 convolution
+  // loses 5 % (max relative error on a patch embedding against float32 on the
+  // same rounded inputs, where a linear loses 0.3 %), so they stay float32
+  // there (resolve_inference_target). conv_transpose2d has no bfloat16 CPU
+  // kernel at all. Each layer's inputs are cast to its weights' precision
+  // (docs/performance.md, "Precision").
+  const at::Device& device = target.device;
   // Not Module::to(device, dtype): it would convert integer buffers too.
   for (const auto& item : module_->named_modules()) {
     torch::nn::Module& m = *item.value();
-    const bool conv = m.as<torch::nn::Conv2dImpl>() != nullptr ||
-                      m.as<torch::nn::ConvTranspose2dImpl>() != nullptr;
-    const at::ScalarType want = conv && convs_float32 ? at::kFloat : dtype;
+    at::ScalarType want = target.dtype;
+    if (m.as<torch::nn::Conv2dImpl>() != nullptr) want = target.conv_dtype;
+    if (m.as<torch::nn::ConvTranspose2dImpl>() != nullptr) {
+      want = device.is_cpu() ? at::kFloat : target.conv_dtype;
+    }
+    if (target.dtype == at::kFloat) want = at::kFloat;
     for (auto& p : m.named_parameters(/*recurse=*/false)) {
       p.value().set_data(
           p.value().to(device, p.value().is_floating_point() ? want : p.value().scalar_type()));
@@ -144,7 +156,7 @@ at::ScalarType ModelShell::dtype() const { return module_->parameters().front().
 torch::nn::Module& ModelShell::module() { return *module_; }
 
 ModelCheckpoint read_model_checkpoint(const std::string& path) {
-  TensorFile file = load_safetensors(path);
+  TensorFile file = map_safetensors(path);  // read tensor by tensor as the model takes them
   return {model_config_from_metadata(file.metadata, path), std::move(file.tensors)};
 }
 
@@ -153,7 +165,7 @@ template <class Model>
 std::unique_ptr<StreamingModel> load_to(const ModelCheckpoint& c, const std::string& path,
                                         const InferenceTarget& target) {
   std::unique_ptr<Model> model = model_from_checkpoint<Model>(c, path);
-  if (target.device != model->device() || target.dtype != model->dtype()) model->to(target);
+  model->to(target);  // converts only what differs (the convolutions of a bfloat16 file, too)
   return model;
 }
 }  // namespace

@@ -27,8 +27,28 @@ torch::nn::Conv2d conv(int64_t in, int64_t out, int64_t k, int64_t stride = 1, i
 // 2x bilinear upsampling with align_corners=True (what the official
 // Interpolate(scale_factor=2, "bilinear", align_corners=True) computes; with
 // align_corners the scale factor only fixes the output size).
+// On the CPU in float32 whatever the input: libtorch 1.13's bfloat16 CPU
+// kernel misplaces samples (max relative error 5e-2 to 1.4e-1 against float32
+// on the same inputs, scripts/bench_cpu_kernels.py); the result comes back in
+// the input's precision.
 at::Tensor upsample2x(const at::Tensor& x) {
+  if (x.is_cpu() && x.scalar_type() != at::kFloat) {
+    return upsample2x(x.to(at::kFloat)).to(x.scalar_type());
+  }
   return at::upsample_bilinear2d(x, {x.size(2) * 2, x.size(3) * 2}, /*align_corners=*/true);
+}
+
+// A Sequential whose layers may hold different precisions (ModelShell::to:
+// on the CPU a transposed convolution stays float32 beside bfloat16 ones):
+// each layer with weights takes its input in theirs.
+at::Tensor forward_in_layer_precisions(torch::nn::Sequential& seq, at::Tensor x) {
+  for (auto& layer : *seq) {
+    if (const at::Tensor* w = layer.ptr()->named_parameters(/*recurse=*/false).find("weight")) {
+      if (x.scalar_type() != w->scalar_type()) x = x.to(w->scalar_type());
+    }
+    x = layer.forward(x);
+  }
+  return x;
 }
 
 }  // namespace
@@ -314,14 +334,12 @@ at::Tensor DptAdapterImpl::forward(const std::vector<at::Tensor>& decout, int64_
     const at::Tensor& tok = decout.at(static_cast<std::size_t>(hooks[i]));
     TORCH_CHECK(tok.size(1) == nh * nw, "DPT head: ", tok.size(1), " tokens for a ", nh, "x", nw,
                 " patch grid");
-    // 'b (nh nw) c -> b c nh nw', in the convolutions' precision (float32 on
-    // the CPU, see ModelShell::to).
-    at::Tensor l = tok.transpose(1, 2)
-                       .reshape({tok.size(0), tok.size(2), nh, nw})
-                       .to(scratch->layer_rn_convs[i]->weight.scalar_type());
-    l = act_postprocess_seq[i]->forward(l);
+    // 'b (nh nw) c -> b c nh nw'; each convolution takes it in its own
+    // precision (see ModelShell::to).
+    at::Tensor l = tok.transpose(1, 2).reshape({tok.size(0), tok.size(2), nh, nw});
+    l = forward_in_layer_precisions(act_postprocess_seq[i], l);
     if (trace.enabled()) trace.put("act_postprocess" + std::to_string(i), l);
-    l = scratch->layer_rn_convs[i](l);
+    l = scratch->layer_rn_convs[i](l.to(scratch->layer_rn_convs[i]->weight.scalar_type()));
     if (trace.enabled()) trace.put("layer_rn" + std::to_string(i), l);
     layers[i] = l;
   }
@@ -335,7 +353,7 @@ at::Tensor DptAdapterImpl::forward(const std::vector<at::Tensor>& decout, int64_
   if (trace.enabled()) trace.put("refinenet2", path);
   path = rn[0](path, layers[0]);
   if (trace.enabled()) trace.put("refinenet1", path);
-  at::Tensor out = head->forward(path);
+  at::Tensor out = forward_in_layer_precisions(head, path);
   if (trace.enabled()) trace.put("raw", out);
   return out;
 }

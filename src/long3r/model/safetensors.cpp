@@ -7,6 +7,7 @@
 
 #include <ATen/ATen.h>
 #include <fcntl.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -14,7 +15,9 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <map>
 #include <memory>
+#include <mutex>
 #include <nlohmann/json.hpp>
 #include <vector>
 
@@ -177,6 +180,94 @@ TensorFile load_safetensors(const std::string& path) {
     out.tensors.emplace(e.name, std::move(t));
   }
   return out;
+}
+
+namespace {
+
+// A private mapping of a whole file, unmapped with its last view. Live
+// mappings are registered so that release_mapped() only ever touches them.
+class Mapping {
+ public:
+  Mapping(int fd, std::size_t size, const std::string& path) : size_(size) {
+    void* p = ::mmap(nullptr, size, PROT_READ | PROT_WRITE, MAP_PRIVATE, fd, 0);
+    if (p == MAP_FAILED) throw CheckpointError(path + ": cannot map the file: " + errno_text());
+    base_ = static_cast<char*>(p);
+    std::lock_guard<std::mutex> lock(registry_mutex());
+    registry()[reinterpret_cast<std::uintptr_t>(base_)] = size_;
+  }
+  ~Mapping() {
+    {
+      std::lock_guard<std::mutex> lock(registry_mutex());
+      registry().erase(reinterpret_cast<std::uintptr_t>(base_));
+    }
+    ::munmap(base_, size_);
+  }
+  Mapping(const Mapping&) = delete;
+  Mapping& operator=(const Mapping&) = delete;
+  char* base() const { return base_; }
+
+  static std::mutex& registry_mutex() {
+    static std::mutex m;
+    return m;
+  }
+  // base -> size of every live mapping.
+  static std::map<std::uintptr_t, std::size_t>& registry() {
+    static std::map<std::uintptr_t, std::size_t> r;
+    return r;
+  }
+
+ private:
+  char* base_ = nullptr;
+  std::size_t size_ = 0;
+};
+
+}  // namespace
+
+TensorFile map_safetensors(const std::string& path) {
+  OpenedFile file;
+  open_checkpoint(path, &file);
+  SafetensorsHeader& h = file.header;
+  struct stat st;
+  if (::fstat(file.f.fd, &st) != 0) throw CheckpointError(path + ": cannot stat: " + errno_text());
+  TensorFile out;
+  out.metadata = std::move(h.metadata);
+  std::shared_ptr<Mapping> mapping;
+  if (st.st_size > 0) {
+    mapping = std::make_shared<Mapping>(file.f.fd, static_cast<std::size_t>(st.st_size), path);
+  }
+  for (const TensorEntry& e : h.tensors) {
+    const auto options = at::TensorOptions().dtype(to_scalar_type(e.dtype));
+    const uint64_t nbytes = e.end - e.begin, offset = h.data_offset + e.begin;
+    if (nbytes == 0 || offset % dtype_size(e.dtype) != 0) {  // nothing to map, or unaligned
+      at::Tensor t = at::empty(e.shape, options);
+      if (nbytes > 0) {
+        read_at(file.f.fd, offset, t.data_ptr(), nbytes, path, "tensor " + quoted(e.name));
+      }
+      out.tensors.emplace(e.name, std::move(t));
+      continue;
+    }
+    out.tensors.emplace(e.name, at::from_blob(
+                                    mapping->base() + offset, e.shape,
+                                    [mapping](void*) mutable { mapping.reset(); }, options));
+  }
+  return out;
+}
+
+void release_mapped(const at::Tensor& view) {
+  if (!view.defined() || view.nbytes() == 0) return;
+  const auto begin = reinterpret_cast<std::uintptr_t>(view.data_ptr());
+  const std::uintptr_t end = begin + view.nbytes();
+  std::lock_guard<std::mutex> lock(Mapping::registry_mutex());
+  const auto& registry = Mapping::registry();
+  auto it = registry.upper_bound(begin);
+  if (it == registry.begin()) return;
+  --it;                                      // the last mapping starting at or before the view
+  if (end > it->first + it->second) return;  // not inside it
+  const auto page = static_cast<std::uintptr_t>(::sysconf(_SC_PAGESIZE));
+  // Whole pages, clipped to the mapping (a shared edge page is read again if needed).
+  const std::uintptr_t from = std::max(begin / page * page, it->first);
+  const std::uintptr_t to = std::min((end + page - 1) / page * page, it->first + it->second);
+  ::madvise(reinterpret_cast<void*>(from), to - from, MADV_DONTNEED);
 }
 
 void save_safetensors(const std::string& path, const std::map<std::string, at::Tensor>& tensors,

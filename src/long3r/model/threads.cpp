@@ -8,6 +8,10 @@
 #include <thread>
 #include <vector>
 
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
+
 #include "long3r/io/cli_options.hpp"
 
 namespace long3r {
@@ -66,6 +70,14 @@ ThreadState apply_thread_config(const ThreadConfig& config) {
     set_threads(blas_threads);
     state.openblas_threads = blas_threads;
   }
+#if defined(__GLIBC__)
+  if (config.reuse_freed_memory) {
+    constexpr int kMmapThresholdBytes = 32 << 20;  // glibc's maximum on 64-bit hosts
+    constexpr int kTrimThresholdBytes = 1 << 30;   // in effect: never trimmed
+    state.reuse_freed_memory = ::mallopt(M_MMAP_THRESHOLD, kMmapThresholdBytes) == 1 &&
+                               ::mallopt(M_TRIM_THRESHOLD, kTrimThresholdBytes) == 1;
+  }
+#endif
   return state;
 }
 
@@ -91,6 +103,10 @@ void add_thread_options(CliOptions& cli, ThreadConfig* config) {
       .shown_default(config->openblas_threads == ThreadConfig::kOpenblasThreadsAuto
                          ? "auto"
                          : std::to_string(config->openblas_threads));
+  cli.flag("--return-freed-memory", &config->reuse_freed_memory,
+           "leave glibc malloc's defaults: large tensors mapped afresh each step and freed "
+           "memory returned to the system (slower; see docs/performance.md)",
+           false);
 }
 
 std::string describe(const ThreadState& state) {
@@ -100,7 +116,7 @@ std::string describe(const ThreadState& state) {
     s += state.openblas_threads > 0 ? " " + std::to_string(state.openblas_threads) + " thread(s)"
                                     : " threads from the environment";
   }
-  return s;
+  return s + (state.reuse_freed_memory ? ", freed memory reused" : "");
 }
 
 }  // namespace long3r
