@@ -41,7 +41,7 @@ double status_mib(const char* field) {
   return 0.0;
 }
 
-// One way of loading, in this process; prints "baseline peak seconds params".
+// One way of loading, in this process; prints "baseline_MiB peak_MiB seconds".
 int measure(const std::string& path, const std::string& way,
             const long3r::InferenceConfig& inference) {
   const long3r::InferenceTarget target = long3r::resolve_inference_target(inference);

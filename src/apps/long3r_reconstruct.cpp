@@ -155,17 +155,9 @@ int main(int argc, char** argv) {
       .shown_default("1: every pixel");
   cli.option("--voxel-size", "M", &cfg.map.voxel_size_m, "map voxel size");
   cli.option("--img-size", "N", &img, "model input size N x N");
-  cli.custom(
-         "--scale-source", {"S"},
-         [&](const std::vector<std::string>& v) {
-           if (!config::enum_from_name(v[0], &session_cfg.scale.source)) {
-             throw UsageError("must be " + config::enum_choices<ScaleSource>() + " (got \"" + v[0] +
-                              "\")");
-           }
-         },
-         "metric scale: depth (a TUM folder's depth images), odometry (its groundtruth.txt "
-         "positions), fixed (--scale) or none (model units)")
-      .shown_default("none");
+  cli.option("--scale-source", "S", &session_cfg.scale.source,
+             "metric scale: depth (a TUM folder's depth images), odometry (its groundtruth.txt "
+             "positions), fixed (--scale) or none (model units)");
   cli.option("--scale", "M", &session_cfg.scale.fixed_scale,
              "metres per model unit, --scale-source fixed");
   cli.option("--scale-min-baseline", "M", &session_cfg.scale.min_baseline_m,

@@ -3,8 +3,10 @@
 // option) and the help text generated from the same table.
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cstdint>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "long3r/io/cli_options.hpp"
@@ -171,6 +173,33 @@ TEST(CliOptions, ErrorsNameTheOption) {
             "--mode must be fast or exact (got \"slow\")");
   EXPECT_EQ(error_of({"in", "--out", "o", "--range", "1", "x"}),
             "--range: \"x\" is not an integer");
+}
+
+enum class Speed { kFast, kExact };
+const std::array<std::pair<Speed, const char*>, 2>& enum_names(Speed) {
+  static const std::array<std::pair<Speed, const char*>, 2> names{
+      {{Speed::kFast, "fast"}, {Speed::kExact, "exact"}}};
+  return names;
+}
+
+// An enum option reads the names the config files use, shows its default by
+// name, and names the choices when refused.
+TEST(CliOptions, EnumOptionsGoByName) {
+  Speed speed = Speed::kExact;
+  CliOptions cli("prog");
+  cli.option("--speed", "S", &speed, "how");
+  EXPECT_NE(cli.help().find("(default exact)"), std::string::npos) << cli.help();
+  const Argv good({"--speed", "fast"});
+  ASSERT_TRUE(cli.parse(good.argc(), good.argv()));
+  EXPECT_EQ(speed, Speed::kFast);
+  const Argv bad({"--speed", "slow"});
+  try {
+    cli.parse(bad.argc(), bad.argv());
+    ADD_FAILURE() << "no UsageError";
+  } catch (const UsageError& e) {
+    EXPECT_EQ(std::string(e.what()), "--speed must be \"fast\" or \"exact\" (got \"slow\")");
+  }
+  EXPECT_EQ(speed, Speed::kFast);
 }
 
 TEST(CliOptions, HandlerExceptionsBecomeUsageErrors) {

@@ -21,6 +21,8 @@
 #include <type_traits>
 #include <vector>
 
+#include "long3r/io/config_fields.hpp"
+
 namespace long3r {
 
 // Bad command-line usage; the message names the option.
@@ -97,6 +99,13 @@ class CliOptions {
       if constexpr (std::is_same_v<T, std::string>) {
         check_choice(text);
         return text;
+      } else if constexpr (std::is_enum_v<T>) {  // by its enum_names(), as the config files
+        T v{};
+        if (!config::enum_from_name(text, &v)) {
+          throw UsageError(name_ + " must be " + config::enum_choices<T>() + " (got \"" + text +
+                           "\")");
+        }
+        return v;
       } else {
         const T v = parse_cli_value<T>(name_, text);
         check_number(static_cast<double>(v), text);
@@ -115,12 +124,17 @@ class CliOptions {
   // A switch: sets *target = value when given.
   Option& flag(const std::string& name, bool* target, std::string help, bool value = true);
 
-  // `--name VALUE` stored into *target (string, integer or floating point);
-  // the default shown is the value *target holds now (empty strings: none).
+  // `--name VALUE` stored into *target (string, integer, floating point, or
+  // an enum with enum_names(), by name); the default shown is the value
+  // *target holds now (empty strings: none).
   template <typename T>
   Option& option(const std::string& name, std::string placeholder, T* target, std::string help) {
     Option& o = add(name, {std::move(placeholder)}, std::move(help));
-    o.shown_default_ = format_default(*target);
+    if constexpr (std::is_enum_v<T>) {
+      o.shown_default_ = config::enum_name(*target);
+    } else {
+      o.shown_default_ = format_default(*target);
+    }
     o.apply_ = [target](const Option& self, const std::vector<std::string>& v) {
       *target = self.convert<T>(v[0]);
     };

@@ -39,27 +39,13 @@ void InferenceConfig::validate(const config::FieldCheck& check) const {
 
 void add_inference_options(CliOptions& cli, InferenceConfig* config) {
   cli.option("--device", "DEV", &config->device, "cpu, cuda or cuda:N");
-  cli.custom(
-         "--precision", {"P"},
-         [config](const std::vector<std::string>& v) {
-           if (!config::enum_from_name(v[0], &config->precision)) {
-             throw UsageError("must be float32, bfloat16 or float16 (got \"" + v[0] + "\")");
-           }
-         },
-         "float32, bfloat16 or float16 (weights and activations)")
-      .shown_default(config::enum_name(config->precision));
+  cli.option("--precision", "P", &config->precision,
+             "float32, bfloat16 or float16 (weights and activations)");
   cli.flag("--allow-emulated-precision", &config->allow_emulated_precision,
            "run bfloat16 on a CPU that only emulates it (slow; to measure accuracy)");
-  cli.custom(
-         "--conv-precision", {"P"},
-         [config](const std::vector<std::string>& v) {
-           if (!config::enum_from_name(v[0], &config->conv_precision)) {
-             throw UsageError("must be auto or float32 (got \"" + v[0] + "\")");
-           }
-         },
-         "convolutions of a bfloat16 / float16 model: auto (in that precision where the device "
-         "computes it natively, else float32) or float32")
-      .shown_default(config::enum_name(config->conv_precision));
+  cli.option("--conv-precision", "P", &config->conv_precision,
+             "convolutions of a bfloat16 / float16 model: auto (in that precision where the "
+             "device computes it natively, else float32) or float32");
 }
 
 at::ScalarType precision_dtype(Precision precision) {
