@@ -31,6 +31,8 @@ PACKAGES=(
   # core libraries
   libtorch-dev libopenblas0-openmp libopenblas0-pthread libopencv-dev libpcl-dev libeigen3-dev
   nlohmann-json3-dev libnanoflann-dev googletest libgtest-dev libgmock-dev
+  # the Gloo headers of libtorch's c10d (data-parallel training)
+  libgloo-dev
   # python side (checkpoint converter)
   python3-torch python3-numpy python3-yaml
   # scripts/rviz_snapshot.sh: rviz on a virtual display, PNG capture
@@ -44,10 +46,10 @@ if [ -n "${LONG3R_TORCH_DIR:-}" ]; then
   fi
   kept=()
   for p in "${PACKAGES[@]}"; do
-    case "$p" in libtorch-dev | python3-torch) ;; *) kept+=("$p") ;; esac
+    case "$p" in libtorch-dev | python3-torch | libgloo-dev) ;; *) kept+=("$p") ;; esac
   done
   PACKAGES=("${kept[@]}")
-  echo "install_deps.sh: libtorch from $LONG3R_TORCH_DIR (Debian's libtorch-dev and python3-torch left out)"
+  echo "install_deps.sh: libtorch from $LONG3R_TORCH_DIR (Debian's libtorch-dev, python3-torch and the Gloo headers built for them left out)"
 fi
 
 SUDO=""

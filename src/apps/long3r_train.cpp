@@ -66,8 +66,21 @@ int main(int argc, char** argv) {
              "write the outputs (0: no budget)")
       .min(0);
   cli.flag("--quiet", &opt.quiet, "no per-step output");
+  cli.option("--dist-backend", "auto|gloo|nccl", &opt.data_parallel.backend,
+             "data-parallel process group when launched as several processes (torchrun, srun); "
+             "auto: NCCL on CUDA where built with it, else Gloo");
+  cli.option("--dist-timeout-s", "S", &opt.data_parallel.timeout_s,
+             "a collective waiting longer fails and ends the job")
+      .min(1);
+  cli.option("--bucket-mib", "MIB", &opt.data_parallel.bucket_mib,
+             "gradients all-reduced in buckets of about this size while backward runs");
+  cli.flag("--verify-replicas", &opt.verify_replicas,
+           "after every step, check that all ranks hold bit-identical weights");
   if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
+  std::string who = "long3r_train";
   try {
+    opt.distributed = long3r::distributed_env();
+    if (opt.distributed.distributed()) who += " (" + opt.distributed.describe() + ")";
     long3r::ThreadConfig tc;
     tc.torch_threads = threads;
     tc.openblas_threads = threads;  // the recipe's wall times were measured so
@@ -80,19 +93,22 @@ int main(int argc, char** argv) {
 #endif
     long3r::Trainer trainer(config, opt);
     if (const auto& r = trainer.init_report()) {
-      std::printf(
-          "init from %s: %lld tensors loaded, %lld shape mismatches (kept fresh), "
-          "%lld unused, %lld model tensors fresh\n",
-          opt.init_checkpoint.c_str(), static_cast<long long>(r->loaded),
-          static_cast<long long>(r->shape_mismatch), static_cast<long long>(r->unused),
-          static_cast<long long>(r->fresh));
       if (r->loaded == 0) throw std::runtime_error("--init-dust3r: no tensor matched the model");
+      if (opt.distributed.rank == 0)
+        std::printf(
+            "init from %s: %lld tensors loaded, %lld shape mismatches (kept fresh), "
+            "%lld unused, %lld model tensors fresh\n",
+            opt.init_checkpoint.c_str(), static_cast<long long>(r->loaded),
+            static_cast<long long>(r->shape_mismatch), static_cast<long long>(r->unused),
+            static_cast<long long>(r->fresh));
     }
     trainer.run();
-    std::printf("wrote %s/model.safetensors (step %lld, stopped by %s)\n", opt.out_dir.c_str(),
-                static_cast<long long>(trainer.global_step()), trainer.stop_reason().c_str());
+    if (opt.distributed.rank == 0) {
+      std::printf("wrote %s/model.safetensors (step %lld, stopped by %s)\n", opt.out_dir.c_str(),
+                  static_cast<long long>(trainer.global_step()), trainer.stop_reason().c_str());
+    }
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "long3r_train: %s\n", e.what());
+    std::fprintf(stderr, "%s: %s\n", who.c_str(), e.what());
     return 1;
   }
   return 0;

@@ -1324,3 +1324,143 @@ TEST(TrainConfig, BlindControlAndPairFieldsAreChecked) {
     "data": {"reverse_fraction": 1.5}})"),
                std::invalid_argument);
 }
+
+// ------------------------------------------------------------ data parallel
+
+TEST(TrainData, ShardsOfABatchAreItsParts) {
+  long3r::DataConfig dc;
+  dc.synth.train_scenes = 3;
+  dc.synth.trajectory_frames = 20;
+  long3r::SequenceSampler whole(dc, 32, 11), first(dc, 32, 11), second(dc, 32, 11);
+  const long3r::Batch all = whole.sample_batch(4, 3);
+  const long3r::Batch a = first.sample_batch(4, 3, 0, 1);
+  const long3r::Batch b = second.sample_batch(4, 3, 1, 3);
+  ASSERT_EQ(a.pts.size(0), 1);
+  ASSERT_EQ(b.pts.size(0), 3);
+  EXPECT_TRUE(at::equal(at::cat({a.pts, b.pts}), all.pts));
+  EXPECT_TRUE(at::equal(at::cat({a.frames[2], b.frames[2]}), all.frames[2]));
+  EXPECT_EQ(b.sources[2], all.sources[3]);
+  // Every sampler moved past the whole batch: the next batches agree too.
+  EXPECT_EQ(first.rng_state(), whole.rng_state());
+  EXPECT_EQ(second.rng_state(), whole.rng_state());
+  EXPECT_EQ(first.sample_batch(2, 2).sources, whole.sample_batch(2, 2).sources);
+  EXPECT_THROW(second.sample_batch(4, 3, 3, 2), std::invalid_argument);
+}
+
+TEST(TrainLoss, ShardedLossesAddUpToTheWholeBatch) {
+  // Two "ranks" each hold two of a batch of four; valid pixels fall unevenly
+  // and only some items are over scale, so per-shard means would not add up.
+  at::manual_seed(7);
+  const int64_t B = 4, N = 3, H = 5, W = 6;
+  const at::Tensor gt = random_gt(B, N, H, W);
+  const at::Tensor valid = at::rand({B, N, H, W}) > 0.3;
+  valid[0].fill_(true);
+  const at::Tensor pred0 =
+      (gt + at::randn_like(gt) * 0.2) * at::tensor({1.5f, 1.4f, 0.9f, 0.7f}).view({B, 1, 1, 1, 1});
+  const at::Tensor conf0 = at::rand({B, N, H, W}) + 1.0;
+  LossConfig cfg;
+  auto loss_of = [&](int64_t first, int64_t count, const long3r::BatchShards* shards,
+                     at::Tensor* grad) {
+    const at::Tensor pred = pred0.narrow(0, first, count).clone().set_requires_grad(true);
+    std::vector<StreamOutput> out, coarse;
+    make_outputs(pred, 1.0, conf0.narrow(0, first, count), &out, &coarse);
+    const long3r::LossTerms t = long3r::sequence_loss(out, coarse, gt.narrow(0, first, count),
+                                                      valid.narrow(0, first, count), cfg, shards);
+    t.total.backward();
+    *grad = pred.grad();
+    return t.total.item<double>();
+  };
+  at::Tensor g_whole, g0, g1;
+  const double whole = loss_of(0, B, nullptr, &g_whole);
+  // What each rank's normalisers are, then each rank summing in the other's.
+  std::vector<at::Tensor> local(2);
+  for (int r = 0; r < 2; ++r) {
+    long3r::BatchShards record{2, [&local, r](const at::Tensor& t) { local[r] = t.clone(); }};
+    at::Tensor unused;
+    loss_of(2 * r, 2, &record, &unused);
+  }
+  long3r::BatchShards rank0{2, [&](const at::Tensor& t) { t.add_(local[1]); }};
+  long3r::BatchShards rank1{2, [&](const at::Tensor& t) { t.add_(local[0]); }};
+  const double l0 = loss_of(0, 2, &rank0, &g0), l1 = loss_of(2, 2, &rank1, &g1);
+  EXPECT_NEAR((l0 + l1) / 2.0, whole, 1e-5 * std::abs(whole));
+  // Averaged over the ranks, the gradients are the whole batch's.
+  EXPECT_TRUE(at::allclose(at::cat({g0, g1}) / 2.0, g_whole, 1e-4, 1e-7));
+  // Without the shared normalisers the shards' mean loss would differ.
+  at::Tensor unused;
+  const double plain = (loss_of(0, 2, nullptr, &unused) + loss_of(2, 2, nullptr, &unused)) / 2.0;
+  EXPECT_GT(std::abs(plain - whole), 1e-4);
+}
+
+TEST(DataParallel, TheJobComesFromTorchrunSrunOrNothing) {
+  auto env_of = [](std::map<std::string, std::string> vars) {
+    return long3r::distributed_env_from([vars](const char* name) -> const char* {
+      const auto it = vars.find(name);
+      return it == vars.end() ? nullptr : it->second.c_str();
+    });
+  };
+  const long3r::DistributedEnv none = env_of({});
+  EXPECT_FALSE(none.distributed());
+  EXPECT_EQ(none.launcher, "none");
+  const long3r::DistributedEnv torchrun = env_of({{"RANK", "3"},
+                                                  {"WORLD_SIZE", "8"},
+                                                  {"LOCAL_RANK", "1"},
+                                                  {"MASTER_ADDR", "node0"},
+                                                  {"MASTER_PORT", "29500"},
+                                                  {"TORCHELASTIC_RUN_ID", "x"},
+                                                  {"TORCHELASTIC_USE_AGENT_STORE", "True"},
+                                                  {"TORCHELASTIC_RESTART_COUNT", "2"}});
+  EXPECT_TRUE(torchrun.distributed());
+  EXPECT_EQ(torchrun.launcher, "torchrun");
+  EXPECT_EQ(torchrun.rank, 3);
+  EXPECT_EQ(torchrun.local_rank, 1);
+  EXPECT_EQ(torchrun.master_addr, "node0");
+  EXPECT_EQ(torchrun.master_port, 29500);
+  EXPECT_TRUE(torchrun.agent_store);
+  EXPECT_EQ(torchrun.restart_count, 2);
+  EXPECT_EQ(torchrun.describe(), "rank 3 of 8");
+  const long3r::DistributedEnv srun = env_of({{"SLURM_PROCID", "5"},
+                                              {"SLURM_NTASKS", "16"},
+                                              {"SLURM_LOCALID", "1"},
+                                              {"MASTER_ADDR", "gpu01"},
+                                              {"MASTER_PORT", "12345"}});
+  EXPECT_EQ(srun.launcher, "srun");
+  EXPECT_EQ(srun.rank, 5);
+  EXPECT_EQ(srun.world_size, 16);
+  EXPECT_FALSE(srun.agent_store);
+  // One SLURM task is one process, whatever else is set.
+  EXPECT_FALSE(env_of({{"SLURM_PROCID", "0"}, {"SLURM_NTASKS", "1"}}).distributed());
+  // Malformed or inconsistent variables are named.
+  auto refused = [&](std::map<std::string, std::string> vars, const std::string& named) {
+    try {
+      env_of(vars);
+      ADD_FAILURE() << "accepted; expected a refusal naming " << named;
+    } catch (const long3r::ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find(named), std::string::npos) << e.what();
+    }
+  };
+  refused({{"RANK", "2"}, {"WORLD_SIZE", "2"}, {"MASTER_ADDR", "a"}, {"MASTER_PORT", "1"}},
+          "RANK=\"2\"");
+  refused({{"RANK", "0"}, {"WORLD_SIZE", "two"}}, "WORLD_SIZE");
+  refused({{"RANK", "1"}, {"WORLD_SIZE", "2"}, {"MASTER_PORT", "29500"}}, "MASTER_ADDR");
+  refused({{"SLURM_PROCID", "1"}, {"SLURM_NTASKS", "2"}}, "scontrol show hostnames");
+  refused({{"RANK", "0"}, {"WORLD_SIZE", "2"}, {"MASTER_ADDR", "a"}, {"MASTER_PORT", "70000"}},
+          "MASTER_PORT");
+  long3r::DataParallelConfig bad;
+  bad.backend = "mpi";
+  EXPECT_THROW(bad.validate(), long3r::ConfigError);
+}
+
+TEST(DataParallel, AGlobalBatchMustSplitEvenly) {
+  long3r::TrainConfig c = tiny_config();
+  c.stages[0].batch_size = 3;
+  long3r::TrainOptions o;
+  o.out_dir = scratch("uneven");
+  o.distributed.world_size = 2;
+  o.distributed.rank = 0;
+  try {
+    long3r::Trainer t(c, o);
+    ADD_FAILURE() << "a batch of 3 over 2 ranks was accepted";
+  } catch (const long3r::ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("batch_size 3"), std::string::npos) << e.what();
+  }
+}

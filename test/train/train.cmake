@@ -38,3 +38,18 @@ if(TARGET app_long3r_train)
   set_tests_properties(bench_train PROPERTIES
     ENVIRONMENT "OMP_NUM_THREADS=1;OPENBLAS_NUM_THREADS=1" TIMEOUT 300)
 endif()
+
+# Data-parallel training under torchrun (--no_python) with Gloo on this CPU:
+# bit-identical replicas, the same weights as one process on the same global
+# batch, a two-rank checkpoint resumed in one process, a killed rank.
+find_program(LONG3R_TORCHRUN torchrun)
+if(TARGET app_long3r_train AND LONG3R_TORCHRUN AND "gloo" IN_LIST LONG3R_DATA_PARALLEL)
+  add_test(NAME train_distributed
+    COMMAND /usr/bin/python3 ${PROJECT_SOURCE_DIR}/test/train/train_distributed_test.py
+      --train $<TARGET_FILE:app_long3r_train> --torchrun ${LONG3R_TORCHRUN}
+      --workdir ${PROJECT_BINARY_DIR}/test_tmp/train_distributed)
+  set_tests_properties(train_distributed PROPERTIES
+    ENVIRONMENT "OMP_NUM_THREADS=1;OPENBLAS_NUM_THREADS=1" TIMEOUT 900)
+elseif(TARGET app_long3r_train)
+  message(STATUS "long3r: no torchrun or no Gloo backend: train_distributed not registered")
+endif()

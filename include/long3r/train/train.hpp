@@ -34,6 +34,7 @@
 #include "long3r/model/streaming.hpp"
 #include "long3r/pipeline/pinhole_intrinsics.hpp"
 #include "long3r/synth/synth.hpp"
+#include "long3r/train/data_parallel.hpp"
 #include "long3r/train/train_config.hpp"
 
 namespace long3r {
@@ -132,8 +133,15 @@ class SequenceSampler {
   SequenceSampler(const DataConfig& config, int image_size, uint64_t seed, int render_threads = 2,
                   const RecordedSourceOpener& open_recorded = {});
 
+  // Every sample draws from a generator of its own, seeded in turn from the
+  // sampler's: a sample is then the same whichever process makes it, and the
+  // sampler's state after a batch does not depend on who made which part.
   SequenceSample sample(int64_t frames);
-  Batch sample_batch(int64_t batch_size, int64_t frames);
+  // The samples [first, first + count) of a batch of batch_size (count < 0:
+  // to its end), in their places: the shard one data-parallel rank makes of
+  // the batch that all ranks draw together. The sampler moves past the whole
+  // batch.
+  Batch sample_batch(int64_t batch_size, int64_t frames, int64_t first = 0, int64_t count = -1);
 
   // Held-out scenes val_seed_begin + i, frames from 0 with a fixed stride, no
   // augmentation.
@@ -152,8 +160,8 @@ class SequenceSampler {
 
  private:
   const synth::Sequence& scene(uint64_t seed);
-  int64_t draw_int(int64_t lo, int64_t hi);  // inclusive, portable
-  double draw_uniform();
+  // One sample, all of its draws from rng.
+  SequenceSample sample_from(int64_t frames, std::mt19937_64& rng);
 
   DataConfig config_;
   int image_size_;
@@ -192,18 +200,32 @@ at::Tensor average_distance(const at::Tensor& pts, const at::Tensor& valid);
 
 // One pointmap's confidence-weighted term: pred_n, gt_n [B, H, W, 3] (already
 // normalised), conf [B, H, W], valid [B, H, W]. Returns (mean of
-// conf * err - alpha * log conf, mean err) over valid pixels.
+// conf * err - alpha * log conf, mean err) over valid pixels; `count`, when
+// given, is the number the sums are divided by instead of valid's count.
 std::pair<at::Tensor, at::Tensor> confidence_regression(const at::Tensor& pred_n,
                                                         const at::Tensor& gt_n,
                                                         const at::Tensor& conf,
-                                                        const at::Tensor& valid, double alpha);
+                                                        const at::Tensor& valid, double alpha,
+                                                        const at::Tensor& count = {});
+
+// The ranks that each hold a shard of one batch (data-parallel training),
+// for the loss's normalisers: a rank's loss is then its part of the whole
+// batch's loss (its sums over the whole batch's valid-pixel and item counts)
+// times the number of ranks, so that the ranks' mean loss is the whole
+// batch's and averaging their gradients gives the whole batch's gradient,
+// however the valid pixels fall between the shards.
+struct BatchShards {
+  int64_t ranks = 1;
+  std::function<void(const at::Tensor&)> sum;  // sums a CPU tensor over the ranks, in place
+};
 
 // outputs: N model outputs (forward_sequence); coarse: N-1 next-frame
 // predictions (may be empty when config.coarse is false); gt_pts
 // [B, N, H, W, 3] and gt_valid [B, N, H, W] on the outputs' device.
 LossTerms sequence_loss(const std::vector<StreamOutput>& outputs,
                         const std::vector<StreamOutput>& coarse, const at::Tensor& gt_pts,
-                        const at::Tensor& gt_valid, const LossConfig& config);
+                        const at::Tensor& gt_valid, const LossConfig& config,
+                        const BatchShards* shards = nullptr);
 
 // Cross-view completion (CroCo, Weinzaepfel et al. 2022), the pretext task of
 // a "cross_view_completion" stage.
@@ -443,6 +465,14 @@ struct TrainOptions {
   // and writes its outputs as at the schedule's end, learning-rate schedule
   // unchanged.
   double time_budget_s = 0;
+  // Data-parallel training (docs/training.md): this process's place in the
+  // job (distributed_env(): torchrun, srun) and how the ranks talk. Each
+  // stage's batch_size is the global batch, split evenly over the ranks.
+  DistributedEnv distributed;
+  DataParallelConfig data_parallel;
+  // After every step, check that all ranks hold bit-identical weights (a
+  // fingerprint each) and say so; a difference ends the run.
+  bool verify_replicas = false;
   TrainerExtensions extensions;
 };
 
@@ -496,6 +526,9 @@ class Trainer {
   // The forward pass and backward of one step's task; return its loss terms.
   LossTerms sequence_step(const Batch& batch);
   LossTerms completion_step(const Batch& batch, double mask_ratio);
+  bool is_root() const { return !dp_ || dp_->rank() == 0; }
+  // Throws unless every rank holds the same weights (verify_replicas).
+  void verify_replicas();
 
   TrainConfig config_;
   TrainOptions options_;
@@ -521,6 +554,9 @@ class Trainer {
   int64_t applied_stage_ = -1;
   double wall_offset_s_ = 0;  // wall time of the runs before a resume
   double start_time_ = 0;
+  // The process group of a data-parallel run (null in a single process);
+  // last, so that it goes (and unhooks the parameters) before the model.
+  std::unique_ptr<DataParallel> dp_;
 };
 
 // CSV text of the rows (header included).

@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <stdexcept>
 
+#include "long3r/io/fnv1a.hpp"
 #include "long3r/model/checkpoint.hpp"
 #include "long3r/model/long3r_model.hpp"
 #include "long3r/model/safetensors.hpp"
@@ -18,16 +19,6 @@
 
 namespace long3r {
 namespace {
-
-// FNV-1a, 64 bits.
-struct Fnv1a {
-  uint64_t h = 1469598103934665603ull;
-  void add(const void* data, std::size_t n) {
-    const auto* p = static_cast<const unsigned char*>(data);
-    for (std::size_t i = 0; i < n; ++i) h = (h ^ p[i]) * 1099511628211ull;
-  }
-  void add(const std::string& s) { add(s.data(), s.size() + 1); }
-};
 
 std::string fingerprint(const TensorMap& tensors) {
   constexpr int64_t kEndBytes = 4096;

@@ -232,9 +232,6 @@ SequenceSampler::SequenceSampler(const DataConfig& config, int image_size, uint6
   for (const std::string& dir : config_.tum_dirs) recorded_.push_back(open_recorded(dir));
 }
 
-int64_t SequenceSampler::draw_int(int64_t lo, int64_t hi) { return uniform_int(rng_, lo, hi); }
-double SequenceSampler::draw_uniform() { return uniform01(rng_); }
-
 const synth::Sequence& SequenceSampler::scene(uint64_t seed) {
   auto it = scenes_.find(seed);
   if (it != scenes_.end()) return it->second;
@@ -280,6 +277,13 @@ std::vector<RawFrame> SequenceSampler::synth_frames(uint64_t scene_seed, int64_t
 }
 
 SequenceSample SequenceSampler::sample(int64_t frames) {
+  std::mt19937_64 rng(rng_());
+  return sample_from(frames, rng);
+}
+
+SequenceSample SequenceSampler::sample_from(int64_t frames, std::mt19937_64& rng) {
+  auto draw_int = [&rng](int64_t lo, int64_t hi) { return uniform_int(rng, lo, hi); };
+  auto draw_uniform = [&rng] { return uniform01(rng); };
   bool use_tum = !recorded_.empty();
   if (use_tum && config_.synth.enabled) use_tum = draw_uniform() < config_.tum_fraction;
   std::ostringstream source;
@@ -312,12 +316,24 @@ SequenceSample SequenceSampler::sample(int64_t frames) {
     std::reverse(raw.begin(), raw.end());
     source << "r";
   }
-  return prepare_sequence(raw, image_size_, config_.augment, &rng_, source.str());
+  return prepare_sequence(raw, image_size_, config_.augment, &rng, source.str());
 }
 
-Batch SequenceSampler::sample_batch(int64_t batch_size, int64_t frames) {
+Batch SequenceSampler::sample_batch(int64_t batch_size, int64_t frames, int64_t first,
+                                    int64_t count) {
+  if (count < 0) count = batch_size - first;
+  if (first < 0 || count < 1 || first + count > batch_size) {
+    throw std::invalid_argument("sample_batch: samples [" + std::to_string(first) + ", " +
+                                std::to_string(first + count) + ") are not in a batch of " +
+                                std::to_string(batch_size));
+  }
+  std::vector<uint64_t> seeds;
+  for (int64_t b = 0; b < batch_size; ++b) seeds.push_back(rng_());
   std::vector<SequenceSample> samples;
-  for (int64_t b = 0; b < batch_size; ++b) samples.push_back(sample(frames));
+  for (int64_t b = first; b < first + count; ++b) {
+    std::mt19937_64 rng(seeds[static_cast<std::size_t>(b)]);
+    samples.push_back(sample_from(frames, rng));
+  }
   return collate(samples);
 }
 

@@ -27,9 +27,10 @@ at::Tensor average_distance(const at::Tensor& pts, const at::Tensor& valid) {
 std::pair<at::Tensor, at::Tensor> confidence_regression(const at::Tensor& pred_n,
                                                         const at::Tensor& gt_n,
                                                         const at::Tensor& conf,
-                                                        const at::Tensor& valid, double alpha) {
+                                                        const at::Tensor& valid, double alpha,
+                                                        const at::Tensor& given_count) {
   const at::Tensor m = valid.to(pred_n.scalar_type());
-  const at::Tensor count = m.sum().clamp_min(1.0);
+  const at::Tensor count = given_count.defined() ? given_count : m.sum().clamp_min(1.0);
   const at::Tensor err = at::linalg_vector_norm(pred_n - gt_n, 2, {-1});
   // Masking after the fact keeps invalid pixels out of values and gradients.
   const at::Tensor term = (conf * err - alpha * at::log(conf)) * m;
@@ -38,7 +39,8 @@ std::pair<at::Tensor, at::Tensor> confidence_regression(const at::Tensor& pred_n
 
 LossTerms sequence_loss(const std::vector<StreamOutput>& outputs,
                         const std::vector<StreamOutput>& coarse, const at::Tensor& gt_pts,
-                        const at::Tensor& gt_valid, const LossConfig& config) {
+                        const at::Tensor& gt_valid, const LossConfig& config,
+                        const BatchShards* shards) {
   const int64_t N = static_cast<int64_t>(outputs.size());
   if (N < 2 || gt_pts.dim() != 5 || gt_pts.size(1) != N || gt_valid.size(1) != N) {
     throw std::invalid_argument("sequence_loss: need N >= 2 outputs and [B, N, H, W, 3] targets");
@@ -57,33 +59,55 @@ LossTerms sequence_loss(const std::vector<StreamOutput>& outputs,
   const at::Tensor pf = pred_scale.view({B, 1, 1, 1});
   const at::Tensor gf = gt_scale.view({B, 1, 1, 1});
 
-  std::vector<at::Tensor> terms, errs;
-  auto add = [&](const StreamOutput& o, int64_t frame) {
-    const at::Tensor gt_n = gt.select(1, frame) / gf;
-    const at::Tensor pred_n = o.pts3d.to(at::kFloat) / pf;
-    at::Tensor conf =
-        o.conf.defined() ? o.conf.to(at::kFloat) : at::ones_like(pred_n.select(-1, 0));
-    auto [t, e] =
-        confidence_regression(pred_n, gt_n, conf, gt_valid.select(1, frame), config.alpha);
-    terms.push_back(t);
-    errs.push_back(e);
-  };
-  if (config.coarse) {
-    // As Spann3R: head 1 for frames 0..N-2, head 2 (next-frame prediction
-    // from the previous step) for frames 1..N-1; output N-1 is coarse[N-2].
-    for (int64_t i = 0; i + 1 < N; ++i) add(outputs[static_cast<std::size_t>(i)], i);
-    for (int64_t j = 0; j + 1 < N; ++j) add(coarse[static_cast<std::size_t>(j)], j + 1);
-  } else {
-    for (int64_t i = 0; i < N; ++i) add(outputs[static_cast<std::size_t>(i)], i);
+  // The supervised pointmaps: (output, frame). As Spann3R with coarse
+  // supervision: head 1 for frames 0..N-2, head 2 (next-frame prediction from
+  // the previous step) for frames 1..N-1; output N-1 is coarse[N-2].
+  std::vector<std::pair<const StreamOutput*, int64_t>> supervised;
+  for (int64_t i = 0; i < (config.coarse ? N - 1 : N); ++i) {
+    supervised.emplace_back(&outputs[static_cast<std::size_t>(i)], i);
   }
-  LossTerms r;
-  r.conf_loss = at::stack(terms).mean();
+  if (config.coarse) {
+    for (int64_t j = 0; j + 1 < N; ++j)
+      supervised.emplace_back(&coarse[static_cast<std::size_t>(j)], j + 1);
+  }
   // Spann3R's factor loss: only the items whose predicted scale exceeds the
   // GT's are penalised, by the excess, averaged over those items.
   const at::Tensor over = (pred_scale > gt_scale).detach();
-  const int64_t n_over = over.sum().item<int64_t>();
-  r.scale_loss = n_over > 0 ? (pred_scale - gt_scale).masked_select(over).mean()
-                            : at::zeros({}, pred.options());
+  // A shard's normalisers: the whole batch's valid pixels per pointmap and
+  // its items over scale, summed over the ranks, divided by their number.
+  std::vector<at::Tensor> counts;
+  if (shards != nullptr) {
+    std::vector<at::Tensor> local;
+    for (const auto& [o, frame] : supervised) local.push_back(gt_valid.select(1, frame).sum());
+    local.push_back(over.sum());
+    const at::Tensor total = at::stack(local).to(at::kCPU, at::kDouble);
+    shards->sum(total);
+    const at::Tensor per_rank = total.clamp_min(1.0) / static_cast<double>(shards->ranks);
+    for (int64_t k = 0; k < per_rank.size(0); ++k) {
+      counts.push_back(per_rank[k].to(pred.device(), at::kFloat));
+    }
+  }
+  std::vector<at::Tensor> terms, errs;
+  for (std::size_t k = 0; k < supervised.size(); ++k) {
+    const auto& [o, frame] = supervised[k];
+    const at::Tensor gt_n = gt.select(1, frame) / gf;
+    const at::Tensor pred_n = o->pts3d.to(at::kFloat) / pf;
+    at::Tensor conf =
+        o->conf.defined() ? o->conf.to(at::kFloat) : at::ones_like(pred_n.select(-1, 0));
+    auto [t, e] = confidence_regression(pred_n, gt_n, conf, gt_valid.select(1, frame), config.alpha,
+                                        shards ? counts[k] : at::Tensor());
+    terms.push_back(t);
+    errs.push_back(e);
+  }
+  LossTerms r;
+  r.conf_loss = at::stack(terms).mean();
+  if (shards != nullptr) {
+    r.scale_loss = (pred_scale - gt_scale).masked_select(over).sum() / counts.back();
+  } else {
+    const int64_t n_over = over.sum().item<int64_t>();
+    r.scale_loss = n_over > 0 ? (pred_scale - gt_scale).masked_select(over).mean()
+                              : at::zeros({}, pred.options());
+  }
   r.total = r.conf_loss + config.scale_weight * r.scale_loss;
   r.regression = at::stack(errs).mean().item<double>();
   r.pred_scale = pred_scale.mean().item<double>();

@@ -122,10 +122,12 @@ std::vector<std::string> split_csv_line(const std::string& line) {
 }
 
 // The training device, checked as inference checks it (a CUDA device that
-// this libtorch or machine lacks is named).
-at::Device training_device(const std::string& name) {
+// this libtorch or machine lacks is named); "cuda" in a data-parallel job is
+// the device of this process's local rank.
+at::Device training_device(const std::string& name, const DistributedEnv& env) {
   InferenceConfig inference;
   inference.device = name;
+  if (env.distributed() && name == "cuda") inference.device += ":" + std::to_string(env.local_rank);
   return resolve_inference_target(inference).device;
 }
 
@@ -208,9 +210,24 @@ struct Trainer::Prefetch {
 };
 
 Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
-    : config_(config), options_(options), device_(training_device(options.device)) {
+    : config_(config),
+      options_(options),
+      device_(training_device(options.device, options.distributed)) {
   validate_train_config(config_);
   if (options_.out_dir.empty()) throw std::invalid_argument("Trainer: out_dir is empty");
+  const DistributedEnv& env = options_.distributed;
+  if (env.distributed()) {
+    for (const TrainStage& s : config_.stages) {
+      if (s.batch_size % env.world_size != 0) {
+        throw ConfigError("training config: stage \"" + s.name + "\": batch_size " +
+                          std::to_string(s.batch_size) +
+                          " (the global batch) does not split evenly over " +
+                          std::to_string(env.world_size) + " ranks");
+      }
+    }
+    dp_ = std::make_unique<DataParallel>(env, options_.data_parallel, device_);
+    if (env.rank != 0) options_.quiet = true;  // rank 0 speaks for the job
+  }
   mixed_precision_ = config_.amp == "bf16" || (config_.amp == "auto" && device_.is_cuda());
   if (mixed_precision_ && device_.is_cpu() && !cpu_has_native_bfloat16() &&
       !config_.allow_emulated_precision) {
@@ -221,7 +238,7 @@ Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
         "measure it anyway");
   }
   if (!options_.model_override.empty()) config_.model = options_.model_override;
-  fs::create_directories(fs::path(options_.out_dir) / "checkpoint");
+  if (is_root()) fs::create_directories(fs::path(options_.out_dir) / "checkpoint");
   at::manual_seed(options_.seed);
   model_ = std::make_unique<Long3rModel>(resolve_model_config(config_.model));
   if (config_.image_size % model_->config().dust3r.patch_size != 0) {
@@ -284,11 +301,12 @@ Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
   sampler_ = std::make_unique<SequenceSampler>(config_.data, static_cast<int>(config_.image_size),
                                                options_.seed, render_threads,
                                                options_.extensions.open_recorded);
-  for (int64_t i = 0; i < config_.validation.sequences; ++i) {
+  // Rank 0 validates for the job.
+  for (int64_t i = 0; is_root() && i < config_.validation.sequences; ++i) {
     val_sequences_.push_back(
         sampler_->validation_sequence(i, config_.validation.frames, config_.validation.stride));
   }
-  if (config_.validation.blind_scenes > 0) {
+  if (is_root() && config_.validation.blind_scenes > 0) {
     blind_sequences_ = sampler_->blind_sequences(config_.validation);
   }
   sampler_state_ = sampler_->rng_state();
@@ -300,6 +318,17 @@ Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
     std::string name = read_text(latest);
     while (!name.empty() && (name.back() == '\n' || name.back() == ' ')) name.pop_back();
     load_checkpoint((latest.parent_path() / name).string());
+  }
+  if (dp_) {
+    // Every rank starts from rank 0's weights (as DistributedDataParallel
+    // does), and hooks its gradients into the buckets.
+    std::vector<at::Tensor> state = optim_->params;
+    for (const auto& kv : model_->module().named_buffers()) state.push_back(kv.value());
+    {
+      torch::NoGradGuard no_grad;
+      dp_->broadcast(state);
+    }
+    dp_->attach(optim_->params);
   }
   start_time_ = now_s();
 }
@@ -321,8 +350,11 @@ void Trainer::stop_prefetch() {
 }
 
 Batch Trainer::next_batch(int64_t batch_size, int64_t frames) {
+  // This rank's shard of the global batch.
+  const int64_t ranks = dp_ ? dp_->world_size() : 1, rank = dp_ ? dp_->rank() : 0;
+  const int64_t shard = batch_size / ranks;
   if (options_.prefetch_batches == 0) {
-    Batch b = sampler_->sample_batch(batch_size, frames);
+    Batch b = sampler_->sample_batch(batch_size, frames, rank * shard, shard);
     sampler_state_ = sampler_->rng_state();
     return b;
   }
@@ -331,7 +363,7 @@ Batch Trainer::next_batch(int64_t batch_size, int64_t frames) {
     prefetch_->capacity = static_cast<std::size_t>(options_.prefetch_batches);
     Prefetch* q = prefetch_.get();
     const int64_t first_step = step_;
-    q->thread = std::thread([this, q, first_step] {
+    q->thread = std::thread([this, q, first_step, ranks, rank] {
       for (int64_t k = first_step;; ++k) {
         {
           std::unique_lock<std::mutex> lock(q->mutex);
@@ -341,7 +373,8 @@ Batch Trainer::next_batch(int64_t batch_size, int64_t frames) {
         Prefetch::Item item;
         try {
           const TrainStage& stage = stage_of_step(k);
-          item.batch = sampler_->sample_batch(stage.batch_size, stage.frames);
+          const int64_t n = stage.batch_size / ranks;
+          item.batch = sampler_->sample_batch(stage.batch_size, stage.frames, rank * n, n);
           item.sampler_state = sampler_->rng_state();
         } catch (...) {
           item.error = std::current_exception();
@@ -371,7 +404,7 @@ Batch Trainer::next_batch(int64_t batch_size, int64_t frames) {
     std::rethrow_exception(item.error);
   }
   if (item.batch.frames.size() != static_cast<std::size_t>(frames) ||
-      item.batch.pts.size(0) != batch_size) {
+      item.batch.pts.size(0) != shard) {
     throw std::logic_error("Trainer: a prefetched batch does not fit its step");
   }
   sampler_state_ = std::move(item.sampler_state);
@@ -415,16 +448,28 @@ LogRow Trainer::step() {
   const Batch batch = next_batch(stage.batch_size, stage.frames).to(device_);
   const double data_s = now_s() - t0;
   for (at::Tensor& p : optim_->params) p.mutable_grad() = at::Tensor();
+  if (dp_) dp_->begin_backward();
   const LossTerms loss = stage.task == kTaskCrossViewCompletion
                              ? completion_step(batch, stage.mask_ratio)
                              : sequence_step(batch);
+  // The logged figures: the ranks' mean (each rank's loss is its share of
+  // the global batch's, times the ranks), the same on every rank.
+  at::Tensor figures = at::tensor({loss.total.item<double>(), loss.conf_loss.item<double>(),
+                                   loss.scale_loss.item<double>(), loss.regression},
+                                  at::kDouble);
+  if (dp_) {
+    dp_->finish_backward();
+    dp_->sum(figures);
+    figures /= static_cast<double>(dp_->world_size());
+  }
+  const double* fig = figures.data_ptr<double>();
 
   // Clipping to a global L2 norm of grad_clip; none is an infinite bound,
   // which scales by exactly 1. The norm is logged either way.
   const double max_norm =
       config_.grad_clip > 0.0 ? config_.grad_clip : std::numeric_limits<double>::infinity();
   const double grad_norm = torch::nn::utils::clip_grad_norm_(optim_->params, max_norm);
-  const double loss_value = loss.total.item<double>();
+  const double loss_value = fig[0];
   if (std::isfinite(loss_value) && std::isfinite(grad_norm)) {
     optim_->adamw->step();
   } else if (!options_.quiet) {
@@ -434,14 +479,15 @@ LogRow Trainer::step() {
   }
   for (at::Tensor& p : optim_->params) p.mutable_grad() = at::Tensor();
   ++step_;
+  if (dp_ && options_.verify_replicas) verify_replicas();
 
   LogRow row;
   row.step = step_;
   row.stage = stage_index + 1;
   row.loss = loss_value;
-  row.conf_loss = loss.conf_loss.item<double>();
-  row.scale_loss = loss.scale_loss.item<double>();
-  row.regression = loss.regression;
+  row.conf_loss = fig[1];
+  row.scale_loss = fig[2];
+  row.regression = fig[3];
   row.lr = lr;
   row.grad_norm = grad_norm;
   row.step_s = now_s() - t0;
@@ -469,6 +515,7 @@ ValidationMetrics Trainer::run_validation() {
 }
 
 void Trainer::save_checkpoint() {
+  if (!is_root()) return;  // rank 0 writes for the job
   const fs::path root = fs::path(options_.out_dir) / "checkpoint";
   char name[32];
   std::snprintf(name, sizeof(name), "step_%08lld.pt", static_cast<long long>(step_));
@@ -484,6 +531,9 @@ void Trainer::save_checkpoint() {
   bundle.write("optimizer", optimizer);
   bundle.write("step", step_);
   bundle.write("seed", static_cast<int64_t>(options_.seed));  // for the record only
+  // For the record too: a run resumes at any world size (the batches are
+  // global, drawn alike by every rank).
+  bundle.write("world_size", static_cast<int64_t>(dp_ ? dp_->world_size() : 1));
   bundle.write("sampler_rng", sampler_state_);
   {
     at::Generator gen = at::detail::getDefaultCPUGenerator();
@@ -566,6 +616,7 @@ void Trainer::load_checkpoint(const std::string& path) {
 }
 
 void Trainer::write_outputs() {
+  if (!is_root()) return;
   const fs::path out(options_.out_dir);
   model_->save((out / "model.safetensors").string());
   write_file_atomically((out / "train_log.csv").string(), log_rows_to_csv(log_));
@@ -617,7 +668,13 @@ LossTerms Trainer::sequence_step(const Batch& batch) {
     if (mixed_precision_) autocast.emplace(device_.type(), at::kBFloat16);
     outputs = model_->forward_sequence(batch.frames, config_.loss.coarse ? &coarse : nullptr);
   }
-  LossTerms loss = sequence_loss(outputs, coarse, batch.pts, batch.valid, config_.loss);
+  BatchShards shards;
+  if (dp_) {
+    shards.ranks = dp_->world_size();
+    shards.sum = [this](const at::Tensor& t) { dp_->sum(t); };
+  }
+  LossTerms loss =
+      sequence_loss(outputs, coarse, batch.pts, batch.valid, config_.loss, dp_ ? &shards : nullptr);
   loss.total.backward();
   return loss;
 }
@@ -664,6 +721,10 @@ void Trainer::run() {
         config_.model.c_str(), static_cast<double>(params) / 1e6,
         static_cast<long long>(config_.total_steps()), config_.stages.size(), device_.str().c_str(),
         mixed_precision_ ? " (bf16 autocast, fp32 weights)" : " (fp32)");
+    if (dp_) {
+      std::printf("data parallel: %d ranks (%s, %s), each stage's batch split evenly over them\n",
+                  dp_->world_size(), options_.distributed.launcher.c_str(), dp_->backend().c_str());
+    }
     if (step_ > 0) std::printf("resumed at step %lld\n", static_cast<long long>(step_));
     std::fflush(stdout);
   }
@@ -671,7 +732,10 @@ void Trainer::run() {
   while (step_ < end) {
     if (options_.time_budget_s > 0.0 && steps_this_run > 0) {
       const double spent = now_s() - run_start;
-      if (spent + spent / static_cast<double>(steps_this_run) > options_.time_budget_s) {
+      bool out_of_time =
+          spent + spent / static_cast<double>(steps_this_run) > options_.time_budget_s;
+      if (dp_) out_of_time = dp_->any(out_of_time);  // the ranks stop together
+      if (out_of_time) {
         stop_reason_ = "time_budget";
         if (!options_.quiet) {
           std::printf("time budget of %.0f s reached after %lld steps of this run (%.0f s)\n",
@@ -684,7 +748,7 @@ void Trainer::run() {
     ++steps_this_run;
     validated_last = false;
     const ValidationConfig& vc = config_.validation;
-    if (vc.sequences > 0 && vc.every > 0 && step_ % vc.every == 0) {
+    if (is_root() && vc.sequences > 0 && vc.every > 0 && step_ % vc.every == 0) {
       log_.back().val = run_validation();
       validated_last = true;
     }
@@ -719,11 +783,29 @@ void Trainer::run() {
     }
   }
   stop_prefetch();
-  if (config_.validation.sequences > 0 && !validated_last && !log_.empty()) {
+  if (is_root() && config_.validation.sequences > 0 && !validated_last && !log_.empty()) {
     log_.back().val = run_validation();
   }
   save_checkpoint();
   write_outputs();
+  if (dp_) dp_->barrier();  // the job ends once rank 0's outputs are written
+}
+
+void Trainer::verify_replicas() {
+  const uint64_t mine = tensors_fingerprint(optim_->params);
+  const std::vector<int64_t> all = dp_->gather(static_cast<int64_t>(mine));
+  for (std::size_t r = 0; r < all.size(); ++r) {
+    if (all[r] != all[0]) {
+      throw std::runtime_error("data parallel: after step " + std::to_string(step_) + " rank " +
+                               std::to_string(r) + " holds other weights than rank 0");
+    }
+  }
+  if (is_root()) {
+    std::printf("step %lld: weights bit-identical on %d ranks (fingerprint %016llx)\n",
+                static_cast<long long>(step_), dp_->world_size(),
+                static_cast<unsigned long long>(mine));
+    std::fflush(stdout);
+  }
 }
 
 }  // namespace long3r
