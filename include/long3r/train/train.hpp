@@ -73,6 +73,21 @@ class RecordedSource {
 // Opens the folder of a data.tum_dirs entry, or throws naming the problem.
 using RecordedSourceOpener = std::function<std::unique_ptr<RecordedSource>(const std::string&)>;
 
+// A recorded frame that cannot be read: a missing, truncated or inconsistent
+// file, named in the message. The sampler skips such a sample, counts it and
+// draws another.
+class RecordedFrameError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// The sequences of one dataset of data.datasets (train/datasets/dataset_io.hpp).
+struct OpenedDataset {
+  std::vector<std::unique_ptr<RecordedSource>> sequences;
+  std::vector<std::string> skipped;  // "<path>: <why>" of each sequence left out
+};
+using DatasetOpener = std::function<OpenedDataset(const DatasetSource&)>;
+
 // Intrinsics after cropping the rectangle (x0, y0, w, h) out of an image and
 // resizing it to out_w x out_h with pixel-centre alignment (as cv::resize and
 // torch's interpolation without align_corners):
@@ -130,8 +145,11 @@ class SequenceSampler {
  public:
   // open_recorded opens data.tum_dirs; without it a config naming any is
   // refused (std::runtime_error).
+  // open_dataset likewise opens data.datasets (a dataset without any
+  // sequence is refused; the sequences left out are reported on stderr).
   SequenceSampler(const DataConfig& config, int image_size, uint64_t seed, int render_threads = 2,
-                  const RecordedSourceOpener& open_recorded = {});
+                  const RecordedSourceOpener& open_recorded = {},
+                  const DatasetOpener& open_dataset = {});
 
   // Every sample draws from a generator of its own, seeded in turn from the
   // sampler's: a sample is then the same whichever process makes it, and the
@@ -157,11 +175,14 @@ class SequenceSampler {
 
   std::string rng_state() const;
   void set_rng_state(const std::string& state);
+  // Samples skipped so far for an unreadable frame (RecordedFrameError).
+  int64_t skipped_samples() const { return skipped_samples_; }
 
  private:
   const synth::Sequence& scene(uint64_t seed);
   // One sample, all of its draws from rng.
   SequenceSample sample_from(int64_t frames, std::mt19937_64& rng);
+  SequenceSample dataset_sample(int64_t frames, std::mt19937_64& rng);
 
   DataConfig config_;
   int image_size_;
@@ -169,6 +190,13 @@ class SequenceSampler {
   std::mt19937_64 rng_;
   std::map<uint64_t, synth::Sequence> scenes_;
   std::vector<std::unique_ptr<RecordedSource>> recorded_;
+  struct Dataset {
+    DatasetSource source;
+    std::vector<std::unique_ptr<RecordedSource>> sequences;
+  };
+  std::vector<Dataset> datasets_;
+  double dataset_weight_ = 0.0;  // sum of the datasets' weights
+  int64_t skipped_samples_ = 0;
 };
 
 // ====================================================================== loss
@@ -441,6 +469,7 @@ struct LogRow;
 struct TrainerExtensions {
   PredictionScorer score;              // validation figures; empty: pointmap_metrics
   RecordedSourceOpener open_recorded;  // data.tum_dirs; empty: such configs are refused
+  DatasetOpener open_dataset;          // data.datasets; empty: such configs are refused
   // Writes loss_curve.png; empty: no picture (train_log.csv holds the curves).
   std::function<void(const std::vector<LogRow>&, const std::string& path)> write_plot;
 };

@@ -61,6 +61,29 @@ struct SynthDataConfig {
   int render_size = 0;  // square render side before cropping; 0 = image_size
 };
 
+// The public datasets' layouts that data.datasets reads (docs/training.md,
+// "Datasets"; train/datasets/dataset_io.hpp).
+inline const char* const kDatasetLayouts[] = {"scannet", "scannetpp",  "arkitscenes",
+                                              "co3d",    "blendedmvs", "habitat"};
+
+// One dataset of the training mixture.
+struct DatasetSource {
+  std::string layout;  // one of kDatasetLayouts
+  std::string root;    // its folder, as the official preparation leaves it
+  std::string split = "train";
+  // Share of the samples drawn from it, relative to the other datasets' (the
+  // N of the official "N @ Dataset(...)" mixtures).
+  double weight = 1.0;
+  // Gaps between a sample's frames, in the sequence's frames: each drawn in
+  // [min_stride, max_stride] (Spann3R's frame gaps up to a threshold per
+  // dataset), smaller where the sequence is too short.
+  int64_t min_stride = 1, max_stride = 4;
+  // co3d: depth only on the object (its foreground masks), as Spann3R's
+  // mask_bg.
+  bool mask_background = true;
+  std::string name;  // in messages and sample sources; empty: the layout
+};
+
 struct DataConfig {
   SynthDataConfig synth;
   std::vector<std::string> tum_dirs;  // TUM-layout folders (depth, groundtruth, calibration)
@@ -70,6 +93,10 @@ struct DataConfig {
   // motion is also seen reversed, as DUSt3R's pairs come in both orders.
   double reverse_fraction = 0.0;
   AugmentConfig augment;
+  // The public datasets (their layouts above), mixed by weight. With any,
+  // every training sample comes from them (synth.enabled false, no
+  // tum_dirs); the validation sequences stay generated ones.
+  std::vector<DatasetSource> datasets;
 };
 
 struct ValidationConfig {
@@ -160,6 +187,17 @@ config::FieldsOf<S, SynthDataConfig> visit_fields(S& s, V& v) {
   v("render_size", s.render_size);
 }
 template <class S, class V>
+config::FieldsOf<S, DatasetSource> visit_fields(S& s, V& v) {
+  v("layout", s.layout);
+  v("root", s.root);
+  v("split", s.split);
+  v("weight", s.weight);
+  v("min_stride", s.min_stride);
+  v("max_stride", s.max_stride);
+  v("mask_background", s.mask_background);
+  v("name", s.name);
+}
+template <class S, class V>
 config::FieldsOf<S, DataConfig> visit_fields(S& s, V& v) {
   v("synth", s.synth);
   v("tum_dirs", s.tum_dirs);
@@ -168,6 +206,7 @@ config::FieldsOf<S, DataConfig> visit_fields(S& s, V& v) {
   v("max_stride", s.max_stride);
   v("reverse_fraction", s.reverse_fraction);
   v("augment", s.augment);
+  v("datasets", s.datasets);
 }
 template <class S, class V>
 config::FieldsOf<S, ValidationConfig> visit_fields(S& s, V& v) {

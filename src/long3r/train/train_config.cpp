@@ -62,7 +62,30 @@ void validate_train_config(const TrainConfig& c) {
     fail("optimizer.beta1/beta2 must be in [0, 1)");
   }
   const DataConfig& d = c.data;
-  if (!d.synth.enabled && d.tum_dirs.empty()) fail("data: no source (synth disabled, no tum_dirs)");
+  if (!d.synth.enabled && d.tum_dirs.empty() && d.datasets.empty()) {
+    fail("data: no source (synth disabled, no tum_dirs, no datasets)");
+  }
+  if (!d.datasets.empty() && (d.synth.enabled || !d.tum_dirs.empty())) {
+    fail(
+        "data.datasets: the mixture is the datasets alone; set data.synth.enabled to false and "
+        "leave data.tum_dirs empty");
+  }
+  for (std::size_t i = 0; i < d.datasets.size(); ++i) {
+    const DatasetSource& ds = d.datasets[i];
+    const std::string at = "data.datasets[" + std::to_string(i) + "]";
+    if (std::find_if(std::begin(kDatasetLayouts), std::end(kDatasetLayouts),
+                     [&](const char* l) { return ds.layout == l; }) == std::end(kDatasetLayouts)) {
+      std::string known;
+      for (const char* l : kDatasetLayouts) known += std::string(known.empty() ? "" : ", ") + l;
+      fail(at + ".layout \"" + ds.layout + "\" is not one of " + known);
+    }
+    if (ds.root.empty()) fail(at + ".root is empty");
+    if (ds.split.empty()) fail(at + ".split is empty");
+    if (!(ds.weight > 0.0) || !std::isfinite(ds.weight)) fail(at + ".weight must be > 0");
+    if (ds.min_stride < 1 || ds.max_stride < ds.min_stride) {
+      fail(at + ": need 1 <= min_stride <= max_stride");
+    }
+  }
   if (d.min_stride < 1 || d.max_stride < d.min_stride)
     fail("data: need 1 <= min_stride <= max_stride");
   if (d.tum_fraction < 0.0 || d.tum_fraction > 1.0) fail("data.tum_fraction must be in [0, 1]");
@@ -104,7 +127,7 @@ void validate_train_config(const TrainConfig& c) {
     if (v.frames < 3) fail("validation.frames must be >= 3 (ATE needs 3 poses)");
     if (v.stride < 1) fail("validation.stride must be >= 1");
     if (v.pixel_step < 1) fail("validation.pixel_step must be >= 1");
-    if (!s.enabled || v.sequences > s.val_scenes) {
+    if ((!s.enabled && d.datasets.empty()) || v.sequences > s.val_scenes) {
       fail("validation.sequences needs synth data with at least that many val_scenes");
     }
     if ((v.frames - 1) * v.stride + 1 > s.trajectory_frames) {

@@ -14,18 +14,11 @@
 #include "long3r/dataset/image_file.hpp"
 #include "long3r/dataset/tum_dataset.hpp"
 #include "long3r/eval/eval.hpp"
+#include "long3r/train/datasets/dataset_io.hpp"
 
 namespace long3r {
 
 namespace {
-
-// A cv::Mat's pixels as a tensor that owns them.
-at::Tensor tensor_of(const cv::Mat& m, at::ScalarType type) {
-  const cv::Mat c = m.isContinuous() ? m : m.clone();
-  std::vector<int64_t> shape = {c.rows, c.cols};
-  if (c.channels() > 1) shape.push_back(c.channels());
-  return at::from_blob(const_cast<uint8_t*>(c.data), shape, type).clone();
-}
 
 class TumTrainingSource : public RecordedSource {
  public:
@@ -34,8 +27,8 @@ class TumTrainingSource : public RecordedSource {
   RawFrame frame(int64_t index) const override {
     const std::size_t i = static_cast<std::size_t>(index);
     RawFrame f;
-    f.bgr = tensor_of(ds_.load_rgb(i), at::kByte);
-    f.depth = tensor_of(ds_.load_depth(i), at::kFloat);
+    f.bgr = datasets::tensor_of_mat(ds_.load_rgb(i), at::kByte);
+    f.depth = datasets::tensor_of_mat(ds_.load_depth(i), at::kFloat);
     f.intrinsics = *ds_.calibration();
     f.T_W_C = *ds_.frame(i).pose;
     return f;
@@ -95,6 +88,7 @@ TrainerExtensions opencv_trainer_extensions() {
   TrainerExtensions e;
   e.score = full_validation_scorer;
   e.open_recorded = open_tum_training_source;
+  e.open_dataset = datasets::open_dataset;
   e.write_plot = [](const std::vector<LogRow>& rows, const std::string& path) {
     write_image_atomically(path, plot_training_curves(rows));
   };

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <sstream>
 #include <stdexcept>
 
@@ -219,7 +220,8 @@ Batch collate(const std::vector<SequenceSample>& samples) {
 }
 
 SequenceSampler::SequenceSampler(const DataConfig& config, int image_size, uint64_t seed,
-                                 int render_threads, const RecordedSourceOpener& open_recorded)
+                                 int render_threads, const RecordedSourceOpener& open_recorded,
+                                 const DatasetOpener& open_dataset)
     : config_(config),
       image_size_(image_size),
       render_threads_(std::max(1, render_threads)),
@@ -230,6 +232,27 @@ SequenceSampler::SequenceSampler(const DataConfig& config, int image_size, uint6
         "generated scenes only, or build with OpenCV");
   }
   for (const std::string& dir : config_.tum_dirs) recorded_.push_back(open_recorded(dir));
+  if (!config_.datasets.empty() && !open_dataset) {
+    throw std::runtime_error(
+        "data.datasets: this build reads no datasets (built without OpenCV); train on generated "
+        "scenes only, or build with OpenCV");
+  }
+  for (const DatasetSource& source : config_.datasets) {
+    const std::string name = source.name.empty() ? source.layout : source.name;
+    OpenedDataset opened = open_dataset(source);
+    for (const std::string& why : opened.skipped) {
+      std::fprintf(stderr, "long3r_train: %s: left out %s\n", name.c_str(), why.c_str());
+    }
+    if (opened.sequences.empty()) {
+      throw std::runtime_error("data.datasets: " + name + " (" + source.root + ", split " +
+                               source.split + ") has no usable sequence");
+    }
+    std::fprintf(stderr, "long3r_train: %s: %zu sequences (%zu left out), weight %g\n",
+                 name.c_str(), opened.sequences.size(), opened.skipped.size(), source.weight);
+    datasets_.push_back({source, std::move(opened.sequences)});
+    datasets_.back().source.name = name;
+    dataset_weight_ += source.weight;
+  }
 }
 
 const synth::Sequence& SequenceSampler::scene(uint64_t seed) {
@@ -284,6 +307,7 @@ SequenceSample SequenceSampler::sample(int64_t frames) {
 SequenceSample SequenceSampler::sample_from(int64_t frames, std::mt19937_64& rng) {
   auto draw_int = [&rng](int64_t lo, int64_t hi) { return uniform_int(rng, lo, hi); };
   auto draw_uniform = [&rng] { return uniform01(rng); };
+  if (!datasets_.empty()) return dataset_sample(frames, rng);
   bool use_tum = !recorded_.empty();
   if (use_tum && config_.synth.enabled) use_tum = draw_uniform() < config_.tum_fraction;
   std::ostringstream source;
@@ -317,6 +341,74 @@ SequenceSample SequenceSampler::sample_from(int64_t frames, std::mt19937_64& rng
     source << "r";
   }
   return prepare_sequence(raw, image_size_, config_.augment, &rng, source.str());
+}
+
+SequenceSample SequenceSampler::dataset_sample(int64_t frames, std::mt19937_64& rng) {
+  // A sample whose frame cannot be read is skipped, counted and drawn again
+  // (from the same generator, so a run stays reproducible); only a dataset
+  // that fails sample after sample ends the run.
+  constexpr int kMaxAttempts = 100;
+  std::string last_error;
+  for (int attempt = 0; attempt < kMaxAttempts; ++attempt) {
+    // The dataset by weight, a sequence uniformly, then the frames: a random
+    // start and gaps drawn in [min_stride, max_stride] (smaller when the
+    // sequence is short), as Spann3R picks frames up to a gap threshold.
+    double pick = uniform01(rng) * dataset_weight_;
+    std::size_t d = 0;
+    while (d + 1 < datasets_.size() && pick >= datasets_[d].source.weight) {
+      pick -= datasets_[d].source.weight;
+      ++d;
+    }
+    const Dataset& ds = datasets_[d];
+    const RecordedSource& seq = *ds.sequences[static_cast<std::size_t>(
+        uniform_int(rng, 0, static_cast<int64_t>(ds.sequences.size()) - 1))];
+    const int64_t length = seq.size();
+    std::vector<int64_t> gaps;
+    int64_t span = 0;
+    for (int64_t i = 0; i + 1 < frames; ++i) {
+      gaps.push_back(uniform_int(rng, ds.source.min_stride, ds.source.max_stride));
+      span += gaps.back();
+    }
+    if (span > length - 1) {  // too short for these gaps: the widest even ones that fit
+      const int64_t g = std::max<int64_t>(1, (length - 1) / std::max<int64_t>(1, frames - 1));
+      std::fill(gaps.begin(), gaps.end(), g);
+      span = g * (frames - 1);
+    }
+    if (span > length - 1) {
+      last_error = seq.name() + ": " + std::to_string(length) + " frames, " +
+                   std::to_string(frames) + " needed";
+    } else {
+      const int64_t start = uniform_int(rng, 0, length - 1 - span);
+      std::ostringstream source;
+      source << ds.source.name << ":" << seq.name() << "@" << start;
+      try {
+        std::vector<RawFrame> raw;
+        int64_t index = start;
+        for (int64_t i = 0; i < frames; ++i) {
+          raw.push_back(seq.frame(index));
+          if (i + 1 < frames) {
+            index += gaps[static_cast<std::size_t>(i)];
+            source << "+" << gaps[static_cast<std::size_t>(i)];
+          }
+        }
+        if (config_.reverse_fraction > 0.0 && uniform01(rng) < config_.reverse_fraction) {
+          std::reverse(raw.begin(), raw.end());
+          source << "r";
+        }
+        return prepare_sequence(raw, image_size_, config_.augment, &rng, source.str());
+      } catch (const RecordedFrameError& e) {
+        last_error = e.what();
+      }
+    }
+    ++skipped_samples_;
+    // Named every time for the first few, then every 100th.
+    if (skipped_samples_ <= 20 || skipped_samples_ % 100 == 0) {
+      std::fprintf(stderr, "long3r_train: skipped a sample (%lld so far): %s\n",
+                   static_cast<long long>(skipped_samples_), last_error.c_str());
+    }
+  }
+  throw std::runtime_error("data.datasets: " + std::to_string(kMaxAttempts) +
+                           " samples in a row could not be read; the last: " + last_error);
 }
 
 Batch SequenceSampler::sample_batch(int64_t batch_size, int64_t frames, int64_t first,

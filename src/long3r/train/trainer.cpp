@@ -298,9 +298,9 @@ Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
   }
   const int render_threads =
       options_.render_threads > 0 ? options_.render_threads : at::get_num_threads();
-  sampler_ = std::make_unique<SequenceSampler>(config_.data, static_cast<int>(config_.image_size),
-                                               options_.seed, render_threads,
-                                               options_.extensions.open_recorded);
+  sampler_ = std::make_unique<SequenceSampler>(
+      config_.data, static_cast<int>(config_.image_size), options_.seed, render_threads,
+      options_.extensions.open_recorded, options_.extensions.open_dataset);
   // Rank 0 validates for the job.
   for (int64_t i = 0; is_root() && i < config_.validation.sequences; ++i) {
     val_sequences_.push_back(
