@@ -27,8 +27,8 @@ long3r_add_test_support(long3r_test_support
   SOURCES test/support/test_support.cpp LIBS long3r_model)
 if(LONG3R_HAVE_CV)
   long3r_add_test_support(long3r_cv_test_support
-    SOURCES test/support/cv_test_support.cpp LIBS long3r_pipeline long3r_synth_cv
-    long3r_test_support)
+    SOURCES test/support/cv_test_support.cpp
+    LIBS long3r_pipeline long3r_synth_cv long3r_train_cv long3r_test_support)
 endif()
 
 function(long3r_add_gtest_binary name)

@@ -4,7 +4,12 @@
 #include <ATen/ops/from_blob.h>
 #include <gtest/gtest.h>
 
+#include <opencv2/imgproc.hpp>
+
+#include <algorithm>
 #include <cmath>
+#include <filesystem>
+#include <stdexcept>
 
 #include "long3r/synth/sensor_image.hpp"
 
@@ -103,6 +108,144 @@ StreamOutput FakeModel::output(int64_t k, bool coarse) {
   o.conf = at::from_blob(conf.data, {1, kGtSize, kGtSize}, at::kFloat).clone();
   o.stats.mem_short_tokens = 7;
   return o;
+}
+
+FramePrecision millimetre_depth_precision(FramePrecision::Colour colour, double point_slack_m) {
+  FramePrecision p;
+  p.depth_abs_m = 0.5e-3 + 1e-6;
+  p.point_slack_m = point_slack_m;
+  p.colour = colour;
+  return p;
+}
+
+FramePrecision relative_depth_precision(double depth_rel) {
+  FramePrecision p;
+  p.depth_rel = depth_rel;
+  p.depth_slack_m = 1e-6;
+  p.colour = FramePrecision::Colour::kMeanGrey;
+  return p;
+}
+
+void expect_frame_matches(const RawFrame& read, const synth::LayoutFrame& truth,
+                          const FramePrecision& p) {
+  const int h = truth.depth_m.rows, w = truth.depth_m.cols;
+  ASSERT_EQ(read.depth.sizes().vec(), (std::vector<int64_t>{h, w}));
+  ASSERT_EQ(read.bgr.sizes().vec(), (std::vector<int64_t>{h, w, 3}));
+  const PinholeIntrinsics& k = read.intrinsics;
+  const PinholeIntrinsics& kt = truth.intrinsics;
+  EXPECT_NEAR(k.fx, kt.fx, 1e-6 * kt.fx);
+  EXPECT_NEAR(k.fy, kt.fy, 1e-6 * kt.fy);
+  // Relative to the smaller of the focal length and the centre itself: a
+  // centre off by a fraction of a pixel, or off in its own digits, shows.
+  EXPECT_NEAR(k.cx, kt.cx, 1e-6 * std::min(kt.fx, std::abs(kt.cx)));
+  EXPECT_NEAR(k.cy, kt.cy, 1e-6 * std::min(kt.fy, std::abs(kt.cy)));
+  EXPECT_EQ(k.width, w);
+  EXPECT_EQ(k.height, h);
+  EXPECT_LT((read.T_W_C.matrix() - truth.T_W_C.matrix()).cwiseAbs().maxCoeff(), 1e-6);
+
+  const at::Tensor bgr_t = read.bgr.contiguous();
+  const at::Tensor depth_t = read.depth.contiguous();
+  const cv::Mat bgr(h, w, CV_8UC3, bgr_t.data_ptr<uint8_t>());
+  const cv::Mat depth(h, w, CV_32F, depth_t.data_ptr<float>());
+  switch (p.colour) {
+    case FramePrecision::Colour::kExact:
+      EXPECT_EQ(cv::norm(bgr, truth.bgr, cv::NORM_INF), 0.0);
+      break;
+    case FramePrecision::Colour::kMeanBgr:
+      EXPECT_LT(cv::norm(bgr, truth.bgr, cv::NORM_L1) / (3.0 * w * h), p.colour_levels);
+      break;
+    case FramePrecision::Colour::kMeanGrey: {
+      cv::Mat grey, truth_grey;
+      cv::cvtColor(bgr, grey, cv::COLOR_BGR2GRAY);
+      cv::cvtColor(truth.bgr, truth_grey, cv::COLOR_BGR2GRAY);
+      EXPECT_LT(cv::norm(grey, truth_grey, cv::NORM_L1) / (1.0 * w * h), p.colour_levels);
+      break;
+    }
+  }
+
+  // Worst excess over the encoding's error, of the depth and of the world
+  // points (a depth error dz moves a point along its ray by dz |p| / z).
+  int64_t valid = 0, spurious = 0, missing = 0;
+  double worst_depth = 0.0, worst_point = 0.0;
+  for (int v = 0; v < h; ++v) {
+    for (int u = 0; u < w; ++u) {
+      const double z = depth.at<float>(v, u), zt = truth.depth_m.at<float>(v, u);
+      if (!(std::isfinite(zt) && zt > 0.0)) {
+        if (z != 0.0) ADD_FAILURE() << "depth " << z << " where none, at " << u << ", " << v;
+        spurious += z != 0.0;
+        continue;
+      }
+      if (!(z > 0.0)) {
+        if (missing++ == 0) ADD_FAILURE() << "no depth, at " << u << ", " << v;
+        continue;
+      }
+      ++valid;
+      const double error = p.depth_abs_m + p.depth_rel * zt;
+      worst_depth = std::max(worst_depth, std::abs(z - zt) - error);
+      const Eigen::Vector3d p_cam = kt.backproject(u, v, zt);
+      const Eigen::Vector3d truth_point = truth.T_W_C * p_cam;
+      const Eigen::Vector3d read_point = read.T_W_C * k.backproject(u, v, z);
+      worst_point =
+          std::max(worst_point, (read_point - truth_point).norm() - error * p_cam.norm() / zt);
+    }
+  }
+  EXPECT_EQ(spurious, 0);
+  EXPECT_EQ(missing, 0);
+  EXPECT_GT(valid, h * w / 2);
+  EXPECT_LE(worst_depth, p.depth_slack_m);
+  EXPECT_LE(worst_point, p.point_slack_m);
+}
+
+void expect_sequence_matches(const RecordedSource& seq,
+                             const std::vector<synth::LayoutFrame>& truth, const FramePrecision& p,
+                             std::size_t first) {
+  ASSERT_LE(first + static_cast<std::size_t>(seq.size()), truth.size()) << seq.name();
+  for (int64_t i = 0; i < seq.size(); ++i) {
+    SCOPED_TRACE(seq.name() + " frame " + std::to_string(i));
+    expect_frame_matches(seq.frame(i), truth[first + static_cast<std::size_t>(i)], p);
+  }
+}
+
+DatasetSource layout_source(const std::string& layout, const std::string& root,
+                            const std::string& split) {
+  DatasetSource s;
+  s.layout = layout;
+  s.root = root;
+  s.split = split;
+  return s;
+}
+
+datasets::DatasetScan open_layout(const std::string& layout, const std::string& root,
+                                  const std::string& split) {
+  return datasets::open_dataset(layout_source(layout, root, split));
+}
+
+const RecordedSource* find_sequence(const datasets::DatasetScan& scan, const std::string& name) {
+  for (const auto& s : scan.sequences) {
+    if (s->name() == name) return s.get();
+  }
+  return nullptr;
+}
+
+void expect_error_naming(const std::function<void()>& act, const std::string& text) {
+  try {
+    act();
+  } catch (const RecordedFrameError& e) {
+    EXPECT_NE(std::string(e.what()).find(text), std::string::npos) << e.what();
+    return;
+  }
+  ADD_FAILURE() << "no RecordedFrameError naming " << text;
+}
+
+void truncate_file(const std::string& path, std::uintmax_t bytes) {
+  if (std::filesystem::file_size(path) <= bytes) {
+    throw std::invalid_argument(path + ": not longer than " + std::to_string(bytes) + " bytes");
+  }
+  std::filesystem::resize_file(path, bytes);
+}
+
+void delete_file(const std::string& path) {
+  if (!std::filesystem::remove(path)) throw std::invalid_argument(path + ": no file to delete");
 }
 
 }  // namespace long3r::test

@@ -10,11 +10,12 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <limits>
+#include <sstream>
 #include <stdexcept>
 
 #include "long3r/synth/dataset_layouts.hpp"
+#include "long3r/synth/layouts/layout_files.hpp"
 
 namespace long3r::synth {
 
@@ -22,29 +23,20 @@ namespace {
 
 namespace fs = std::filesystem;
 
-void check_written(const std::ofstream& out, const std::string& path) {
-  if (!out) throw std::runtime_error(path + ": cannot be written");
-}
-
 // One-channel PFM: "Pf", size, a negative scale (little endian), then the
 // rows bottom first.
 void write_pfm(const std::string& path, const cv::Mat& depth) {
-  std::ofstream out(path, std::ios::binary);
-  out << "Pf\n" << depth.cols << " " << depth.rows << "\n-1\n";
-  std::string row(static_cast<std::size_t>(depth.cols) * 4, '\0');
+  std::string out =
+      "Pf\n" + std::to_string(depth.cols) + " " + std::to_string(depth.rows) + "\n-1\n";
   for (int r = depth.rows - 1; r >= 0; --r) {
     const float* p = depth.ptr<float>(r);
     for (int c = 0; c < depth.cols; ++c) {
       uint32_t bits = 0;
       std::memcpy(&bits, &p[c], 4);
-      for (int b = 0; b < 4; ++b) {
-        row[static_cast<std::size_t>(4 * c + b)] = static_cast<char>((bits >> (8 * b)) & 0xff);
-      }
+      for (int b = 0; b < 4; ++b) out.push_back(static_cast<char>((bits >> (8 * b)) & 0xff));
     }
-    out.write(row.data(), static_cast<std::streamsize>(row.size()));
   }
-  out.close();
-  check_written(out, path);
+  layouts::write_text(path, out);
 }
 
 // MVSNet camera: world-to-camera extrinsic, K, then the depth range line
@@ -61,7 +53,7 @@ void write_camera(const std::string& path, const LayoutFrame& f) {
     }
   }
   if (!(hi > 0.0)) lo = hi = 1.0;
-  std::ofstream out(path);
+  std::ostringstream out;
   out.precision(17);
   const Eigen::Matrix4d e = f.T_W_C.inverse().matrix();
   out << "extrinsic\n";
@@ -72,8 +64,7 @@ void write_camera(const std::string& path, const LayoutFrame& f) {
   out << "\nintrinsic\n";
   for (int r = 0; r < 3; ++r) out << k(r, 0) << " " << k(r, 1) << " " << k(r, 2) << "\n";
   out << "\n" << lo << " " << (hi - lo) / 191.0 << " 192 " << hi << "\n";
-  out.close();
-  check_written(out, path);
+  layouts::write_text(path, out.str());
 }
 
 std::string id_name(std::size_t i) {
@@ -89,24 +80,19 @@ void write_blendedmvs_sequence(const std::string& root, const std::string& name,
   if (frames.empty()) throw std::invalid_argument("write_blendedmvs_sequence: no frames");
   const fs::path dir = fs::path(root) / name;
   for (const char* sub : {"blended_images", "rendered_depth_maps", "cams"}) {
-    std::error_code ec;
-    fs::create_directories(dir / sub, ec);
-    if (ec) throw std::runtime_error((dir / sub).string() + ": " + ec.message());
+    layouts::make_dirs((dir / sub).string());
   }
   const std::size_t n = frames.size();
   for (std::size_t i = 0; i < n; ++i) {
     const LayoutFrame& f = frames[i];
     const std::string id = id_name(i);
     const std::string image = (dir / "blended_images" / (id + ".jpg")).string();
-    if (!cv::imwrite(image, f.bgr, {cv::IMWRITE_JPEG_QUALITY, 95})) {
-      throw std::runtime_error(image + ": cannot be written");
-    }
+    layouts::write_image(image, f.bgr, {cv::IMWRITE_JPEG_QUALITY, 95});
     write_pfm((dir / "rendered_depth_maps" / (id + ".pfm")).string(), f.depth_m);
     write_camera((dir / "cams" / (id + "_cam.txt")).string(), f);
   }
   // Each view's neighbours: those within 3 along the path, nearest first.
-  const std::string pairs = (dir / "cams" / "pair.txt").string();
-  std::ofstream out(pairs);
+  std::ostringstream out;
   out << n << "\n";
   for (std::size_t i = 0; i < n; ++i) {
     std::vector<std::size_t> near;
@@ -121,24 +107,10 @@ void write_blendedmvs_sequence(const std::string& root, const std::string& name,
     }
     out << "\n";
   }
-  out.close();
-  check_written(out, pairs);
+  layouts::write_text((dir / "cams" / "pair.txt").string(), out.str());
 
-  // Added to the "train" split unless listed already.
-  const std::string list = (fs::path(root) / "train_list.txt").string();
-  bool listed = false;
-  {
-    std::ifstream in(list);
-    for (std::string line; std::getline(in, line);) {
-      if (line == name) listed = true;
-    }
-  }
-  if (!listed) {
-    std::ofstream app(list, std::ios::app);
-    app << name << "\n";
-    app.close();
-    check_written(app, list);
-  }
+  // In the "train" split, once however often the scene is written.
+  layouts::list_once((fs::path(root) / "train_list.txt").string(), name);
 }
 
 }  // namespace long3r::synth

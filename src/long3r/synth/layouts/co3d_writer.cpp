@@ -14,37 +14,22 @@
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
-#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
 #include <string>
-#include <system_error>
 #include <utility>
 #include <vector>
 
 #include "long3r/synth/dataset_layouts.hpp"
+#include "long3r/synth/layouts/layout_files.hpp"
 
 namespace long3r::synth {
 
 namespace {
 
-void write_image(const std::string& path, const cv::Mat& image,
-                 const std::vector<int>& params = {}) {
-  bool ok = false;
-  try {
-    ok = cv::imwrite(path, image, params);
-  } catch (const cv::Exception&) {
-    ok = false;
-  }
-  if (!ok) throw std::runtime_error(path + ": cannot be written");
-}
-
-void write_bytes(const std::string& path, const std::string& bytes) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-  if (!out.flush()) throw std::runtime_error(path + ": cannot be written");
-}
+using layouts::write_image;
+using layouts::write_text;
 
 uint32_t crc32(const std::string& bytes) {
   static const std::array<uint32_t, 256> table = [] {
@@ -164,7 +149,7 @@ void list_sequence(const std::string& path, const std::vector<std::string>& keys
   nlohmann::json* at = &list;
   for (const std::string& key : keys) at = &(*at)[key];
   *at = numbers;
-  write_bytes(path, list.dump());
+  write_text(path, list.dump());
 }
 
 }  // namespace
@@ -176,11 +161,7 @@ void write_co3d_sequence(const std::string& root, const std::string& name,
   const std::string category = slash == std::string::npos ? "synthetic" : name.substr(0, slash);
   const std::string sequence = slash == std::string::npos ? name : name.substr(slash + 1);
   const std::string dir = root + "/" + category + "/" + sequence;
-  for (const char* sub : {"/images", "/depths", "/masks"}) {
-    std::error_code ec;
-    std::filesystem::create_directories(dir + sub, ec);
-    if (ec) throw std::runtime_error(dir + sub + ": cannot be created (" + ec.message() + ")");
-  }
+  for (const char* sub : {"/images", "/depths", "/masks"}) layouts::make_dirs(dir + sub);
   std::vector<int> numbers;
   for (std::size_t i = 0; i < frames.size(); ++i) {
     const LayoutFrame& f = frames[i];
@@ -235,10 +216,10 @@ void write_co3d_sequence(const std::string& root, const std::string& name,
         pose[static_cast<std::size_t>(4 * r + c)] = static_cast<float>(pm(r, c));
       }
     }
-    write_bytes(dir + "/images/" + stem + ".npz",
-                npz({{"camera_intrinsics", npy_float32(k, {3, 3})},
-                     {"camera_pose", npy_float32(pose, {4, 4})},
-                     {"maximum_depth", npy_float32({maximum_depth}, {})}}));
+    write_text(dir + "/images/" + stem + ".npz",
+               npz({{"camera_intrinsics", npy_float32(k, {3, 3})},
+                    {"camera_pose", npy_float32(pose, {4, 4})},
+                    {"maximum_depth", npy_float32({maximum_depth}, {})}}));
   }
   // The split's list {category: {sequence: [frames]}}, which the reader
   // uses, and the category's own {sequence: [frames]} beside it.

@@ -9,10 +9,10 @@
 #include <cctype>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <stdexcept>
 
 #include "long3r/synth/dataset_layouts.hpp"
+#include "long3r/synth/layouts/layout_files.hpp"
 
 namespace long3r::synth {
 
@@ -55,33 +55,24 @@ void write_habitat_sequence(const std::string& root, const std::string& name,
   }
   // `name` is "<dataset>/<scene>".
   const fs::path dir = fs::path(root) / name;
-  std::error_code ec;
-  fs::create_directories(dir, ec);
-  if (ec) throw std::runtime_error(dir.string() + ": " + ec.message());
+  layouts::make_dirs(dir.string());
   const long first = next_group(dir);
   for (std::size_t i = 0; i < frames.size(); ++i) {
     const LayoutFrame& f = frames[i];
     char base[48];
     std::snprintf(base, sizeof(base), "%08ld_%zu", first + static_cast<long>(i / kViews),
                   i % kViews + 1);  // views numbered from 1
-    const std::string image = (dir / (std::string(base) + ".jpeg")).string();
-    if (!cv::imwrite(image, f.bgr, {cv::IMWRITE_JPEG_QUALITY, 95})) {
-      throw std::runtime_error(image + ": cannot be written");
-    }
-    const std::string depth = (dir / (std::string(base) + "_depth.exr")).string();
-    if (!cv::imwrite(depth, f.depth_m, {cv::IMWRITE_EXR_TYPE, cv::IMWRITE_EXR_TYPE_HALF})) {
-      throw std::runtime_error(depth + ": cannot be written");
-    }
+    layouts::write_image((dir / (std::string(base) + ".jpeg")).string(), f.bgr,
+                         {cv::IMWRITE_JPEG_QUALITY, 95});
+    layouts::write_image((dir / (std::string(base) + "_depth.exr")).string(), f.depth_m,
+                         {cv::IMWRITE_EXR_TYPE, cv::IMWRITE_EXR_TYPE_HALF});
     const Eigen::Vector3d t = f.T_W_C.translation();
     nlohmann::json params;
     params["camera_intrinsics"] = rows(f.intrinsics.matrix());
     params["R_cam2world"] = rows(f.T_W_C.linear());
     params["t_cam2world"] = {t.x(), t.y(), t.z()};
-    const std::string json_path = (dir / (std::string(base) + "_camera_params.json")).string();
-    std::ofstream out(json_path);
-    out << params.dump();
-    out.close();
-    if (!out) throw std::runtime_error(json_path + ": cannot be written");
+    layouts::write_text((dir / (std::string(base) + "_camera_params.json")).string(),
+                        params.dump());
   }
 }
 

@@ -7,15 +7,13 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include <algorithm>
-#include <cmath>
-#include <cstdint>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
+#include <sstream>
 #include <stdexcept>
 
 #include "long3r/synth/dataset_layouts.hpp"
+#include "long3r/synth/layouts/layout_files.hpp"
 
 namespace long3r::synth {
 
@@ -23,18 +21,13 @@ namespace {
 
 namespace fs = std::filesystem;
 
-void check_written(const std::ofstream& out, const std::string& path) {
-  if (!out) throw std::runtime_error(path + ": cannot be written");
-}
-
 void write_matrix(const std::string& path, const Eigen::Matrix4d& m) {
-  std::ofstream out(path);
+  std::ostringstream out;
   out.precision(17);
   for (int r = 0; r < 4; ++r) {
     out << m(r, 0) << " " << m(r, 1) << " " << m(r, 2) << " " << m(r, 3) << "\n";
   }
-  out.close();
-  check_written(out, path);
+  layouts::write_text(path, out.str());
 }
 
 // ScanNet's intrinsic_*.txt: K in the top-left corner of a 4 x 4 identity.
@@ -44,32 +37,13 @@ Eigen::Matrix4d k4(const PinholeIntrinsics& k) {
   return m;
 }
 
-// Millimetres as uint16, 0 where no depth; beyond 65.535 m clipped, as a
-// 16-bit depth image must.
-cv::Mat depth_mm(const cv::Mat& depth_m) {
-  cv::Mat mm(depth_m.size(), CV_16U);
-  for (int r = 0; r < depth_m.rows; ++r) {
-    const float* d = depth_m.ptr<float>(r);
-    uint16_t* o = mm.ptr<uint16_t>(r);
-    for (int c = 0; c < depth_m.cols; ++c) {
-      const double v = std::isfinite(d[c]) && d[c] > 0.0f ? std::round(d[c] * 1000.0) : 0.0;
-      o[c] = static_cast<uint16_t>(std::min(v, 65535.0));
-    }
-  }
-  return mm;
-}
-
 }  // namespace
 
 void write_scannet_sequence(const std::string& root, const std::string& name,
                             const std::vector<LayoutFrame>& frames) {
   if (frames.empty()) throw std::invalid_argument("write_scannet_sequence: no frames");
   const fs::path dir = fs::path(root) / "scans" / name;
-  for (const char* sub : {"intrinsic", "sensor_data"}) {
-    std::error_code ec;
-    fs::create_directories(dir / sub, ec);
-    if (ec) throw std::runtime_error((dir / sub).string() + ": " + ec.message());
-  }
+  for (const char* sub : {"intrinsic", "sensor_data"}) layouts::make_dirs((dir / sub).string());
   // One K per scene, as in ScanNet.
   const PinholeIntrinsics& k = frames.front().intrinsics;
   for (const LayoutFrame& f : frames) {
@@ -99,34 +73,13 @@ void write_scannet_sequence(const std::string& root, const std::string& name,
     // to the depth's size gives the frame's colour again, JPEG aside.
     cv::Mat big;
     cv::resize(f.bgr, big, cv::Size(2 * f.bgr.cols, 2 * f.bgr.rows), 0, 0, cv::INTER_NEAREST);
-    if (!cv::imwrite(image, big, {cv::IMWRITE_JPEG_QUALITY, 95})) {
-      throw std::runtime_error(image + ": cannot be written");
-    }
-    if (!cv::imwrite(depth, depth_mm(f.depth_m))) {
-      throw std::runtime_error(depth + ": cannot be written");
-    }
+    layouts::write_image(image, big, {cv::IMWRITE_JPEG_QUALITY, 95});
+    layouts::write_image(depth, layouts::depth_mm(f.depth_m));
     write_matrix((data / (std::string(stem) + ".pose.txt")).string(), f.T_W_C.matrix());
   }
 
-  // Added to the "train" split unless listed already.
-  const fs::path splits = fs::path(root) / "splits";
-  std::error_code ec;
-  fs::create_directories(splits, ec);
-  if (ec) throw std::runtime_error(splits.string() + ": " + ec.message());
-  const std::string list = (splits / "scannetv2_train.txt").string();
-  bool listed = false;
-  {
-    std::ifstream in(list);
-    for (std::string line; std::getline(in, line);) {
-      if (line == name) listed = true;
-    }
-  }
-  if (!listed) {
-    std::ofstream app(list, std::ios::app);
-    app << name << "\n";
-    app.close();
-    check_written(app, list);
-  }
+  // In the "train" split, once however often the scene is written.
+  layouts::list_once((fs::path(root) / "splits" / "scannetv2_train.txt").string(), name);
 }
 
 }  // namespace long3r::synth

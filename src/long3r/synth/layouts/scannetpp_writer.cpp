@@ -6,16 +6,13 @@
 // and the scene added to splits/nvs_sem_train.txt.
 #include <opencv2/imgcodecs.hpp>
 
-#include <algorithm>
-#include <cmath>
-#include <cstdint>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <nlohmann/json.hpp>
 #include <stdexcept>
 
 #include "long3r/synth/dataset_layouts.hpp"
+#include "long3r/synth/layouts/layout_files.hpp"
 
 namespace long3r::synth {
 
@@ -23,30 +20,8 @@ namespace {
 
 namespace fs = std::filesystem;
 
-void check_written(const std::ofstream& out, const std::string& path) {
-  if (!out) throw std::runtime_error(path + ": cannot be written");
-}
-
 void write_json(const std::string& path, const nlohmann::json& j) {
-  std::ofstream out(path);
-  out << j.dump(2) << "\n";  // doubles with round-trip precision
-  out.close();
-  check_written(out, path);
-}
-
-// Millimetres as uint16, 0 where no depth; beyond 65.535 m clipped, as
-// ScanNet++'s rendered depth is.
-cv::Mat depth_mm(const cv::Mat& depth_m) {
-  cv::Mat mm(depth_m.size(), CV_16U);
-  for (int r = 0; r < depth_m.rows; ++r) {
-    const float* d = depth_m.ptr<float>(r);
-    uint16_t* o = mm.ptr<uint16_t>(r);
-    for (int c = 0; c < depth_m.cols; ++c) {
-      const double v = std::isfinite(d[c]) && d[c] > 0.0f ? std::round(d[c] * 1000.0) : 0.0;
-      o[c] = static_cast<uint16_t>(std::min(v, 65535.0));
-    }
-  }
-  return mm;
+  layouts::write_text(path, j.dump(2) + "\n");  // doubles with round-trip precision
 }
 
 }  // namespace
@@ -66,9 +41,7 @@ void write_scannetpp_sequence(const std::string& root, const std::string& name,
   }
   const fs::path dslr = fs::path(root) / "data" / name / "dslr";
   for (const char* sub : {"undistorted_images", "undistorted_depths", "nerfstudio"}) {
-    std::error_code ec;
-    fs::create_directories(dslr / sub, ec);
-    if (ec) throw std::runtime_error((dslr / sub).string() + ": " + ec.message());
+    layouts::make_dirs((dslr / sub).string());
   }
 
   nlohmann::json tf_frames = nlohmann::json::array();
@@ -80,12 +53,9 @@ void write_scannetpp_sequence(const std::string& root, const std::string& name,
     const std::string image_name = std::string(stem) + ".JPG";
     const std::string image = (dslr / "undistorted_images" / image_name).string();
     const std::string depth = (dslr / "undistorted_depths" / (std::string(stem) + ".png")).string();
-    if (!cv::imwrite(image, f.bgr, {cv::IMWRITE_JPEG_QUALITY, 95})) {
-      throw std::runtime_error(image + ": cannot be written");
-    }
-    if (!cv::imwrite(depth, depth_mm(f.depth_m))) {
-      throw std::runtime_error(depth + ": cannot be written");
-    }
+    layouts::write_image(image, f.bgr, {cv::IMWRITE_JPEG_QUALITY, 95});
+    // Millimetres, clipped beyond 65.535 m as ScanNet++'s rendered depth is.
+    layouts::write_image(depth, layouts::depth_mm(f.depth_m));
     // OpenCV camera axes to OpenGL's (y up, z backward): columns 1 and 2
     // negated, the inverse of the reader's conversion.
     Eigen::Matrix4d c2w = f.T_W_C.matrix();
@@ -110,25 +80,8 @@ void write_scannetpp_sequence(const std::string& root, const std::string& name,
   write_json((dslr / "train_test_lists.json").string(),
              {{"train", train}, {"test", nlohmann::json::array()}});
 
-  // Added to the "train" split unless listed already.
-  const fs::path splits = fs::path(root) / "splits";
-  std::error_code ec;
-  fs::create_directories(splits, ec);
-  if (ec) throw std::runtime_error(splits.string() + ": " + ec.message());
-  const std::string list = (splits / "nvs_sem_train.txt").string();
-  bool listed = false;
-  {
-    std::ifstream in(list);
-    for (std::string line; std::getline(in, line);) {
-      if (line == name) listed = true;
-    }
-  }
-  if (!listed) {
-    std::ofstream app(list, std::ios::app);
-    app << name << "\n";
-    app.close();
-    check_written(app, list);
-  }
+  // In the "train" split, once however often the scene is written.
+  layouts::list_once((fs::path(root) / "splits" / "nvs_sem_train.txt").string(), name);
 }
 
 }  // namespace long3r::synth
