@@ -51,6 +51,23 @@ double wallNow() { return ros::WallTime::now().toSec(); }
 // queue (queue_size) drops them counted. So this one is generous.
 constexpr std::uint32_t kSubscriberQueue = 30;
 
+// The message of `cache` whose stamp is nearest to `stamp`, at most max_dt_s
+// away (null when there is none).
+template <class M>
+boost::shared_ptr<const M> nearestInCache(const message_filters::Cache<M>& cache,
+                                          const ros::Time& stamp, double max_dt_s) {
+  const ros::Duration window(max_dt_s);
+  const ros::Time from = stamp.toSec() > max_dt_s ? stamp - window : ros::Time(0);
+  boost::shared_ptr<const M> nearest;
+  for (const auto& m : cache.getInterval(from, stamp + window)) {
+    if (!nearest || std::abs((m->header.stamp - stamp).toSec()) <
+                        std::abs((nearest->header.stamp - stamp).toSec())) {
+      nearest = m;
+    }
+  }
+  return nearest;
+}
+
 }  // namespace
 
 Long3rNodelet::~Long3rNodelet() { shutdown(); }
@@ -319,15 +336,8 @@ constexpr double kOdomCovarianceMaxDtS = 0.1;
 std::optional<Eigen::Matrix<double, 6, 6>> Long3rNodelet::odometryCovarianceInMap(
     const ros::Time& stamp) {
   const std::string topic = odom_sub_.getTopic();
-  const ros::Duration window(kOdomCovarianceMaxDtS);
-  nav_msgs::OdometryConstPtr nearest;
-  const ros::Time from = stamp.toSec() > kOdomCovarianceMaxDtS ? stamp - window : ros::Time(0);
-  for (const auto& m : odom_cache_.getInterval(from, stamp + window)) {
-    if (!nearest || std::abs((m->header.stamp - stamp).toSec()) <
-                        std::abs((nearest->header.stamp - stamp).toSec())) {
-      nearest = m;
-    }
-  }
+  const nav_msgs::OdometryConstPtr nearest =
+      nearestInCache(odom_cache_, stamp, kOdomCovarianceMaxDtS);
   const auto refuse = [&](const std::string& why) -> std::optional<Eigen::Matrix<double, 6, 6>> {
     warnThrottled("odometry covariance",
                   format("frame at t=%.3f placed by odometry: ", stamp.toSec()) + why +
@@ -561,14 +571,7 @@ Eigen::Vector3d Long3rNodelet::odometry_camera_position_m(const long3r::LiveResu
 // The depth image of the result's stamp (exact, else within 20 ms).
 cv::Mat Long3rNodelet::depth(const long3r::LiveResult& result) {
   const auto& header = std::any_cast<const std_msgs::Header&>(result.tag);
-  sensor_msgs::ImageConstPtr depth;
-  for (const auto& d : depth_cache_.getSurroundingInterval(header.stamp, header.stamp)) {
-    if (std::abs((d->header.stamp - header.stamp).toSec()) <= 0.02 &&
-        (!depth || std::abs((d->header.stamp - header.stamp).toSec()) <
-                       std::abs((depth->header.stamp - header.stamp).toSec()))) {
-      depth = d;
-    }
-  }
+  const sensor_msgs::ImageConstPtr depth = nearestInCache(depth_cache_, header.stamp, 0.02);
   if (!depth) {
     throw Unavailable("depth missing", format("no depth image within 20 ms of the frame at t=%.3f "
                                               "(scale_source depth)",
