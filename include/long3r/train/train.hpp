@@ -183,6 +183,10 @@ class SequenceSampler {
   // One sample, all of its draws from rng.
   SequenceSample sample_from(int64_t frames, std::mt19937_64& rng);
   SequenceSample dataset_sample(int64_t frames, std::mt19937_64& rng);
+  // The drawn frames played backwards for data.reverse_fraction, then
+  // prepared (crop, resize, augmentation) with the sample's generator.
+  SequenceSample finish_sample(std::vector<RawFrame> raw, std::string source,
+                               std::mt19937_64& rng) const;
 
   DataConfig config_;
   int image_size_;
@@ -551,6 +555,10 @@ class Trainer {
   const TrainStage& stage_of_step(int64_t step) const;
   // The batch of step step_: drawn now, or taken from the data thread.
   Batch next_batch(int64_t batch_size, int64_t frames);
+  // This rank's share of a global batch, and drawing it (the whole batch's
+  // draws, this rank's samples).
+  int64_t shard_size(int64_t batch_size) const;
+  Batch draw_shard(int64_t batch_size, int64_t frames);
   void stop_prefetch();
   // The forward pass and backward of one step's task; return its loss terms.
   LossTerms sequence_step(const Batch& batch);

@@ -82,6 +82,8 @@ struct DatasetSource {
   // mask_bg.
   bool mask_background = true;
   std::string name;  // in messages and sample sources; empty: the layout
+
+  const std::string& label() const { return name.empty() ? layout : name; }
 };
 
 struct DataConfig {

@@ -331,11 +331,16 @@ void DataParallel::finish_backward() {
 
 #else
 
-void DataParallel::broadcast(const std::vector<at::Tensor>&) {}
-void DataParallel::sum(const at::Tensor&) {}
-void DataParallel::barrier() {}
-void DataParallel::Impl::launch(Bucket& b) { b.launched = true; }
-void DataParallel::finish_backward() { impl_->in_backward = false; }
+namespace {
+// Without c10d the constructor refuses every backend, so no group exists to
+// call these on.
+[[noreturn]] void no_group() { throw std::logic_error("DataParallel: built without c10d"); }
+}  // namespace
+void DataParallel::broadcast(const std::vector<at::Tensor>&) { no_group(); }
+void DataParallel::sum(const at::Tensor&) { no_group(); }
+void DataParallel::barrier() { no_group(); }
+void DataParallel::Impl::launch(Bucket&) { no_group(); }
+void DataParallel::finish_backward() { no_group(); }
 
 #endif
 

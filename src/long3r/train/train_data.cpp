@@ -238,7 +238,7 @@ SequenceSampler::SequenceSampler(const DataConfig& config, int image_size, uint6
         "scenes only, or build with OpenCV");
   }
   for (const DatasetSource& source : config_.datasets) {
-    const std::string name = source.name.empty() ? source.layout : source.name;
+    const std::string& name = source.label();
     OpenedDataset opened = open_dataset(source);
     for (const std::string& why : opened.skipped) {
       std::fprintf(stderr, "long3r_train: %s: left out %s\n", name.c_str(), why.c_str());
@@ -250,7 +250,6 @@ SequenceSampler::SequenceSampler(const DataConfig& config, int image_size, uint6
     std::fprintf(stderr, "long3r_train: %s: %zu sequences (%zu left out), weight %g\n",
                  name.c_str(), opened.sequences.size(), opened.skipped.size(), source.weight);
     datasets_.push_back({source, std::move(opened.sequences)});
-    datasets_.back().source.name = name;
     dataset_weight_ += source.weight;
   }
 }
@@ -335,12 +334,17 @@ SequenceSample SequenceSampler::sample_from(int64_t frames, std::mt19937_64& rng
     raw = synth_frames(seed, start, stride, frames);
     source << "synth:" << seed << "@" << start << "+" << stride;
   }
+  return finish_sample(std::move(raw), source.str(), rng);
+}
+
+SequenceSample SequenceSampler::finish_sample(std::vector<RawFrame> raw, std::string source,
+                                              std::mt19937_64& rng) const {
   // Drawn only when asked for, so that runs without it draw what they drew.
-  if (config_.reverse_fraction > 0.0 && draw_uniform() < config_.reverse_fraction) {
+  if (config_.reverse_fraction > 0.0 && uniform01(rng) < config_.reverse_fraction) {
     std::reverse(raw.begin(), raw.end());
-    source << "r";
+    source += "r";
   }
-  return prepare_sequence(raw, image_size_, config_.augment, &rng, source.str());
+  return prepare_sequence(raw, image_size_, config_.augment, &rng, source);
 }
 
 SequenceSample SequenceSampler::dataset_sample(int64_t frames, std::mt19937_64& rng) {
@@ -380,7 +384,7 @@ SequenceSample SequenceSampler::dataset_sample(int64_t frames, std::mt19937_64& 
     } else {
       const int64_t start = uniform_int(rng, 0, length - 1 - span);
       std::ostringstream source;
-      source << ds.source.name << ":" << seq.name() << "@" << start;
+      source << ds.source.label() << ":" << seq.name() << "@" << start;
       try {
         std::vector<RawFrame> raw;
         int64_t index = start;
@@ -391,11 +395,7 @@ SequenceSample SequenceSampler::dataset_sample(int64_t frames, std::mt19937_64& 
             source << "+" << gaps[static_cast<std::size_t>(i)];
           }
         }
-        if (config_.reverse_fraction > 0.0 && uniform01(rng) < config_.reverse_fraction) {
-          std::reverse(raw.begin(), raw.end());
-          source << "r";
-        }
-        return prepare_sequence(raw, image_size_, config_.augment, &rng, source.str());
+        return finish_sample(std::move(raw), source.str(), rng);
       } catch (const RecordedFrameError& e) {
         last_error = e.what();
       }

@@ -73,20 +73,16 @@ LossTerms sequence_loss(const std::vector<StreamOutput>& outputs,
   // Spann3R's factor loss: only the items whose predicted scale exceeds the
   // GT's are penalised, by the excess, averaged over those items.
   const at::Tensor over = (pred_scale > gt_scale).detach();
-  // A shard's normalisers: the whole batch's valid pixels per pointmap and
-  // its items over scale, summed over the ranks, divided by their number.
-  std::vector<at::Tensor> counts;
-  if (shards != nullptr) {
-    std::vector<at::Tensor> local;
-    for (const auto& [o, frame] : supervised) local.push_back(gt_valid.select(1, frame).sum());
-    local.push_back(over.sum());
-    const at::Tensor total = at::stack(local).to(at::kCPU, at::kDouble);
-    shards->sum(total);
-    const at::Tensor per_rank = total.clamp_min(1.0) / static_cast<double>(shards->ranks);
-    for (int64_t k = 0; k < per_rank.size(0); ++k) {
-      counts.push_back(per_rank[k].to(pred.device(), at::kFloat));
-    }
-  }
+  // The normalisers: valid pixels per pointmap and items over scale. For a
+  // shard of a batch (BatchShards), the whole batch's, summed over the ranks
+  // and divided by their number.
+  std::vector<at::Tensor> local;
+  for (const auto& [o, frame] : supervised) local.push_back(gt_valid.select(1, frame).sum());
+  local.push_back(over.sum());
+  const at::Tensor total = at::stack(local).to(at::kCPU, at::kDouble);
+  if (shards != nullptr) shards->sum(total);
+  const double ranks = shards != nullptr ? static_cast<double>(shards->ranks) : 1.0;
+  const at::Tensor counts = (total.clamp_min(1.0) / ranks).to(pred.device(), at::kFloat);
   std::vector<at::Tensor> terms, errs;
   for (std::size_t k = 0; k < supervised.size(); ++k) {
     const auto& [o, frame] = supervised[k];
@@ -95,19 +91,14 @@ LossTerms sequence_loss(const std::vector<StreamOutput>& outputs,
     at::Tensor conf =
         o->conf.defined() ? o->conf.to(at::kFloat) : at::ones_like(pred_n.select(-1, 0));
     auto [t, e] = confidence_regression(pred_n, gt_n, conf, gt_valid.select(1, frame), config.alpha,
-                                        shards ? counts[k] : at::Tensor());
+                                        counts[static_cast<int64_t>(k)]);
     terms.push_back(t);
     errs.push_back(e);
   }
   LossTerms r;
   r.conf_loss = at::stack(terms).mean();
-  if (shards != nullptr) {
-    r.scale_loss = (pred_scale - gt_scale).masked_select(over).sum() / counts.back();
-  } else {
-    const int64_t n_over = over.sum().item<int64_t>();
-    r.scale_loss = n_over > 0 ? (pred_scale - gt_scale).masked_select(over).mean()
-                              : at::zeros({}, pred.options());
-  }
+  // The mean over the items over scale (0 when there are none).
+  r.scale_loss = (pred_scale - gt_scale).masked_select(over).sum() / counts[-1];
   r.total = r.conf_loss + config.scale_weight * r.scale_loss;
   r.regression = at::stack(errs).mean().item<double>();
   r.pred_scale = pred_scale.mean().item<double>();

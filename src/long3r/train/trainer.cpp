@@ -349,12 +349,18 @@ void Trainer::stop_prefetch() {
   sampler_->set_rng_state(sampler_state_);
 }
 
+int64_t Trainer::shard_size(int64_t batch_size) const {
+  return batch_size / (dp_ ? dp_->world_size() : 1);
+}
+
+Batch Trainer::draw_shard(int64_t batch_size, int64_t frames) {
+  const int64_t shard = shard_size(batch_size), rank = dp_ ? dp_->rank() : 0;
+  return sampler_->sample_batch(batch_size, frames, rank * shard, shard);
+}
+
 Batch Trainer::next_batch(int64_t batch_size, int64_t frames) {
-  // This rank's shard of the global batch.
-  const int64_t ranks = dp_ ? dp_->world_size() : 1, rank = dp_ ? dp_->rank() : 0;
-  const int64_t shard = batch_size / ranks;
   if (options_.prefetch_batches == 0) {
-    Batch b = sampler_->sample_batch(batch_size, frames, rank * shard, shard);
+    Batch b = draw_shard(batch_size, frames);
     sampler_state_ = sampler_->rng_state();
     return b;
   }
@@ -363,7 +369,7 @@ Batch Trainer::next_batch(int64_t batch_size, int64_t frames) {
     prefetch_->capacity = static_cast<std::size_t>(options_.prefetch_batches);
     Prefetch* q = prefetch_.get();
     const int64_t first_step = step_;
-    q->thread = std::thread([this, q, first_step, ranks, rank] {
+    q->thread = std::thread([this, q, first_step] {
       for (int64_t k = first_step;; ++k) {
         {
           std::unique_lock<std::mutex> lock(q->mutex);
@@ -373,8 +379,7 @@ Batch Trainer::next_batch(int64_t batch_size, int64_t frames) {
         Prefetch::Item item;
         try {
           const TrainStage& stage = stage_of_step(k);
-          const int64_t n = stage.batch_size / ranks;
-          item.batch = sampler_->sample_batch(stage.batch_size, stage.frames, rank * n, n);
+          item.batch = draw_shard(stage.batch_size, stage.frames);
           item.sampler_state = sampler_->rng_state();
         } catch (...) {
           item.error = std::current_exception();
@@ -404,7 +409,7 @@ Batch Trainer::next_batch(int64_t batch_size, int64_t frames) {
     std::rethrow_exception(item.error);
   }
   if (item.batch.frames.size() != static_cast<std::size_t>(frames) ||
-      item.batch.pts.size(0) != shard) {
+      item.batch.pts.size(0) != shard_size(batch_size)) {
     throw std::logic_error("Trainer: a prefetched batch does not fit its step");
   }
   sampler_state_ = std::move(item.sampler_state);

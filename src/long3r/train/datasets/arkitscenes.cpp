@@ -162,7 +162,7 @@ DatasetScan open_arkitscenes(const DatasetSource& source) {
   if (ec) throw DatasetError(split_dir + ": cannot be listed (" + ec.message() + ")");
   std::sort(videos.begin(), videos.end());
 
-  const std::string prefix = source.name.empty() ? std::string("arkitscenes") : source.name;
+  const std::string& prefix = source.label();
   DatasetScan scan;
   for (const std::string& video : videos) {
     const std::string dir = split_dir + "/" + video;

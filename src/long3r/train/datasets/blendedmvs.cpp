@@ -143,7 +143,7 @@ RawFrame load_frame(const fs::path& scene, const std::string& stem) {
 DatasetScan open_blendedmvs(const DatasetSource& source) {
   const fs::path root(source.root);
   if (!fs::is_directory(root)) throw DatasetError(source.root + ": no BlendedMVS folder there");
-  const std::string label = source.name.empty() ? "blendedmvs" : source.name;
+  const std::string& label = source.label();
   // A missing split list throws (DatasetError naming it).
   const std::vector<std::string> scenes =
       read_lines((root / (source.split + "_list.txt")).string());

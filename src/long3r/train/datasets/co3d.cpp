@@ -101,7 +101,7 @@ DatasetScan open_co3d(const DatasetSource& source) {
   if (!list.is_object()) {
     throw DatasetError(list_path + ": not an object {category: {sequence: [frames]}}");
   }
-  const std::string prefix = source.name.empty() ? std::string("co3d") : source.name;
+  const std::string& prefix = source.label();
   const bool mask_background = source.mask_background;
   DatasetScan scan;
   for (auto c = list.begin(); c != list.end(); ++c) {

@@ -103,7 +103,7 @@ std::vector<std::string> folders(const fs::path& dir) {
 DatasetScan open_habitat(const DatasetSource& source) {
   const fs::path root(source.root);
   if (!fs::is_directory(root)) throw DatasetError(source.root + ": no Habitat folder there");
-  const std::string label = source.name.empty() ? "habitat" : source.name;
+  const std::string& label = source.label();
   DatasetScan scan;
   for (const std::string& dataset : folders(root)) {
     std::vector<std::string> scenes;

@@ -65,7 +65,7 @@ RawFrame load_frame(const fs::path& data, int64_t id, const Eigen::Matrix3d& k_d
 DatasetScan open_scannet(const DatasetSource& source) {
   const fs::path root(source.root);
   if (!fs::is_directory(root)) throw DatasetError(source.root + ": no ScanNet folder there");
-  const std::string label = source.name.empty() ? "scannet" : source.name;
+  const std::string& label = source.label();
   const fs::path scans = root / (source.split == "test" ? "scans_test" : "scans");
   // A missing split list throws (DatasetError naming it).
   const std::vector<std::string> scenes =

@@ -145,7 +145,7 @@ RawFrame load_frame(const fs::path& dslr, const ScannetppFrame& f, const Pinhole
 DatasetScan open_scannetpp(const DatasetSource& source) {
   const fs::path root(source.root);
   if (!fs::is_directory(root)) throw DatasetError(source.root + ": no ScanNet++ folder there");
-  const std::string label = source.name.empty() ? "scannetpp" : source.name;
+  const std::string& label = source.label();
   // A missing split list throws (DatasetError naming it).
   const std::vector<std::string> scenes =
       read_lines((root / "splits" / ("nvs_sem_" + source.split + ".txt")).string());
