@@ -16,6 +16,8 @@
 #include <array>
 #include <cstdint>
 #include <opencv2/core/mat.hpp>
+#include <optional>
+#include <string>
 #include <vector>
 
 #include "long3r/pipeline/camera_rectifier.hpp"
@@ -68,6 +70,15 @@ sensor_msgs::PointCloud2 toColoredCloud(const std::vector<Eigen::Vector3f>& poin
 std::array<double, 36> poseCovarianceInMap(const Eigen::Matrix<double, 6, 6>& cov_W,
                                            const Eigen::Matrix3d& R_map_W,
                                            const Eigen::Vector3d& lever_arm_map);
+
+// The pose covariance of an odometry message of base_frame in odom_frame,
+// turned into map by R_map_odom (the body pose in map is T_map_odom *
+// T_odom_base: the same point, axes turned). nullopt, with *why saying what
+// is wrong, for another pair of frames, negative or non-finite entries, or a
+// covariance left unset (zeros).
+std::optional<Eigen::Matrix<double, 6, 6>> poseCovarianceOfOdometry(
+    const nav_msgs::Odometry& odom, const std::string& odom_frame, const std::string& base_frame,
+    const Eigen::Matrix3d& R_map_odom, std::string* why);
 
 // Pinhole camera_info without distortion (the model works on undistorted
 // pixels at model resolution).

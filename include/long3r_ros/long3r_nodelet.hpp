@@ -24,7 +24,6 @@
 
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <diagnostic_updater/publisher.h>
-#include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <image_transport/image_transport.h>
 #include <message_filters/cache.h>
 #include <nav_msgs/Odometry.h>
@@ -54,8 +53,11 @@
 #include "long3r_ros/SaveMap.h"
 #include "long3r_ros/SaveSession.h"
 #include "long3r_ros/SaveTrajectory.h"
+#include "long3r_ros/frame_publisher.hpp"
 #include "long3r_ros/image_input.hpp"
 #include "long3r_ros/log_throttle.hpp"
+#include "long3r_ros/map_publisher.hpp"
+#include "long3r_ros/node_status.hpp"
 #include "long3r_ros/params.hpp"
 #include "long3r_ros/robot_frames.hpp"
 #include "long3r_ros/window_stats.hpp"
@@ -90,7 +92,6 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   bool loadSessionService(LoadSession::Request& req, LoadSession::Response& res);
   bool saveTrajectoryService(SaveTrajectory::Request& req, SaveTrajectory::Response& res);
   void mapTimerCallback(const ros::WallTimerEvent& event);
-  void publishGrid(const std::vector<Eigen::Vector3f>& points_map);
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
   // Worker thread; session_mutex_ is held around every call into the session,
@@ -119,19 +120,14 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   // A warning per kind of problem, throttled per kind (LogThrottle).
   void warnThrottled(const std::string& kind, const std::string& message);
 
-  NodeletConfig config_;
-  FramesConfig frames_config_;
-  long3r::LiveSessionConfig session_config_;
-  long3r::ThreadConfig thread_config_;
-  long3r::InferenceConfig inference_config_;
-  long3r::ReconstructionConfig recon_config_;
-  long3r::OccupancyGridConfig grid_config_;
+  NodeParams params_;
 
   std::unique_ptr<image_transport::ImageTransport> it_;
   image_transport::Subscriber image_sub_;
   ros::Subscriber compressed_sub_, camera_info_sub_, depth_sub_, odom_sub_;
-  ros::Publisher frame_cloud_pub_, pointmap_pub_, map_pub_, pose_pub_, path_pub_, camera_info_pub_,
-      depth_pub_, odometry_pub_, pose_cov_pub_, grid_pub_;
+  std::unique_ptr<FramePublisher> frame_pub_;
+  std::unique_ptr<MapPublisher> map_pub_;
+  ros::Publisher path_pub_;
   ros::ServiceServer reset_srv_, pause_srv_, resume_srv_, save_map_srv_, save_trajectory_srv_;
   ros::ServiceServer save_session_srv_, load_session_srv_;
   ros::WallTimer map_timer_;
@@ -177,15 +173,11 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   std::unique_ptr<long3r::VoxelMap> archive_;
   // The map in map: the archive and the current stream's (locks itself).
   long3r::MapSnapshot mapSnapshot();
-  std::optional<std::pair<Eigen::Isometry3d, double>> last_body_;  // pose in map, stamp
-  std::optional<Eigen::Matrix<double, 6, 6>> last_body_cov_;
 
   std::unique_ptr<long3r::BoundedQueue<InputFrame>> queue_;
   std::thread worker_;
   std::atomic<bool> running_{false};
   std::atomic<bool> paused_{false};
-  std::uint64_t last_map_revision_ = 0;
-  std::uint64_t last_grid_revision_ = 0;
 
   // Statistics for diagnostics (written by callbacks and worker).
   WindowStats window_;

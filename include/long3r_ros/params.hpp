@@ -1,17 +1,21 @@
-// Reading and validating the nodelet's ROS parameters.
-//
-// One function per config struct; each reads every field from the private
-// node handle (through the struct's list of parameter names in params.cpp,
-// which describe() uses too), falls back to the struct's default, validates,
-// and throws ParamError naming the parameter when a value is out of range or
-// of the wrong type, so a misconfigured launch fails at start-up with a clear
-// message.
+// The nodelet's ROS parameters: every setting of every component, read from
+// the private namespace through the components' own field lists
+// (visit_fields beside each config struct), so that each parameter is named
+// once. The flat ROS name of a field is the prefixes of the structs around it
+// (NodeParams' list, then the struct's nested() ones) followed by its name:
+// scale_min_samples is LiveSessionConfig's scale ("scale_"), field
+// min_samples. A parameter left unset keeps the struct's default;
+// config/default.yaml lists them all (a test checks it against the structs).
+// A value of the wrong type, or out of range by a struct's validate(), throws
+// ParamError naming the parameter, so a misconfigured launch fails at
+// start-up with a clear message.
 #pragma once
 
 #include <ros/node_handle.h>
 
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "long3r/model/inference_config.hpp"
 #include "long3r/model/threads.hpp"
@@ -58,31 +62,73 @@ struct NodeletConfig {
   bool publish_unscaled_depth = false;
   double no_input_warn_s = 5.0;  // diagnostics warn after this long without images
   double max_latency_s = 5.0;    // diagnostics: stamp delay beyond this is an error
+
+  // Throws long3r::ConfigError naming the field.
+  void validate(const long3r::config::FieldCheck& check) const;
 };
 
-NodeletConfig readNodeletConfig(const ros::NodeHandle& pnh);
-// map_frame, odom_frame, base_frame, camera_frame, tf_timeout_s. The old name
-// world_frame is read as map_frame.
-FramesConfig readFramesConfig(const ros::NodeHandle& pnh);
-long3r::StreamMonitorConfig readStreamMonitorConfig(const ros::NodeHandle& pnh);
-// scale_source, scale, scale_min_baseline_m, ... (metric_scale.hpp).
-long3r::MetricScaleConfig readMetricScaleConfig(const ros::NodeHandle& pnh);
-// The two above, lost_reset_frames and image_is_rectified.
-long3r::LiveSessionConfig readLiveSessionConfig(const ros::NodeHandle& pnh);
-long3r::OccupancyGridConfig readOccupancyGridConfig(const ros::NodeHandle& pnh);
-long3r::ThreadConfig readThreadConfig(const ros::NodeHandle& pnh);
-long3r::InferenceConfig readInferenceConfig(const ros::NodeHandle& pnh);
-long3r::ReconstructionConfig readReconstructionConfig(const ros::NodeHandle& pnh);
+template <class S, class V>
+long3r::config::FieldsOf<S, NodeletConfig> visit_fields(S& s, V& v) {
+  v("model_path", s.model_path, "(package default)");
+  v("session_path", s.session_path, "(none)");
+  v("publish_tf", s.publish_tf);
+  v("pose_source", s.pose_source);
+  v("use_camera_info", s.use_camera_info);
+  v("image_transport", s.image_transport);
+  v("max_image_pixels", s.max_image_pixels);
+  v("queue_size", s.queue_size);
+  v("flush_after_s", s.flush_after_s);
+  v("map_publish_period_s", s.map_publish_period_s);
+  v("map_display_voxel_m", s.map_display_voxel_m, "(the map's voxels)");
+  v("tf_publish_rate_hz", s.tf_publish_rate_hz, "(with frames only)");
+  v("tf_delay_s", s.tf_delay_s);
+  v("publish_unscaled_depth", s.publish_unscaled_depth);
+  v("no_input_warn_s", s.no_input_warn_s);
+  v("max_latency_s", s.max_latency_s);
+}
 
-// One line per parameter, for the start-up log.
-std::string describe(const NodeletConfig& config);
-std::string describe(const FramesConfig& config);
-std::string describe(const long3r::StreamMonitorConfig& config);
-std::string describe(const long3r::LiveSessionConfig& config);
-std::string describe(const long3r::MetricScaleConfig& config);
-std::string describe(const long3r::OccupancyGridConfig& config);
-std::string describe(const long3r::ThreadConfig& config);
-std::string describe(const long3r::InferenceConfig& config);
-std::string describe(const long3r::ReconstructionConfig& config);
+// Everything the nodelet reads.
+struct NodeParams {
+  NodeletConfig node;
+  FramesConfig frames;
+  long3r::LiveSessionConfig session;
+  long3r::OccupancyGridConfig grid;
+  long3r::ThreadConfig threads;
+  long3r::InferenceConfig inference;  // whether this machine serves it: at model load
+  long3r::ReconstructionConfig reconstruction;
+
+  void validate(const long3r::config::FieldCheck& check) const;
+};
+
+template <class S, class V>
+long3r::config::FieldsOf<S, NodeParams> visit_fields(S& s, V& v) {
+  v.nested("node", s.node, "");
+  v.nested("frames", s.frames, "");
+  v.nested("session", s.session, "");
+  v.nested("grid", s.grid, "grid_");
+  v.nested("threads", s.threads, "");
+  v.nested("inference", s.inference, "");
+  v.nested("reconstruction", s.reconstruction, "");
+}
+
+// Renamed parameters: the old name is still read (with a warning) when the
+// new one is unset; both set differently is an error.
+struct RenamedParam {
+  const char* old_name;
+  const char* name;
+};
+const std::vector<RenamedParam>& renamedParams();
+
+NodeParams readParams(const ros::NodeHandle& pnh);
+
+// One "name: value" line per parameter, for the start-up log.
+std::string describe(const NodeParams& params);
+
+// The flat names of all parameters, in list order.
+std::vector<std::string> parameterNames();
+
+// The parameters set in the private namespace that the nodelet does not
+// read (typically typos), each with its full name.
+std::vector<std::string> unknownParams(const ros::NodeHandle& pnh);
 
 }  // namespace long3r_ros

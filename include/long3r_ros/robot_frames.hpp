@@ -31,6 +31,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "long3r/io/config_fields.hpp"
+
 namespace long3r_ros {
 
 struct FramesConfig {
@@ -43,7 +45,20 @@ struct FramesConfig {
   // bag replayed, a robot not restarted), map -> odom is kept; false = the
   // odometry started over, map -> odom follows from the first placed frame.
   bool session_odometry_continues = false;
+
+  // Throws long3r::ConfigError naming the field.
+  void validate(const long3r::config::FieldCheck& check) const;
 };
+
+template <class S, class V>
+long3r::config::FieldsOf<S, FramesConfig> visit_fields(S& s, V& v) {
+  v("map_frame", s.map_frame);
+  v("odom_frame", s.odom_frame, "(none)");
+  v("base_frame", s.base_frame, "(none)");
+  v("camera_frame", s.camera_frame, "(from image header)");
+  v("tf_timeout_s", s.tf_timeout_s);
+  v("session_odometry_continues", s.session_odometry_continues);
+}
 
 // A transform the node needs is not (yet) in TF; says which and why.
 class TfUnavailable : public std::runtime_error {

@@ -126,7 +126,7 @@ class Client : public LiveSessionClient {
 
 int main(int argc, char** argv) {
   std::string model_path, out_dir, input, load_session, save_session;
-  int stride = 1, img = 224;
+  int stride = 1;
   long first_frame = 0;
   ThreadConfig threads;
   long max_frames = -1;
@@ -149,22 +149,13 @@ int main(int argc, char** argv) {
              "continue a session saved by --save-session or the node's ~save_session");
   cli.option("--save-session", "FILE", &save_session,
              "save the session (memory, map, path, scale) at the end, to continue it later");
-  cli.option("--conf-threshold", "C", &cfg.conf_threshold,
-             "confidence threshold for PnP and map (3 for official DUSt3R / Spann3R "
-             "checkpoints)")
-      .shown_default("1: every pixel");
-  cli.option("--voxel-size", "M", &cfg.map.voxel_size_m, "map voxel size");
-  cli.option("--img-size", "N", &img, "model input size N x N");
-  cli.option("--scale-source", "S", &session_cfg.scale.source,
-             "metric scale: depth (a TUM folder's depth images), odometry (its groundtruth.txt "
-             "positions), fixed (--scale) or none (model units)");
-  cli.option("--scale", "M", &session_cfg.scale.fixed_scale,
-             "metres per model unit, --scale-source fixed");
-  cli.option("--scale-min-baseline", "M", &session_cfg.scale.min_baseline_m,
-             "camera travel per odometry scale sample");
-  cli.option("--lost-reset-frames", "N", &session_cfg.lost_reset_frames,
-             "start a new stream after N consecutive frames without a pose")
-      .shown_default("0: never");
+  cli.custom(
+         "--img-size", {"N"},
+         [&](const std::vector<std::string>& v) {
+           cfg.preprocess.width = cfg.preprocess.height = parse_cli_value<int>("--img-size", v[0]);
+         },
+         "model input size N x N (--model-width and --model-height)")
+      .shown_default("224");
   add_thread_options(cli, &threads);
   InferenceConfig inference;
   add_inference_options(cli, &inference);
@@ -180,12 +171,21 @@ int main(int argc, char** argv) {
          },
          "source-pixel intrinsics")
       .shown_default("TUM calibration.txt, else estimated from frame 0");
+  // The node's parameters of the pipeline and the session, by the same names
+  // (README, Parameters). --scale-source: depth takes a TUM folder's depth
+  // images, odometry its groundtruth.txt positions.
+  cli.section("Pipeline and session (the node's parameters, README \"Parameters\")");
+  add_config_options(cli, &cfg);
+  add_config_options(cli, &session_cfg);
   if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
 
   try {
     if (!fs::exists(model_path)) throw std::runtime_error("model file not found: " + model_path);
     if (!fs::exists(input)) throw std::runtime_error("input not found: " + input);
-    session_cfg.validate(config::FieldCheck{"long3r_reconstruct", ""});
+    // Named as the options are, without their dashes.
+    const config::FieldCheck check{"long3r_reconstruct: option", "", true};
+    cfg.validate(check);
+    session_cfg.validate(check);
     Source src;
     if (fs::is_directory(input)) {
       if (fs::exists(fs::path(input) / "rgb.txt")) {
@@ -235,7 +235,6 @@ int main(int argc, char** argv) {
                    model_path.c_str());
     }
     const ThreadState thread_state = apply_thread_config(threads);
-    cfg.preprocess.width = cfg.preprocess.height = img;
     fs::create_directories(out_dir);
     AtomicFile csv((fs::path(out_dir) / "frames.csv").string());  // appears at the end, whole
     csv.write(

@@ -164,6 +164,30 @@ std::array<double, 36> poseCovarianceInMap(const Eigen::Matrix<double, 6, 6>& co
   return out;
 }
 
+std::optional<Eigen::Matrix<double, 6, 6>> poseCovarianceOfOdometry(
+    const nav_msgs::Odometry& odom, const std::string& odom_frame, const std::string& base_frame,
+    const Eigen::Matrix3d& R_map_odom, std::string* why) {
+  const auto bare = [](const std::string& f) { return f.empty() || f[0] != '/' ? f : f.substr(1); };
+  if (bare(odom.header.frame_id) != odom_frame || bare(odom.child_frame_id) != base_frame) {
+    *why = "it is of " + odom.child_frame_id + " in " + odom.header.frame_id + ", not of " +
+           base_frame + " in " + odom_frame + " (the frames that place it)";
+    return std::nullopt;
+  }
+  const Eigen::Matrix<double, 6, 6> cov_odom =
+      Eigen::Map<const Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(odom.pose.covariance.data());
+  if (!cov_odom.allFinite() || (cov_odom.diagonal().array() < 0.0).any()) {
+    *why = "its pose covariance has a negative or non-finite entry";
+    return std::nullopt;
+  }
+  if (cov_odom.isZero(0.0)) {
+    *why = "it leaves the pose covariance unset (zeros)";
+    return std::nullopt;
+  }
+  const std::array<double, 36> c =
+      poseCovarianceInMap(cov_odom, R_map_odom, Eigen::Vector3d::Zero());
+  return Eigen::Map<const Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(c.data());
+}
+
 sensor_msgs::CameraInfo toCameraInfo(double fx, double fy, double cx, double cy, int width,
                                      int height, const std_msgs::Header& header) {
   sensor_msgs::CameraInfo info;

@@ -7,7 +7,6 @@
 #include <sensor_msgs/image_encodings.h>
 #include <tf2_eigen/tf2_eigen.h>
 #include <boost/function.hpp>
-#include <boost/make_shared.hpp>
 #include <pluginlib/class_list_macros.hpp>
 
 #include <algorithm>
@@ -77,54 +76,32 @@ Long3rNodelet::~Long3rNodelet() { shutdown(); }
 void Long3rNodelet::onInit() {
   ros::NodeHandle& pnh = getPrivateNodeHandle();
   try {
-    config_ = readNodeletConfig(pnh);
-    frames_config_ = readFramesConfig(pnh);
-    session_config_ = readLiveSessionConfig(pnh);
-    session_config_.calibration_source = "camera_info";
-    if (config_.pose_source == PoseSource::kOdometry &&
-        (frames_config_.odom_frame.empty() || frames_config_.base_frame.empty())) {
-      throw ParamError("parameter " + pnh.resolveName("pose_source") +
-                       " odometry needs odom_frame and base_frame");
-    }
-    if (session_config_.scale.source == long3r::ScaleSource::kOdometry &&
-        (frames_config_.odom_frame.empty() || frames_config_.base_frame.empty())) {
-      throw ParamError("parameter " + pnh.resolveName("scale_source") +
-                       " odometry needs odom_frame and base_frame");
-    }
-    thread_config_ = readThreadConfig(pnh);
-    inference_config_ = readInferenceConfig(pnh);
-    recon_config_ = readReconstructionConfig(pnh);
-    grid_config_ = readOccupancyGridConfig(pnh);
+    params_ = readParams(pnh);
   } catch (const ParamError& e) {
     logFatal(getName(), std::string("invalid configuration: ") + e.what());
     throw;
   }
-  if (pnh.hasParam("world_frame")) {
-    NODELET_WARN("~world_frame is the old name of ~map_frame; please rename it");
+  params_.session.calibration_source = "camera_info";
+  for (const std::string& name : unknownParams(pnh)) {
+    NODELET_WARN("parameter %s is not one of the node's (README, Parameters): ignored",
+                 name.c_str());
   }
-  if (config_.pose_source == PoseSource::kOdometry &&
-      session_config_.scale.source == long3r::ScaleSource::kNone) {
+  if (params_.node.pose_source == PoseSource::kOdometry &&
+      params_.session.scale.source == long3r::ScaleSource::kNone) {
     NODELET_WARN(
         "pose_source odometry places frames in metres but scale_source is none: frames "
         "are not mapped until a metric scale is set (scale_source odometry, depth or "
         "fixed)");
   }
-  NODELET_INFO_STREAM("configuration:\n"
-                      << describe(config_) << "\n"
-                      << describe(frames_config_) << "\n"
-                      << describe(session_config_) << "\n"
-                      << describe(thread_config_) << "\n"
-                      << describe(inference_config_) << "\n"
-                      << describe(recon_config_) << "\n"
-                      << describe(grid_config_));
+  NODELET_INFO_STREAM("configuration:\n" << describe(params_));
   tf_listener_ = std::make_unique<tf2_ros::TransformListener>(tf_buffer_, getNodeHandle());
-  frames_ = std::make_unique<RobotFrames>(frames_config_, tf_buffer_);
-  archive_ = std::make_unique<long3r::VoxelMap>(recon_config_.map);
+  frames_ = std::make_unique<RobotFrames>(params_.frames, tf_buffer_);
+  archive_ = std::make_unique<long3r::VoxelMap>(params_.reconstruction.map);
   loadModel();
   advertise();
   loadStartSession();
   queue_ = std::make_unique<long3r::BoundedQueue<InputFrame>>(
-      static_cast<std::size_t>(config_.queue_size));
+      static_cast<std::size_t>(params_.node.queue_size));
   started_ = ros::WallTime::now();
   running_ = true;
   worker_ = std::thread(&Long3rNodelet::workerLoop, this);
@@ -134,7 +111,8 @@ void Long3rNodelet::onInit() {
 // A model that cannot be loaded stops the nodelet here (the launch files
 // mark it required), with one line that names the file and the reason.
 void Long3rNodelet::loadModel() {
-  const std::string path = config_.model_path.empty() ? defaultModelPath() : config_.model_path;
+  const std::string path =
+      params_.node.model_path.empty() ? defaultModelPath() : params_.node.model_path;
   try {
     if (path.empty()) {
       throw std::runtime_error("~model_path is empty and the package's default model is not found");
@@ -145,8 +123,8 @@ void Long3rNodelet::loadModel() {
     }
     long3r::LiveSessionClient& client = *this;
     session_ =
-        std::make_unique<long3r::LiveSession>(long3r::make_streaming_model(path, inference_config_),
-                                              recon_config_, session_config_, client);
+        std::make_unique<long3r::LiveSession>(long3r::make_streaming_model(path, params_.inference),
+                                              params_.reconstruction, params_.session, client);
   } catch (const long3r::InferenceUnsupportedError& e) {
     const std::string what =
         "cannot run " + path + " as configured (~device, ~precision): " + e.what();
@@ -161,20 +139,20 @@ void Long3rNodelet::loadModel() {
     throw std::runtime_error(what);
   }
   NODELET_INFO("model loaded from %s, running on %s in %s", path.c_str(),
-               inference_config_.device.c_str(),
-               long3r::config::enum_name(inference_config_.precision));
+               params_.inference.device.c_str(),
+               long3r::config::enum_name(params_.inference.precision));
 }
 
 // A session named at start must continue, or the node must not start:
 // mapping into a new map frame would mislead whatever navigates on it.
 void Long3rNodelet::loadStartSession() {
-  if (config_.session_path.empty()) return;
+  if (params_.node.session_path.empty()) return;
   try {
     std::lock_guard<std::mutex> lock(session_mutex_);
-    session_->load(config_.session_path);
+    session_->load(params_.node.session_path);
     copyStatus();
     std::lock_guard<std::mutex> state_lock(state_mutex_);
-    state_.session_file = "loaded from " + config_.session_path;
+    state_.session_file = "loaded from " + params_.node.session_path;
   } catch (const std::exception& e) {
     const std::string what =
         std::string("cannot continue the session (~session_path): ") + e.what();
@@ -186,19 +164,18 @@ void Long3rNodelet::loadStartSession() {
 void Long3rNodelet::advertise() {
   ros::NodeHandle& nh = getNodeHandle();
   ros::NodeHandle& pnh = getPrivateNodeHandle();
-  // Per-frame outputs queue a few messages for subscribers that lag a frame
-  // or two (a Python node under load); the map is latched, newest only.
-  frame_cloud_pub_ = pnh.advertise<sensor_msgs::PointCloud2>("frame_cloud", 5);
-  pointmap_pub_ = pnh.advertise<Pointmap>("pointmap", 5);
-  map_pub_ = pnh.advertise<sensor_msgs::PointCloud2>("map", 1, /*latch=*/true);
-  pose_pub_ = pnh.advertise<geometry_msgs::PoseStamped>("pose", 10);
-  path_pub_ = pnh.advertise<nav_msgs::Path>("path", 1, /*latch=*/true);
-  camera_info_pub_ = pnh.advertise<sensor_msgs::CameraInfo>("camera_info", 10);
-  depth_pub_ = pnh.advertise<sensor_msgs::Image>("depth", 5);
-  odometry_pub_ = pnh.advertise<nav_msgs::Odometry>("odometry", 10);
-  pose_cov_pub_ =
-      pnh.advertise<geometry_msgs::PoseWithCovarianceStamped>("pose_with_covariance", 10);
-  grid_pub_ = pnh.advertise<nav_msgs::OccupancyGrid>("grid", 1, /*latch=*/true);
+  frame_pub_ = std::make_unique<FramePublisher>(
+      pnh, [this](const std::string& kind, const std::string& message) {
+        warnThrottled(kind, message);
+      });
+  map_pub_ = std::make_unique<MapPublisher>(
+      pnh,
+      MapPublisher::Config{params_.frames.map_frame, params_.node.map_display_voxel_m,
+                           !params_.frames.base_frame.empty(), params_.grid},
+      [this](const std::string& kind, const std::string& message) {
+        warnThrottled(kind, message);
+      });
+  path_pub_ = pnh.advertise<nav_msgs::Path>("path", 1, /*latch=*/true);  // latched, newest only
   reset_srv_ = pnh.advertiseService("reset", &Long3rNodelet::resetService, this);
   pause_srv_ = pnh.advertiseService("pause", &Long3rNodelet::pauseService, this);
   resume_srv_ = pnh.advertiseService("resume", &Long3rNodelet::resumeService, this);
@@ -209,10 +186,10 @@ void Long3rNodelet::advertise() {
       pnh.advertiseService("save_session", &Long3rNodelet::saveSessionService, this);
   load_session_srv_ =
       pnh.advertiseService("load_session", &Long3rNodelet::loadSessionService, this);
-  map_timer_ = nh.createWallTimer(ros::WallDuration(config_.map_publish_period_s),
+  map_timer_ = nh.createWallTimer(ros::WallDuration(params_.node.map_publish_period_s),
                                   &Long3rNodelet::mapTimerCallback, this);
-  if (config_.publish_tf &&
-      !(frames_config_.odom_frame.empty() && frames_config_.base_frame.empty())) {
+  if (params_.node.publish_tf &&
+      !(params_.frames.odom_frame.empty() && params_.frames.base_frame.empty())) {
     using TfEvent = ros::MessageEvent<tf2_msgs::TFMessage const>;
     tf_watch_sub_ = nh.subscribe<tf2_msgs::TFMessage>(
         "/tf", 100, boost::function<void(const TfEvent&)>([this](const TfEvent& e) {
@@ -223,9 +200,9 @@ void Long3rNodelet::advertise() {
           tfWatchCallback(e, true);
         }));
   }
-  if (config_.publish_tf && !frames_config_.odom_frame.empty() &&
-      config_.tf_publish_rate_hz > 0.0) {
-    tf_timer_ = nh.createTimer(ros::Duration(1.0 / config_.tf_publish_rate_hz),
+  if (params_.node.publish_tf && !params_.frames.odom_frame.empty() &&
+      params_.node.tf_publish_rate_hz > 0.0) {
+    tf_timer_ = nh.createTimer(ros::Duration(1.0 / params_.node.tf_publish_rate_hz),
                                &Long3rNodelet::tfTimerCallback, this);
   }
 
@@ -237,7 +214,7 @@ void Long3rNodelet::advertise() {
   output_diagnostic_ = std::make_unique<diagnostic_updater::TopicDiagnostic>(
       "pointmap", *diagnostics_,
       diagnostic_updater::FrequencyStatusParam(&min_rate_hz_, &max_rate_hz_, 0.1, 5),
-      diagnostic_updater::TimeStampStatusParam(-1.0, config_.max_latency_s));
+      diagnostic_updater::TimeStampStatusParam(-1.0, params_.node.max_latency_s));
 }
 
 void Long3rNodelet::subscribe() {
@@ -245,26 +222,27 @@ void Long3rNodelet::subscribe() {
   ros::NodeHandle& pnh = getPrivateNodeHandle();
   // The worker pairs each queued image with the camera_info and depth of its
   // stamp, so the caches reach back as far as the image queue does.
-  const auto reach = static_cast<unsigned>(config_.queue_size) + kCacheMargin;
+  const auto reach = static_cast<unsigned>(params_.node.queue_size) + kCacheMargin;
   camera_info_cache_.setCacheSize(reach);
   depth_cache_.setCacheSize(reach);
-  if (config_.use_camera_info) {
+  if (params_.node.use_camera_info) {
     camera_info_sub_ = nh.subscribe("camera_info", 10, &Long3rNodelet::cameraInfoCallback, this);
   }
-  if (session_config_.scale.source == long3r::ScaleSource::kDepth) {
+  if (params_.session.scale.source == long3r::ScaleSource::kDepth) {
     depth_sub_ = nh.subscribe("depth", kSubscriberQueue, &Long3rNodelet::depthCallback, this);
     NODELET_INFO("metric scale from the depth images on %s", depth_sub_.getTopic().c_str());
   }
-  if (config_.pose_source == PoseSource::kOdometry) {
+  if (params_.node.pose_source == PoseSource::kOdometry) {
     odom_sub_ = nh.subscribe("odom", 100, &Long3rNodelet::odomCallback, this);
     NODELET_INFO("covariance of the odometry-placed poses from %s (nav_msgs/Odometry)",
                  odom_sub_.getTopic().c_str());
   }
   it_ = std::make_unique<image_transport::ImageTransport>(nh);
   const std::vector<std::string> loadable = it_->getLoadableTransports();
-  const bool installed = std::find(loadable.begin(), loadable.end(),
-                                   "image_transport/" + config_.image_transport) != loadable.end();
-  if (!installed && config_.image_transport == "compressed") {
+  const bool installed =
+      std::find(loadable.begin(), loadable.end(),
+                "image_transport/" + params_.node.image_transport) != loadable.end();
+  if (!installed && params_.node.image_transport == "compressed") {
     // Debian packages no compressed plugin: take the messages it would decode.
     const std::string topic = nh.resolveName("image") + "/compressed";
     compressed_sub_ =
@@ -278,16 +256,16 @@ void Long3rNodelet::subscribe() {
   if (!installed) {
     std::string names;
     for (const std::string& l : loadable) names += (names.empty() ? "" : ", ") + l;
-    const std::string what = "image_transport '" + config_.image_transport +
+    const std::string what = "image_transport '" + params_.node.image_transport +
                              "' is not installed (installed: " + names + ")";
     logFatal(getName(), what);
     throw std::runtime_error(what);
   }
   image_sub_ = it_->subscribe(
       "image", kSubscriberQueue, &Long3rNodelet::imageCallback, this,
-      image_transport::TransportHints(config_.image_transport, ros::TransportHints(), pnh));
+      image_transport::TransportHints(params_.node.image_transport, ros::TransportHints(), pnh));
   NODELET_INFO("subscribed to %s (transport %s)", image_sub_.getTopic().c_str(),
-               config_.image_transport.c_str());
+               params_.node.image_transport.c_str());
 }
 
 // ---------------------------------------------------------------- callbacks
@@ -336,40 +314,22 @@ constexpr double kOdomCovarianceMaxDtS = 0.1;
 std::optional<Eigen::Matrix<double, 6, 6>> Long3rNodelet::odometryCovarianceInMap(
     const ros::Time& stamp) {
   const std::string topic = odom_sub_.getTopic();
-  const nav_msgs::OdometryConstPtr nearest =
-      nearestInCache(odom_cache_, stamp, kOdomCovarianceMaxDtS);
-  const auto refuse = [&](const std::string& why) -> std::optional<Eigen::Matrix<double, 6, 6>> {
-    warnThrottled("odometry covariance",
-                  format("frame at t=%.3f placed by odometry: ", stamp.toSec()) + why +
-                      "; ~odometry and ~pose_with_covariance carry the model's PnP covariance "
-                      "instead (none when PnP failed)");
-    return std::nullopt;
-  };
-  if (!nearest) {
-    return refuse("no odometry message on " + topic +
-                  format(" within %.0f ms", 1e3 * kOdomCovarianceMaxDtS));
+  std::string why =
+      "no odometry message on " + topic + format(" within %.0f ms", 1e3 * kOdomCovarianceMaxDtS);
+  if (const nav_msgs::OdometryConstPtr nearest =
+          nearestInCache(odom_cache_, stamp, kOdomCovarianceMaxDtS)) {
+    if (auto cov =
+            poseCovarianceOfOdometry(*nearest, params_.frames.odom_frame, params_.frames.base_frame,
+                                     frames_->T_map_odom().linear(), &why)) {
+      return cov;
+    }
+    why = "the odometry on " + topic + ": " + why;
   }
-  const auto bare = [](const std::string& f) { return f.empty() || f[0] != '/' ? f : f.substr(1); };
-  if (bare(nearest->header.frame_id) != frames_config_.odom_frame ||
-      bare(nearest->child_frame_id) != frames_config_.base_frame) {
-    return refuse("the odometry on " + topic + " is of " + nearest->child_frame_id + " in " +
-                  nearest->header.frame_id + ", not of " + frames_config_.base_frame + " in " +
-                  frames_config_.odom_frame + " (the frames that place it)");
-  }
-  const Eigen::Matrix<double, 6, 6> cov_odom =
-      Eigen::Map<const Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(
-          nearest->pose.covariance.data());
-  if (!cov_odom.allFinite() || (cov_odom.diagonal().array() < 0.0).any()) {
-    return refuse("the odometry message's pose covariance on " + topic +
-                  " has a negative or non-finite entry");
-  }
-  if (cov_odom.isZero(0.0)) {
-    return refuse("the odometry messages on " + topic + " leave the pose covariance unset (zeros)");
-  }
-  // The body pose in map is T_map_odom * T_odom_base: the same point, axes turned.
-  const std::array<double, 36> c =
-      poseCovarianceInMap(cov_odom, frames_->T_map_odom().linear(), Eigen::Vector3d::Zero());
-  return Eigen::Map<const Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(c.data());
+  warnThrottled("odometry covariance",
+                format("frame at t=%.3f placed by odometry: ", stamp.toSec()) + why +
+                    "; ~odometry and ~pose_with_covariance carry the model's PnP covariance "
+                    "instead (none when PnP failed)");
+  return std::nullopt;
 }
 
 // How long another publisher of our transform silences ours after its last
@@ -388,19 +348,20 @@ void Long3rNodelet::tfWatchCallback(const ros::MessageEvent<tf2_msgs::TFMessage 
   const std::string& publisher = event.getPublisherName();
   if (publisher == ros::this_node::getName()) return;
   const std::string& ours =
-      frames_config_.odom_frame.empty() ? frames_config_.base_frame : frames_config_.odom_frame;
+      params_.frames.odom_frame.empty() ? params_.frames.base_frame : params_.frames.odom_frame;
   for (const geometry_msgs::TransformStamped& t : event.getMessage()->transforms) {
-    if (t.child_frame_id != ours || t.header.frame_id != frames_config_.map_frame) continue;
+    if (t.child_frame_id != ours || t.header.frame_id != params_.frames.map_frame) continue;
     const bool news = !rivalPublishing();
-    rival_tf_wall_s_ = wallNow();
-    if (is_static) rival_tf_static_ = true;
-    const std::string what = frames_config_.map_frame + " -> " + ours + " is also published by " +
+    const std::string what = params_.frames.map_frame + " -> " + ours + " is also published by " +
                              publisher + (is_static ? " (static)" : "") +
                              ": ours stopped while it is, so that the frame has one publisher";
     {
+      // Named before it counts: the diagnostics never see a nameless rival.
       std::lock_guard<std::mutex> lock(state_mutex_);
       state_.tf_rival = what;
     }
+    rival_tf_wall_s_ = wallNow();
+    if (is_static) rival_tf_static_ = true;
     if (news) {
       NODELET_ERROR("%s", what.c_str());
     }
@@ -418,14 +379,14 @@ void Long3rNodelet::tfTimerCallback(const ros::TimerEvent&) {
   // map -> odom is a slowly changing correction: kept valid at the current
   // time (and tf_delay_s ahead), so that map -> base resolves at the
   // odometry's latest stamps.
-  t->header.stamp = ros::Time::now() + ros::Duration(config_.tf_delay_s);
+  t->header.stamp = ros::Time::now() + ros::Duration(params_.node.tf_delay_s);
   tf_broadcaster_.sendTransform(*t);
 }
 
 // ---------------------------------------------------------------- worker
 
 void Long3rNodelet::workerLoop() {
-  const long3r::ThreadState threads = long3r::apply_thread_config(thread_config_);
+  const long3r::ThreadState threads = long3r::apply_thread_config(params_.threads);
   NODELET_INFO("worker thread running with %s", long3r::describe(threads).c_str());
   auto last_frame = std::chrono::steady_clock::now();
   while (running_) {
@@ -433,7 +394,7 @@ void Long3rNodelet::workerLoop() {
     if (!frame) {
       const double idle_s =
           std::chrono::duration<double>(std::chrono::steady_clock::now() - last_frame).count();
-      if (idle_s >= config_.flush_after_s) flushPending();
+      if (idle_s >= params_.node.flush_after_s) flushPending();
       continue;
     }
     last_frame = std::chrono::steady_clock::now();
@@ -453,7 +414,7 @@ void Long3rNodelet::handleFrame(const InputFrame& frame) {
   const std_msgs::Header& header = frame.header();
   DecodedImage decoded;
   try {
-    decoded = decodeInput(frame, static_cast<std::uint64_t>(config_.max_image_pixels));
+    decoded = decodeInput(frame, static_cast<std::uint64_t>(params_.node.max_image_pixels));
   } catch (const InputError& e) {
     ++frames_dropped_input_;
     window_.failed();
@@ -465,7 +426,7 @@ void Long3rNodelet::handleFrame(const InputFrame& frame) {
   f.encoding = decoded.encoding;
   f.stamp_s = header.stamp.toSec();
   f.clock_s = frame.arrival.toSec();
-  if (config_.use_camera_info) f.camera = cameraFor(header.stamp);
+  if (params_.node.use_camera_info) f.camera = cameraFor(header.stamp);
   f.tag = header;
   std::lock_guard<std::mutex> lock(session_mutex_);
   try {
@@ -541,7 +502,7 @@ std::optional<Eigen::Isometry3d> Long3rNodelet::place(const long3r::LiveFrame& f
                   format("frame at t=%.3f: the camera's mounting: ", header.stamp.toSec()) +
                       e.what() + "; the last one known is used");
   }
-  if (config_.pose_source != PoseSource::kOdometry) return std::nullopt;
+  if (params_.node.pose_source != PoseSource::kOdometry) return std::nullopt;
   if (!frames_->odometryAnchored()) {
     warnThrottled("session odometry",
                   format("frame at t=%.3f placed by the model: in the loaded session, map -> "
@@ -612,7 +573,7 @@ void Long3rNodelet::on_stream_ending(const long3r::Reconstruction& ending) {
   archive_->integrate(snap.points, snap.colors, static_cast<std::int64_t>(archive_->revision()));
   NODELET_INFO("the ending stream's %zu map points stay in ~map (%zu kept from ended streams)%s",
                snap.points.size(), archive_->size(),
-               frames_config_.odom_frame.empty()
+               params_.frames.odom_frame.empty()
                    ? "; without odom_frame the next stream's map is not registered to them"
                    : "");
 }
@@ -639,8 +600,7 @@ void Long3rNodelet::on_new_stream(const std::string&) {
     std::lock_guard<std::mutex> state_lock(state_mutex_);
     state_.map_to_odom.reset();
   }
-  last_body_.reset();
-  last_body_cov_.reset();
+  frame_pub_->restartTwist();
   path_pub_.publish(pathMessage());
 }
 
@@ -677,7 +637,7 @@ void Long3rNodelet::restore_session_state(const long3r::StateDict& state) {
     NODELET_WARN(
         "the loaded session has no map frame of its own (saved by long3r_reconstruct?): "
         "%s is fixed by the next frame, as for a new stream",
-        frames_config_.map_frame.c_str());
+        params_.frames.map_frame.c_str());
   }
   copyStatus();
   path_pub_.publish(pathMessage());
@@ -685,11 +645,11 @@ void Long3rNodelet::restore_session_state(const long3r::StateDict& state) {
 
 nav_msgs::Path Long3rNodelet::pathMessage() {
   nav_msgs::Path path;
-  path.header.frame_id = frames_config_.map_frame;
+  path.header.frame_id = params_.frames.map_frame;
   for (const auto& [stamp, T_W_C] : session_->reconstruction().trajectory()) {
     geometry_msgs::PoseStamped p;
     p.header.stamp = ros::Time(stamp);
-    p.header.frame_id = frames_config_.map_frame;
+    p.header.frame_id = params_.frames.map_frame;
     p.pose = tf2::toMsg(frames_->bodyInMap(T_W_C, p.header.stamp));
     path.poses.push_back(p);
   }
@@ -704,16 +664,16 @@ void Long3rNodelet::on_result(long3r::LiveResult& r) {
   // ROS's publishers may already be torn down.
   if (!running_ || !ros::ok()) return;
   std_msgs::Header header = std::any_cast<const std_msgs::Header&>(r.tag);
-  if (!frames_config_.camera_frame.empty()) header.frame_id = frames_config_.camera_frame;
+  if (!params_.frames.camera_frame.empty()) header.frame_id = params_.frames.camera_frame;
   ++frames_processed_;
   window_.processed((ros::Time::now() - header.stamp).toSec());
   output_diagnostic_->tick(header.stamp);
-  if (r.scale_changed) last_body_.reset();  // the previous pose was in the old scale
+  if (r.scale_changed) frame_pub_->restartTwist();  // the previous pose was in the old scale
   if (r.frame.pose.ok() && !frames_->odometryAnchored()) {
     try {
       frames_->anchorOdometry(r.frame.pose.T_W_C, header.stamp);
       NODELET_INFO("relocalised in the loaded session at t=%.3f: map -> %s follows from it",
-                   header.stamp.toSec(), frames_config_.odom_frame.c_str());
+                   header.stamp.toSec(), params_.frames.odom_frame.c_str());
     } catch (const TfUnavailable& e) {
       warnThrottled("tf session", std::string("map -> odom not tied yet: ") + e.what());
     }
@@ -722,90 +682,30 @@ void Long3rNodelet::on_result(long3r::LiveResult& r) {
 }
 
 void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs::Header& header) {
-  const int h = r.conf.rows, w = r.conf.cols;
-  const sensor_msgs::CameraInfo info = toCameraInfo(r.intrinsics.fx, r.intrinsics.fy,
-                                                    r.intrinsics.cx, r.intrinsics.cy, w, h, header);
-  // ~camera_info goes with every result, posed or not (depth_image_proc pairs it with ~depth).
-  camera_info_pub_.publish(info);
-  if (!r.posed()) return;
-  // A frame placed by odometry whose PnP failed has a pose but no points_C.
-  const bool has_points = r.pose.ok() && !r.points_C.empty();
-
-  const Eigen::Isometry3d& T_map_W = frames_->T_map_W();
-  const Eigen::Isometry3d T_map_cam = T_map_W * r.pose.T_W_C;
-  const Eigen::Isometry3d T_map_body = frames_->bodyInMap(r.pose.T_W_C, header.stamp);
+  FramePublisher::Context c;
+  c.header = header;
+  c.map_frame = params_.frames.map_frame;
+  c.body_frame = frames_->bodyFrame();
+  c.T_map_W = frames_->T_map_W();
+  if (r.posed()) c.T_map_body = frames_->bodyInMap(r.pose.T_W_C, header.stamp);
   const long3r::LiveStatus status = session_->status();
-  const bool depth_held = session_config_.scale.source != long3r::ScaleSource::kNone &&
-                          !status.scale_metric && !config_.publish_unscaled_depth;
-  if (!has_points) {
-    // ~depth, ~frame_cloud and ~pointmap need the frame's own geometry.
-  } else if (depth_held &&
-             (depth_pub_.getNumSubscribers() > 0 || frame_cloud_pub_.getNumSubscribers() > 0)) {
-    warnThrottled("depth held",
-                  format("~depth and ~frame_cloud of the frame at t=%.3f held: they wait for the "
-                         "metric scale (scale_source ",
-                         header.stamp.toSec()) +
-                      long3r::config::enum_name(session_config_.scale.source) +
-                      "); publish_unscaled_depth: true sends them in model units meanwhile");
-  } else if (depth_pub_.getNumSubscribers() > 0 || frame_cloud_pub_.getNumSubscribers() > 0) {
-    const sensor_msgs::ImagePtr depth =
-        toDepthImage(r.points_C, r.conf, recon_config_.conf_threshold, header);
-    if (depth_pub_.getNumSubscribers() > 0) depth_pub_.publish(depth);
-    if (frame_cloud_pub_.getNumSubscribers() > 0) {
-      frame_cloud_pub_.publish(toFrameCloud(depth, info, r.conf, r.rgb));
-    }
-  }
-  if (has_points && pointmap_pub_.getNumSubscribers() > 0) {
-    pointmap_pub_.publish(toPointmap(r, header, frames_config_.map_frame, T_map_cam,
-                                     status.scale_metric, status.scale_estimate.stddev));
-  }
-
-  geometry_msgs::PoseStamped pose;
-  pose.header.stamp = header.stamp;
-  pose.header.frame_id = frames_config_.map_frame;
-  pose.pose = tf2::toMsg(T_map_body);
-  pose_pub_.publish(pose);
-
-  nav_msgs::Odometry odom;
-  odom.header = pose.header;
-  odom.child_frame_id = frames_->bodyFrame();
-  odom.pose.pose = pose.pose;
-  std::optional<Eigen::Matrix<double, 6, 6>> cov_map;
-  if (r.pose_given) cov_map = odometryCovarianceInMap(header.stamp);  // the pose is odometry's
-  if (cov_map) {
-    Eigen::Map<Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(odom.pose.covariance.data()) =
-        *cov_map;
-  } else if (r.pose.covariance) {
-    const std::array<double, 36> c = poseCovarianceInMap(
-        *r.pose.covariance, T_map_W.linear(), T_map_body.translation() - T_map_cam.translation());
-    std::copy(c.begin(), c.end(), odom.pose.covariance.begin());
-    cov_map =
-        Eigen::Map<const Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(odom.pose.covariance.data());
-  }
-  if (last_body_ && last_body_cov_ && cov_map) {
-    if (const auto twist =
-            long3r::finite_difference_twist(last_body_->first, *last_body_cov_, last_body_->second,
-                                            T_map_body, *cov_map, header.stamp.toSec())) {
-      tf2::toMsg(twist->linear, odom.twist.twist.linear);
-      tf2::toMsg(twist->angular, odom.twist.twist.angular);
-      Eigen::Map<Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(odom.twist.covariance.data()) =
-          twist->covariance;
-    }
-  }
-  if (cov_map) {
-    odometry_pub_.publish(odom);
-    // robot_localization's pose input: the same pose and covariance.
-    geometry_msgs::PoseWithCovarianceStamped pose_cov;
-    pose_cov.header = odom.header;
-    pose_cov.pose = odom.pose;
-    pose_cov_pub_.publish(pose_cov);
-  }
-  last_body_ = std::make_pair(T_map_body, header.stamp.toSec());
-  last_body_cov_ = cov_map;
+  c.scale_metric = status.scale_metric;
+  c.scale_stddev = status.scale_estimate.stddev;
+  const long3r::ScaleSource source = params_.session.scale.source;
+  c.depth_held = source != long3r::ScaleSource::kNone && !status.scale_metric &&
+                 !params_.node.publish_unscaled_depth;
+  c.depth_held_why = std::string("they wait for the metric scale (scale_source ") +
+                     long3r::config::enum_name(source) +
+                     "); publish_unscaled_depth: true sends them in model units meanwhile";
+  c.conf_threshold = params_.reconstruction.conf_threshold;
+  // A pose the odometry placed has the odometry's covariance.
+  if (r.posed() && r.pose_given) c.given_covariance_map = odometryCovarianceInMap(header.stamp);
+  frame_pub_->publish(r, c);
+  if (!r.posed()) return;
 
   path_pub_.publish(pathMessage());
 
-  if (config_.publish_tf) {
+  if (params_.node.publish_tf) {
     try {
       if (const auto t = frames_->transformFor(r.pose.T_W_C, header.stamp)) {
         if (!rivalPublishing()) tf_broadcaster_.sendTransform(*t);
@@ -826,64 +726,21 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
 void Long3rNodelet::mapTimerCallback(const ros::WallTimerEvent&) {
   if (diagnostics_) diagnostics_->update();
   if (!session_) return;
-  // The map locks itself: no wait for the model step.
-  // Both only grow in revision: their sum changes whenever either does.
+  // The map locks itself: no wait for the model step. Both only grow in
+  // revision: their sum changes whenever either does.
   const std::uint64_t revision = session_->reconstruction().map().revision() + archive_->revision();
-  // Built only for subscribers, and only when the map changed since they got it.
-  const bool grid = grid_pub_.getNumSubscribers() > 0 && revision != last_grid_revision_;
-  const bool cloud = map_pub_.getNumSubscribers() > 0 && revision != last_map_revision_;
-  if (!grid) {
-    std::lock_guard<std::mutex> lock(state_mutex_);
-    if (grid_pub_.getNumSubscribers() == 0) state_.grid = "not subscribed";
-  }
-  if (!cloud && !grid) return;
-  long3r::MapSnapshot snap = mapSnapshot();
-  if (grid) {
-    last_grid_revision_ = revision;
-    publishGrid(snap.points);
-  }
-  if (!cloud) return;
-  last_map_revision_ = revision;
-  std_msgs::Header header;
-  header.stamp = ros::Time::now();
-  header.frame_id = frames_config_.map_frame;
-  downsampleForDisplay(snap.points, snap.colors, config_.map_display_voxel_m);
-  // By pointer: subscribers in the same nodelet manager share it without a copy.
-  map_pub_.publish(boost::make_shared<sensor_msgs::PointCloud2>(
-      toColoredCloud(snap.points, snap.colors, header)));
-}
-
-// ~grid from the map and the path's camera positions, in the map frame. Only
-// a z-up map (a robot base) has a floor to stand on; the diagnostics say why
-// there is no grid, or that it is not in metres yet.
-void Long3rNodelet::publishGrid(const std::vector<Eigen::Vector3f>& points_map) {
-  std::vector<Eigen::Vector3d> cameras;
-  bool metric = false;
-  {
-    std::lock_guard<std::mutex> lock(state_mutex_);
-    cameras = state_.cameras_map;
-    metric = state_.session.scale_metric;
-    if (frames_config_.base_frame.empty()) {
-      state_.grid = "none: needs base_frame (the map is z-up with its floor at z = 0 only then)";
-      return;
+  if (map_pub_->wants(revision)) {
+    std::vector<Eigen::Vector3d> cameras;
+    bool metric = false;
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      cameras = state_.cameras_map;
+      metric = state_.session.scale_metric;
     }
-  }
-  std::string status;
-  try {
-    const long3r::OccupancyGrid g = long3r::build_occupancy_grid(points_map, cameras, grid_config_);
-    std_msgs::Header header;
-    header.stamp = ros::Time::now();
-    header.frame_id = frames_config_.map_frame;
-    if (g.width > 0) grid_pub_.publish(toOccupancyGrid(g, header));
-    status = std::to_string(g.width) + " x " + std::to_string(g.height) + " cells, " +
-             std::to_string(g.occupied) + " occupied, " + std::to_string(g.free) + " free" +
-             (metric ? "" : "; in model units: the scale is not metric yet");
-  } catch (const std::exception& e) {
-    status = std::string("not published: ") + e.what();
-    warnThrottled("grid", "~grid " + status);
+    map_pub_->publish(mapSnapshot(), cameras, metric, revision);
   }
   std::lock_guard<std::mutex> lock(state_mutex_);
-  state_.grid = status;
+  state_.grid = map_pub_->gridStatus();
 }
 
 // ---------------------------------------------------------------- services
@@ -927,7 +784,7 @@ bool Long3rNodelet::saveMapService(SaveMap::Request& req, SaveMap::Response& res
     long3r::save_colored_cloud(req.path, snap.points, snap.colors);  // atomic
     res.success = true;
     res.message = "wrote " + std::to_string(snap.points.size()) + " points (" +
-                  frames_config_.map_frame + ") to " + req.path;
+                  params_.frames.map_frame + ") to " + req.path;
   } catch (const std::exception& e) {
     res.success = false;
     res.message = e.what();
@@ -986,7 +843,7 @@ bool Long3rNodelet::saveTrajectoryService(SaveTrajectory::Request& req,
       trajectory.stamps.push_back(stamp);
       trajectory.poses.push_back(frames_->bodyInMap(T_W_C, ros::Time(stamp)));
     }
-    what = "poses of " + frames_->bodyFrame() + " in " + frames_config_.map_frame;
+    what = "poses of " + frames_->bodyFrame() + " in " + params_.frames.map_frame;
   }
   try {
     long3r::write_tum_trajectory(req.path, trajectory, "long3r_ros ~path: " + what);  // atomic
@@ -1013,81 +870,32 @@ void Long3rNodelet::warnThrottled(const std::string& kind, const std::string& me
 }
 
 void Long3rNodelet::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) {
-  using S = diagnostic_msgs::DiagnosticStatus;
-  const WindowStats::Counts w = window_.window();
-  window_.rotate();
-  const double last_input = last_input_wall_s_;
-  const double quiet_s = wallNow() - (last_input > 0.0 ? last_input : started_.toSec());
-  State state;
+  NodeStatus n;
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
-    state = state_;
+    n.session = state_.session;
+    n.frames = state_.frames;
+    n.session_file = state_.session_file;
+    n.grid = state_.grid;
+    if (rivalPublishing()) n.tf_rival = state_.tf_rival;
   }
-  const long3r::LiveStatus& s = state.session;
-
-  const bool rival = rivalPublishing();
-  if (rival) {
-    stat.summary(S::ERROR, state.tf_rival);
-  } else if (paused_) {
-    stat.summary(S::OK, "paused (~resume to continue)");
-  } else if (quiet_s > config_.no_input_warn_s) {
-    stat.summaryf(S::WARN, last_input > 0.0 ? "no input for %.0f s" : "no image received in %.0f s",
-                  quiet_s);
-  } else if (s.lost_frames > 0) {
-    stat.summaryf(S::WARN, "tracking lost for %d frame(s) (%.1f s)", s.lost_frames, s.lost_for_s);
-  } else if (s.mapping_held) {
-    stat.summaryf(S::WARN, "map held until the metric scale is known (%d samples so far)",
-                  s.scale_estimate.samples);
-  } else if (s.calibration_refused) {
-    stat.summary(S::WARN, s.calibration);
-  } else if (w.dropped + w.failed > 0) {
-    stat.summaryf(S::WARN, "dropped %lu and failed %lu frame(s) in the window",
-                  static_cast<unsigned long>(w.dropped), static_cast<unsigned long>(w.failed));
-  } else {
-    stat.summary(S::OK, "running");
-  }
-  stat.add("frames received (window)", w.received);
-  stat.add("frames processed (window)", w.processed);
-  stat.add("frames dropped (window)", w.dropped);
-  stat.add("frames failed (window)", w.failed);
-  if (w.processed > 0) {
-    stat.addf("latency min / mean / max (s)", "%.3f / %.3f / %.3f", w.latency_min_s,
-              w.latencyMean(), w.latency_max_s);
-  } else {
-    stat.add("latency min / mean / max (s)", "no frame in the window");
-  }
-  stat.addf("seconds since the last image", "%.1f", quiet_s);
-  stat.add("paused", static_cast<bool>(paused_));
-  stat.add("tracking", s.tracking);
-  stat.add("tracking lost (frames)", s.lost_frames);
-  stat.addf("tracking lost (s)", "%.1f", s.lost_for_s);
-  stat.add("calibration", s.calibration);
-  stat.add("frames", state.frames);
-  const long3r::ScaleEstimate& e = s.scale_estimate;
-  stat.add("scale source", long3r::config::enum_name(session_config_.scale.source));
-  stat.addf("scale in use (m per model unit)", "%.6g", s.scale);
-  stat.add("scale metric", s.scale_metric);
-  stat.add("map held for the scale", s.mapping_held);
-  stat.addf("scale estimate", "%.6g +- %.3g (%d samples, %d rejected)", e.scale, e.stddev,
-            e.samples, e.rejected);
-  stat.add("stream frames", s.stream_frames);
-  stat.add("streams started", s.streams);
-  stat.add("relocalisation attempts", s.relocalisation_attempts);
-  stat.add("relocalisations", s.relocalisations);
-  stat.add("map points kept from ended streams", archive_ ? archive_->size() : 0);
-  stat.add("session file", state.session_file);
-  stat.add("grid", state.grid);
-  stat.add("tf", rival ? state.tf_rival : std::string("publishing"));
-  stat.add("memory tokens short", s.mem_short_tokens);
-  stat.add("memory tokens long", s.mem_long_tokens);
-  stat.add("relevant tokens", s.relevant_tokens);
-  stat.add("map points", session_ ? session_->reconstruction().map().size() : 0);
-  stat.add("frames received (total)", frames_received_.load());
-  stat.add("frames processed (total)", frames_processed_.load());
-  stat.add("frames failed (total)", frames_failed_.load());
-  stat.add("frames dropped: bad input (total)", frames_dropped_input_.load());
-  stat.add("frames dropped: queue full (total)", queue_ ? queue_->dropped() : 0);
-  stat.add("frames dropped: paused (total)", frames_dropped_paused_.load());
+  n.window = window_.window();
+  window_.rotate();
+  const double last_input = last_input_wall_s_;
+  n.input_seen = last_input > 0.0;
+  n.quiet_s = wallNow() - (n.input_seen ? last_input : started_.toSec());
+  n.no_input_warn_s = params_.node.no_input_warn_s;
+  n.paused = paused_;
+  n.scale_source = params_.session.scale.source;
+  n.map_points = session_ ? session_->reconstruction().map().size() : 0;
+  n.archived_map_points = archive_ ? archive_->size() : 0;
+  n.received = frames_received_;
+  n.processed = frames_processed_;
+  n.failed = frames_failed_;
+  n.dropped_input = frames_dropped_input_;
+  n.dropped_queue = queue_ ? queue_->dropped() : 0;
+  n.dropped_paused = frames_dropped_paused_;
+  fillDiagnostics(n, stat);
 }
 
 void Long3rNodelet::shutdown() {

@@ -9,6 +9,19 @@
 
 namespace long3r_ros {
 
+void FramesConfig::validate(const long3r::config::FieldCheck& check) const {
+  check.require(!map_frame.empty(), "map_frame", "must not be empty");
+  for (const std::string* f : {&odom_frame, &base_frame, &camera_frame}) {
+    check.require(*f != map_frame, "map_frame",
+                  "must differ from odom_frame, base_frame and camera_frame");
+  }
+  check.require(odom_frame.empty() || !base_frame.empty(), "odom_frame",
+                "needs base_frame (map -> odom -> base is what the node estimates)");
+  check.require(odom_frame.empty() || odom_frame != base_frame, "odom_frame",
+                "must differ from base_frame");
+  check.require(tf_timeout_s >= 0.0 && tf_timeout_s <= 10.0, "tf_timeout_s", "must be in [0, 10]");
+}
+
 Eigen::Matrix3d bodyFromOptical() {
   // Columns: the optical axes in body axes (x right -> -y, y down -> -z, z forward -> x).
   Eigen::Matrix3d R;

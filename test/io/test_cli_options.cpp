@@ -289,4 +289,66 @@ TEST(CliOptions, DefiningAnOptionTwiceIsAProgrammingError) {
   EXPECT_THROW(cli.flag("--help", &x, "x"), std::logic_error);
 }
 
+// Config structs with field lists, as the pipeline's are.
+enum class Colour { kRed, kGreen };
+const std::array<std::pair<Colour, const char*>, 2>& enum_names(Colour) {
+  static const std::array<std::pair<Colour, const char*>, 2> names{
+      {{Colour::kRed, "red"}, {Colour::kGreen, "green"}}};
+  return names;
+}
+struct Inner {
+  double min_baseline_m = 0.1;
+  bool freeze = true;
+  Colour colour = Colour::kRed;
+};
+template <class S, class V>
+long3r::config::FieldsOf<S, Inner> visit_fields(S& s, V& v) {
+  v("min_baseline_m", s.min_baseline_m);
+  v("freeze", s.freeze);
+  v("colour", s.colour);
+}
+struct Outer {
+  int lost_frames = 0;
+  std::size_t cap = 5;
+  Inner inner;
+};
+template <class S, class V>
+long3r::config::FieldsOf<S, Outer> visit_fields(S& s, V& v) {
+  v("lost_frames", s.lost_frames, "(no bound)");
+  v("cap", s.cap);
+  v.nested("inner", s.inner, "scale_");
+}
+
+TEST(CliOptions, ConfigFieldsAreOptionsByTheirFlatNames) {
+  Outer c;
+  CliOptions cli("prog");
+  long3r::add_config_options(cli, &c);
+  const Argv argv({"--lost-frames", "3", "--cap", "9", "--scale-min-baseline-m", "0.5",
+                   "--scale-freeze", "false", "--scale-colour", "green"});
+  ASSERT_TRUE(cli.parse(argv.argc(), argv.argv()));
+  EXPECT_EQ(c.lost_frames, 3);
+  EXPECT_EQ(c.cap, 9u);
+  EXPECT_EQ(c.inner.min_baseline_m, 0.5);
+  EXPECT_FALSE(c.inner.freeze);
+  EXPECT_EQ(c.inner.colour, Colour::kGreen);
+  const std::string help = cli.help();
+  EXPECT_NE(help.find("--scale-freeze BOOL"), std::string::npos) << help;
+  EXPECT_NE(help.find("--scale-min-baseline-m X"), std::string::npos) << help;
+  EXPECT_NE(help.find("--scale-colour NAME"), std::string::npos) << help;
+  EXPECT_NE(help.find("scale_colour: \"red\" or \"green\""), std::string::npos) << help;
+  EXPECT_NE(help.find("(default red)"), std::string::npos) << help;
+  EXPECT_NE(help.find("(default 0 (no"), std::string::npos) << help;
+
+  Outer d;
+  CliOptions strict("prog");
+  long3r::add_config_options(strict, &d);
+  const Argv bad({"--scale-freeze", "yes"});
+  try {
+    strict.parse(bad.argc(), bad.argv());
+    FAIL() << "no error for a boolean written yes";
+  } catch (const UsageError& e) {
+    EXPECT_STREQ(e.what(), "--scale-freeze must be true or false (got \"yes\")");
+  }
+}
+
 }  // namespace

@@ -62,7 +62,7 @@ def main():
     # dataset's depth images and groundtruth.txt serve as scale sources.
     out_fixed = os.path.join(a.workdir, "out_fixed")
     rc, log = run([a.reconstruct, "--model", model, "--out", out_fixed, "--img-size", "64",
-                   "--scale-source", "fixed", "--scale", "2.5", seq])
+                   "--scale-source", "fixed", "--scale-m-per-unit", "2.5", seq])
     check(rc == 0 and "scale 2.5 m per model unit (metric)" in log, "fixed scale: " + log)
     rows = list(csv.DictReader(open(os.path.join(out_fixed, "frames.csv"))))
     check(rows and all(float(r["scale"]) == 2.5 for r in rows), "frames.csv scale column")

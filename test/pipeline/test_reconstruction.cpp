@@ -209,7 +209,8 @@ TEST(Reconstruction, GivenPosePlacesTheFrame) {
 TEST(Reconstruction, GivenPosePlacesAFrameWhosePnpFails) {
   const GtSequence g = make_sequence(4);
   ReconstructionConfig cfg = test::gt_reconstruction_config();
-  cfg.pnp.min_inliers = 1000000;  // every PnP after frame 0 fails
+  // Every PnP after frame 0 fails: more inliers needed than a frame has pixels.
+  cfg.pnp.min_inliers = cfg.pnp.max_correspondences = 1000000;
   Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), cfg);
   rec.set_calibration(g.seq.config.intrinsics);
   Eigen::Isometry3d shift = Eigen::Isometry3d::Identity();

@@ -3,18 +3,11 @@
 #include <gtest/gtest.h>
 #include <ros/ros.h>
 
+#include "long3r/io/config_json.hpp"
 #include "long3r_ros/params.hpp"
 
 using long3r_ros::ParamError;
-using long3r_ros::readFramesConfig;
-using long3r_ros::readInferenceConfig;
-using long3r_ros::readLiveSessionConfig;
-using long3r_ros::readMetricScaleConfig;
-using long3r_ros::readNodeletConfig;
-using long3r_ros::readOccupancyGridConfig;
-using long3r_ros::readReconstructionConfig;
-using long3r_ros::readStreamMonitorConfig;
-using long3r_ros::readThreadConfig;
+using long3r_ros::readParams;
 
 namespace {
 
@@ -27,13 +20,7 @@ class ParamsTest : public ::testing::Test {
   }
   void expectError(const std::string& name) {
     try {
-      readNodeletConfig(pnh_);
-      readFramesConfig(pnh_);
-      readLiveSessionConfig(pnh_);
-      readThreadConfig(pnh_);
-      readInferenceConfig(pnh_);
-      readReconstructionConfig(pnh_);
-      readOccupancyGridConfig(pnh_);
+      readParams(pnh_);
       FAIL() << "no error for bad " << name;
     } catch (const ParamError& e) {
       EXPECT_NE(std::string(e.what()).find(name), std::string::npos) << e.what();
@@ -45,18 +32,18 @@ class ParamsTest : public ::testing::Test {
 }  // namespace
 
 TEST_F(ParamsTest, DefaultsWhenUnset) {
-  auto c = readNodeletConfig(pnh_);
-  EXPECT_EQ(readFramesConfig(pnh_).map_frame, "map");
+  auto c = readParams(pnh_).node;
+  EXPECT_EQ(readParams(pnh_).frames.map_frame, "map");
   EXPECT_EQ(c.queue_size, 1);
   EXPECT_TRUE(c.publish_tf);
-  EXPECT_EQ(readThreadConfig(pnh_).torch_threads, 0);
-  EXPECT_EQ(readThreadConfig(pnh_).openblas_threads, long3r::ThreadConfig::kOpenblasThreadsAuto);
+  EXPECT_EQ(readParams(pnh_).threads.torch_threads, 0);
+  EXPECT_EQ(readParams(pnh_).threads.openblas_threads, long3r::ThreadConfig::kOpenblasThreadsAuto);
 }
 
 TEST_F(ParamsTest, SessionAndGridParameters) {
-  EXPECT_EQ(readNodeletConfig(pnh_).session_path, "");
-  EXPECT_FALSE(readFramesConfig(pnh_).session_odometry_continues);
-  EXPECT_EQ(readOccupancyGridConfig(pnh_).resolution_m, 0.05);
+  EXPECT_EQ(readParams(pnh_).node.session_path, "");
+  EXPECT_FALSE(readParams(pnh_).frames.session_odometry_continues);
+  EXPECT_EQ(readParams(pnh_).grid.resolution_m, 0.05);
   pnh_.setParam("session_path", "/maps/site.l3s");
   pnh_.setParam("session_odometry_continues", true);
   pnh_.setParam("grid_resolution_m", 0.1);
@@ -64,19 +51,19 @@ TEST_F(ParamsTest, SessionAndGridParameters) {
   pnh_.setParam("grid_max_height_m", 2);  // an int where a double is expected is fine
   pnh_.setParam("grid_max_range_m", 3.0);
   pnh_.setParam("grid_min_points", 5);
-  EXPECT_EQ(readNodeletConfig(pnh_).session_path, "/maps/site.l3s");
-  EXPECT_TRUE(readFramesConfig(pnh_).session_odometry_continues);
-  const long3r::OccupancyGridConfig g = readOccupancyGridConfig(pnh_);
+  EXPECT_EQ(readParams(pnh_).node.session_path, "/maps/site.l3s");
+  EXPECT_TRUE(readParams(pnh_).frames.session_odometry_continues);
+  const long3r::OccupancyGridConfig g = readParams(pnh_).grid;
   EXPECT_EQ(g.resolution_m, 0.1);
   EXPECT_EQ(g.min_height_m, 0.2);
   EXPECT_EQ(g.max_height_m, 2.0);
   EXPECT_EQ(g.max_range_m, 3.0);
   EXPECT_EQ(g.min_points, 5);
   pnh_.setParam("grid_max_height_m", 0.1);  // below the band's bottom
-  expectError("grid_*: max_height_m");
+  expectError("grid_max_height_m");
   pnh_.setParam("grid_max_height_m", 2.0);
   pnh_.setParam("grid_resolution_m", -1.0);
-  expectError("grid_*: resolution_m");
+  expectError("grid_resolution_m");
   pnh_.setParam("grid_resolution_m", "fine");
   expectError("grid_resolution_m");
 }
@@ -87,21 +74,21 @@ TEST_F(ParamsTest, ReadsValidValues) {
   pnh_.setParam("flush_after_s", 2);  // an int where a double is expected is fine
   pnh_.setParam("publish_tf", false);
   pnh_.setParam("torch_threads", 2);
-  auto c = readNodeletConfig(pnh_);
-  EXPECT_EQ(readFramesConfig(pnh_).map_frame, "world");
+  auto c = readParams(pnh_).node;
+  EXPECT_EQ(readParams(pnh_).frames.map_frame, "world");
   EXPECT_EQ(c.queue_size, 5);
   EXPECT_DOUBLE_EQ(c.flush_after_s, 2.0);
   EXPECT_FALSE(c.publish_tf);
-  EXPECT_EQ(readThreadConfig(pnh_).torch_threads, 2);
+  EXPECT_EQ(readParams(pnh_).threads.torch_threads, 2);
 }
 
 TEST_F(ParamsTest, InputAndContinuityDefaultsAndValues) {
-  const auto c = readNodeletConfig(pnh_);
+  const auto c = readParams(pnh_).node;
   EXPECT_EQ(c.max_image_pixels, 4096 * 4096);
-  const auto s = readLiveSessionConfig(pnh_);
+  const auto s = readParams(pnh_).session;
   EXPECT_FALSE(s.image_is_rectified);
   EXPECT_EQ(s.lost_reset_frames, 0);
-  const auto m = readStreamMonitorConfig(pnh_);
+  const auto m = readParams(pnh_).session.stream;
   EXPECT_DOUBLE_EQ(m.max_backward_jump_s, 1.0);
   EXPECT_DOUBLE_EQ(m.max_stamp_jump_s, 5.0);
   EXPECT_EQ(m.size_change_frames, 3);
@@ -109,12 +96,12 @@ TEST_F(ParamsTest, InputAndContinuityDefaultsAndValues) {
   pnh_.setParam("lost_reset_frames", 30);
   pnh_.setParam("max_backward_jump_s", 0.2);
   pnh_.setParam("size_change_frames", 1);
-  EXPECT_TRUE(readLiveSessionConfig(pnh_).image_is_rectified);
-  EXPECT_EQ(readLiveSessionConfig(pnh_).lost_reset_frames, 30);
-  EXPECT_EQ(readLiveSessionConfig(pnh_).stream.size_change_frames, 1);
-  EXPECT_DOUBLE_EQ(readStreamMonitorConfig(pnh_).max_backward_jump_s, 0.2);
-  EXPECT_EQ(readStreamMonitorConfig(pnh_).size_change_frames, 1);
-  EXPECT_NE(long3r_ros::describe(readStreamMonitorConfig(pnh_)).find("size_change_frames: 1"),
+  EXPECT_TRUE(readParams(pnh_).session.image_is_rectified);
+  EXPECT_EQ(readParams(pnh_).session.lost_reset_frames, 30);
+  EXPECT_EQ(readParams(pnh_).session.stream.size_change_frames, 1);
+  EXPECT_DOUBLE_EQ(readParams(pnh_).session.stream.max_backward_jump_s, 0.2);
+  EXPECT_EQ(readParams(pnh_).session.stream.size_change_frames, 1);
+  EXPECT_NE(long3r_ros::describe(readParams(pnh_)).find("size_change_frames: 1"),
             std::string::npos);
 }
 
@@ -135,7 +122,7 @@ TEST_F(ParamsTest, RejectsBadContinuitySettings) {
 TEST_F(ParamsTest, OpenblasThreadsAutoEnvironmentOrCount) {
   for (int n : {-1, 0, 3}) {
     pnh_.setParam("openblas_threads", n);
-    EXPECT_EQ(readThreadConfig(pnh_).openblas_threads, n);
+    EXPECT_EQ(readParams(pnh_).threads.openblas_threads, n);
   }
   pnh_.setParam("openblas_threads", -2);
   expectError("openblas_threads");
@@ -173,7 +160,7 @@ TEST_F(ParamsTest, RejectsCameraFrameEqualToMap) {
 
 TEST_F(ParamsTest, WorldFrameIsTheOldNameOfMapFrame) {
   pnh_.setParam("world_frame", "world");
-  EXPECT_EQ(readFramesConfig(pnh_).map_frame, "world");
+  EXPECT_EQ(readParams(pnh_).frames.map_frame, "world");
   pnh_.setParam("map_frame", "map");
   expectError("world_frame");  // both, disagreeing
 }
@@ -182,26 +169,90 @@ TEST_F(ParamsTest, FramesAndScale) {
   pnh_.setParam("odom_frame", "odom");
   expectError("odom_frame");  // odometry without a base
   pnh_.setParam("base_frame", "base_link");
-  const long3r_ros::FramesConfig f = readFramesConfig(pnh_);
+  const long3r_ros::FramesConfig f = readParams(pnh_).frames;
   EXPECT_EQ(f.odom_frame, "odom");
   EXPECT_EQ(f.base_frame, "base_link");
-  EXPECT_EQ(readNodeletConfig(pnh_).pose_source, long3r_ros::PoseSource::kModel);
+  EXPECT_EQ(readParams(pnh_).node.pose_source, long3r_ros::PoseSource::kModel);
   pnh_.setParam("pose_source", "odometry");
-  EXPECT_EQ(readNodeletConfig(pnh_).pose_source, long3r_ros::PoseSource::kOdometry);
-  EXPECT_EQ(readMetricScaleConfig(pnh_).source, long3r::ScaleSource::kNone);
+  EXPECT_EQ(readParams(pnh_).node.pose_source, long3r_ros::PoseSource::kOdometry);
+  EXPECT_EQ(readParams(pnh_).session.scale.source, long3r::ScaleSource::kNone);
   pnh_.setParam("scale_source", "depth");
   pnh_.setParam("scale_min_samples", 8);
-  const long3r::MetricScaleConfig s = readMetricScaleConfig(pnh_);
+  const long3r::MetricScaleConfig s = readParams(pnh_).session.scale;
   EXPECT_EQ(s.source, long3r::ScaleSource::kDepth);
   EXPECT_EQ(s.min_samples, 8);
   pnh_.setParam("scale_source", "lidar");
   expectError("scale_source");
   pnh_.setParam("scale_source", "fixed");
-  pnh_.setParam("scale", -2.0);
-  expectError("scale");
-  pnh_.setParam("scale", 2.0);
+  pnh_.setParam("scale_m_per_unit", -2.0);
+  expectError("/scale_m_per_unit must be > 0");
+  pnh_.setParam("scale_m_per_unit", 2.0);
+  EXPECT_EQ(readParams(pnh_).session.scale.fixed_scale, 2.0);
   pnh_.setParam("pose_source", "gps");
   expectError("pose_source");
+}
+
+TEST_F(ParamsTest, ScaleIsTheOldNameOfScaleMPerUnit) {
+  pnh_.setParam("scale", 2.5);
+  EXPECT_EQ(readParams(pnh_).session.scale.fixed_scale, 2.5);
+  pnh_.setParam("scale_m_per_unit", 2.5);  // both, agreeing
+  EXPECT_EQ(readParams(pnh_).session.scale.fixed_scale, 2.5);
+  pnh_.setParam("scale_m_per_unit", 3.0);
+  expectError("scale is the old name of scale_m_per_unit");
+  EXPECT_TRUE(long3r_ros::unknownParams(pnh_).empty());  // old names are known
+}
+
+TEST_F(ParamsTest, OdometrySourcesNeedTheRobotFrames) {
+  pnh_.setParam("pose_source", "odometry");
+  expectError("/pose_source odometry needs odom_frame and base_frame");
+  pnh_.setParam("pose_source", "model");
+  pnh_.setParam("scale_source", "odometry");
+  pnh_.setParam("base_frame", "base_link");
+  expectError("/scale_source odometry needs odom_frame and base_frame");
+  pnh_.setParam("odom_frame", "odom");
+  EXPECT_EQ(readParams(pnh_).session.scale.source, long3r::ScaleSource::kOdometry);
+}
+
+// Every field of the components' lists is a parameter, under its prefix.
+TEST_F(ParamsTest, EveryListedFieldIsAParameter) {
+  pnh_.setParam("scale_max_samples", 40);
+  pnh_.setParam("drop_zero_stamps", false);
+  pnh_.setParam("pnp_ransac_confidence", 0.99);
+  pnh_.setParam("pnp_refine", false);
+  const long3r_ros::NodeParams p = readParams(pnh_);
+  EXPECT_EQ(p.session.scale.max_samples, 40u);
+  EXPECT_FALSE(p.session.stream.drop_zero_stamps);
+  EXPECT_DOUBLE_EQ(p.reconstruction.pnp.ransac_confidence, 0.99);
+  EXPECT_FALSE(p.reconstruction.pnp.refine);
+  pnh_.setParam("scale_max_samples", 4);  // below scale_min_samples
+  expectError("/scale_max_samples must be >= min_samples");
+  pnh_.setParam("scale_max_samples", 40);
+  pnh_.setParam("pnp_ransac_confidence", 1.0);
+  expectError("/pnp_ransac_confidence must be in (0, 1)");
+}
+
+TEST_F(ParamsTest, UnknownParametersAreNamed) {
+  pnh_.setParam("voxel_size", 0.05);  // voxel_size_m meant
+  pnh_.setParam("queue_size", 2);
+  pnh_.setParam("compressed/mode", "unchanged");  // a plugin's own, nested
+  const std::vector<std::string> unknown = long3r_ros::unknownParams(pnh_);
+  ASSERT_EQ(unknown.size(), 1u);
+  EXPECT_EQ(unknown[0], pnh_.getNamespace() + "/voxel_size");
+}
+
+// config/default.yaml (loaded by params.test into ~defaults) names every
+// parameter, nothing else, each at the struct's default.
+TEST(DefaultsFile, MatchesTheStructs) {
+  const ros::NodeHandle defaults("~defaults");
+  const std::vector<std::string> names = long3r_ros::parameterNames();
+  ASSERT_GT(names.size(), 50u);
+  for (const std::string& name : names) {
+    EXPECT_TRUE(defaults.hasParam(name)) << "config/default.yaml lacks " << name;
+  }
+  EXPECT_EQ(long3r_ros::unknownParams(defaults), std::vector<std::string>{});
+  const long3r::config::Json read = long3r::config::to_json(readParams(defaults));
+  const long3r::config::Json expected = long3r::config::to_json(long3r_ros::NodeParams{});
+  EXPECT_EQ(read.dump(2), expected.dump(2));
 }
 
 TEST_F(ParamsTest, RejectsBoolAsString) {
@@ -215,7 +266,7 @@ TEST_F(ParamsTest, RejectsNegativeThreads) {
 }
 
 TEST_F(ParamsTest, ReconstructionDefaultsAndValues) {
-  auto d = readReconstructionConfig(pnh_);
+  auto d = readParams(pnh_).reconstruction;
   EXPECT_EQ(d.preprocess.width, 224);
   EXPECT_EQ(d.preprocess.height, 224);
   EXPECT_FLOAT_EQ(d.conf_threshold, 1.0f);
@@ -223,11 +274,9 @@ TEST_F(ParamsTest, ReconstructionDefaultsAndValues) {
   pnh_.setParam("conf_threshold", 2);  // int for a double
   pnh_.setParam("voxel_size_m", 0.05);
   pnh_.setParam("max_map_points", 1000);
-  auto c = readReconstructionConfig(pnh_);
+  auto c = readParams(pnh_).reconstruction;
   EXPECT_EQ(c.preprocess.width, 320);
   EXPECT_FLOAT_EQ(c.conf_threshold, 2.0f);
-  EXPECT_FLOAT_EQ(c.pnp.conf_threshold, 2.0f);  // one threshold for PnP and map
-  EXPECT_FLOAT_EQ(c.map.conf_threshold, 2.0f);
   EXPECT_DOUBLE_EQ(c.map.voxel_size_m, 0.05);
   EXPECT_EQ(c.map.max_points, 1000u);
 }
@@ -271,18 +320,18 @@ int main(int argc, char** argv) {
 }
 
 TEST_F(ParamsTest, InferenceDefaultsAndValues) {
-  const long3r::InferenceConfig d = readInferenceConfig(pnh_);
+  const long3r::InferenceConfig d = readParams(pnh_).inference;
   EXPECT_EQ(d.device, "cpu");
   EXPECT_EQ(d.precision, long3r::Precision::kFloat32);
   EXPECT_FALSE(d.allow_emulated_precision);
   pnh_.setParam("device", "cuda:1");
   pnh_.setParam("precision", "bfloat16");
   pnh_.setParam("allow_emulated_precision", true);
-  const long3r::InferenceConfig c = readInferenceConfig(pnh_);
+  const long3r::InferenceConfig c = readParams(pnh_).inference;
   EXPECT_EQ(c.device, "cuda:1");
   EXPECT_EQ(c.precision, long3r::Precision::kBFloat16);
   EXPECT_TRUE(c.allow_emulated_precision);
-  EXPECT_NE(long3r_ros::describe(c).find("precision: bfloat16"), std::string::npos);
+  EXPECT_NE(long3r_ros::describe(readParams(pnh_)).find("precision: bfloat16"), std::string::npos);
 }
 
 TEST_F(ParamsTest, RejectsUnknownDevice) {

@@ -97,6 +97,33 @@ TEST(Conversions, PoseCovarianceInMap) {
   EXPECT_DOUBLE_EQ(c[1 * 6 + 5], c[5 * 6 + 1]);
 }
 
+TEST(Conversions, PoseCovarianceOfOdometry) {
+  nav_msgs::Odometry odom;
+  odom.header.frame_id = "/odom";  // a leading slash is the same frame
+  odom.child_frame_id = "base_link";
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitZ()).matrix();
+  std::string why;
+  EXPECT_FALSE(poseCovarianceOfOdometry(odom, "odom", "base_link", R, &why));
+  EXPECT_EQ(why, "it leaves the pose covariance unset (zeros)");
+  odom.pose.covariance[0] = 1e-4;   // x
+  odom.pose.covariance[7] = 2e-4;   // y
+  odom.pose.covariance[35] = 3e-6;  // yaw
+  const auto cov = poseCovarianceOfOdometry(odom, "odom", "base_link", R, &why);
+  ASSERT_TRUE(cov);
+  EXPECT_NEAR((*cov)(0, 0), 2e-4, 1e-15);  // map x is odom's y turned
+  EXPECT_NEAR((*cov)(1, 1), 1e-4, 1e-15);
+  EXPECT_NEAR((*cov)(5, 5), 3e-6, 1e-18);
+  EXPECT_FALSE(poseCovarianceOfOdometry(odom, "odom", "base_footprint", R, &why));
+  EXPECT_EQ(why,
+            "it is of base_link in /odom, not of base_footprint in odom (the frames that "
+            "place it)");
+  odom.pose.covariance[7] = -1.0;
+  EXPECT_FALSE(poseCovarianceOfOdometry(odom, "odom", "base_link", R, &why));
+  EXPECT_EQ(why, "its pose covariance has a negative or non-finite entry");
+  odom.pose.covariance[7] = std::nan("");
+  EXPECT_FALSE(poseCovarianceOfOdometry(odom, "odom", "base_link", R, &why));
+}
+
 TEST(Conversions, ColoredCloud) {
   std::vector<Eigen::Vector3f> p{{1, 2, 3}, {4, 5, 6}};
   std::vector<std::array<std::uint8_t, 3>> c{{{255, 0, 0}}, {{0, 0, 255}}};

@@ -99,6 +99,11 @@ class CliOptions {
       if constexpr (std::is_same_v<T, std::string>) {
         check_choice(text);
         return text;
+      } else if constexpr (std::is_same_v<T, bool>) {
+        if (text != "true" && text != "false") {
+          throw UsageError(name_ + " must be true or false (got \"" + text + "\")");
+        }
+        return text == "true";
       } else if constexpr (std::is_enum_v<T>) {  // by its enum_names(), as the config files
         T v{};
         if (!config::enum_from_name(text, &v)) {
@@ -189,6 +194,8 @@ class CliOptions {
   static std::string format_default(const T& v) {
     if constexpr (std::is_same_v<T, std::string>) {
       return v;
+    } else if constexpr (std::is_same_v<T, bool>) {
+      return v ? "true" : "false";
     } else {
       std::ostringstream s;
       s << v;
@@ -200,5 +207,63 @@ class CliOptions {
   std::vector<std::unique_ptr<Option>>
       options_;  // stable addresses: rows are returned by reference
 };
+
+// One `--flat-name VALUE` option per field of a config struct, from its
+// field list (visit_fields): the flat names are the node's ROS parameter
+// names, '_' written '-' (scale_min_samples: --scale-min-samples), so the
+// tools and the node share every name and each is written once. Booleans
+// take true / false.
+class CliFieldOptions {
+ public:
+  CliFieldOptions(CliOptions* cli, std::string prefix) : cli_(cli), prefix_(std::move(prefix)) {}
+
+  template <class T>
+  void operator()(const std::string& name, T& value, const char* log_note = nullptr) {
+    std::string flag = "--" + prefix_ + name;
+    for (char& c : flag) c = c == '_' ? '-' : c;
+    std::string help = "the node's parameter " + prefix_ + name;
+    if constexpr (std::is_enum_v<T>) help += ": " + config::enum_choices<T>();
+    CliOptions::Option& o = cli_->option(flag, placeholder<T>(), &value, help);
+    if constexpr (!std::is_enum_v<T>) {
+      if (log_note && value == T{}) o.shown_default(format_note(value, log_note));
+    }
+  }
+  template <class T>
+  void nested(const char* /*key*/, T& value, const char* flat_prefix) {
+    CliFieldOptions sub(cli_, prefix_ + flat_prefix);
+    visit_fields(value, sub);
+  }
+
+ private:
+  template <class T>
+  static std::string placeholder() {
+    if constexpr (std::is_same_v<T, bool>) {
+      return "BOOL";
+    } else if constexpr (std::is_same_v<T, std::string>) {
+      return "S";
+    } else if constexpr (std::is_enum_v<T>) {
+      return "NAME";
+    } else if constexpr (std::is_floating_point_v<T>) {
+      return "X";
+    } else {
+      return "N";
+    }
+  }
+  template <class T>
+  static std::string format_note(const T& value, const char* note) {
+    std::ostringstream s;
+    s << value << " " << note;
+    return s.str();
+  }
+
+  CliOptions* cli_;
+  std::string prefix_;
+};
+
+template <class T>
+void add_config_options(CliOptions& cli, T* config) {
+  CliFieldOptions options(&cli, "");
+  visit_fields(*config, options);
+}
 
 }  // namespace long3r

@@ -21,7 +21,16 @@ namespace config {
 
 // Return type of a struct's field list, so that each struct's
 //   template <class S, class V> config::FieldsOf<S, MyConfig> visit_fields(S& s, V& v)
-// (S = MyConfig or const MyConfig) is an overload of its own.
+// (S = MyConfig or const MyConfig) is an overload of its own. The list is the
+// one place a field is named; JSON, ROS parameters and the start-up logs all
+// read it. In it:
+//   v("name", s.member);                   a field
+//   v("name", s.member, "(no bound)");     with what a log shows for a 0 / empty value
+//   v.nested("scale", s.scale, "scale_");  a struct: an object "scale" in JSON,
+//                                          flat names "scale_<field>" in ROS
+// A struct's validate(check) names its fields through check.field(name) and
+// its nested structs' through check.nested(key, flat_prefix), so that errors
+// name the field as the reader of the moment spells it.
 template <class S, class T>
 using FieldsOf = std::enable_if_t<std::is_same<std::remove_const_t<S>, T>::value>;
 
@@ -30,11 +39,21 @@ using FieldsOf = std::enable_if_t<std::is_same<std::remove_const_t<S>, T>::value
 struct FieldCheck {
   std::string what;  // "model config", "training config"
   std::string path;  // of the struct, e.g. "spatial_memory"; empty at the top level
+  // Flat names (ROS parameters): path is a prefix, e.g. "/long3r/scale_".
+  bool flat = false;
 
   std::string field(const std::string& name) const {
+    if (flat) return path + name;
     return path.empty() ? name : path + "." + name;
   }
+  // The check of a nested struct (see visit_fields' nested()).
+  FieldCheck nested(const std::string& key, const std::string& flat_prefix) const {
+    return flat ? FieldCheck{what, path + flat_prefix, true} : FieldCheck{what, field(key)};
+  }
+  // "<what>: <path>.name: <problem>"; flat: "<what> <path>name <problem>"
+  // ("parameter /long3r/queue_size must be in [1, 1000]").
   [[noreturn]] void fail(const std::string& name, const std::string& problem) const {
+    if (flat) throw ConfigError(what + " " + field(name) + " " + problem);
     throw ConfigError(what + ": " + field(name) + ": " + problem);
   }
   void require(bool ok, const std::string& name, const std::string& problem) const {

@@ -71,6 +71,15 @@ class Reader {
   void operator()(const char* key, T& value) {
     if (const Json* v = take(key)) read(*v, join(path_, key), value);
   }
+  template <class T>
+  void operator()(const char* key, T& value, const char* /*log_note*/) {
+    (*this)(key, value);
+  }
+  // A nested struct: the object `key`.
+  template <class T>
+  void nested(const char* key, T& value, const char* /*flat_prefix*/) {
+    (*this)(key, value);
+  }
   // Codecs also see an explicit null (e.g. "conf_mode": null).
   template <class T, std::enable_if_t<std::is_base_of<Codec, T>::value, int> = 0>
   void operator()(const char* key, T&& codec) {
@@ -184,6 +193,14 @@ class Writer {
     } else {
       out_[key] = write(value);
     }
+  }
+  template <class T>
+  void operator()(const char* key, const T& value, const char* /*log_note*/) {
+    (*this)(key, value);
+  }
+  template <class T>
+  void nested(const char* key, const T& value, const char* /*flat_prefix*/) {
+    (*this)(key, value);
   }
   template <class T>
   void ignored(const char*) {}

@@ -7,6 +7,8 @@
 
 #include <string>
 
+#include "long3r/io/config_fields.hpp"
+
 namespace long3r {
 
 class CliOptions;
@@ -43,7 +45,17 @@ struct ThreadConfig {
   // process then holds its peak heap, which a steady stream reuses. false:
   // glibc's defaults. Process-wide, set once by apply_thread_config.
   bool reuse_freed_memory = true;
+
+  // Throws ConfigError naming the field.
+  void validate(const config::FieldCheck& check) const;
 };
+
+template <class S, class V>
+config::FieldsOf<S, ThreadConfig> visit_fields(S& s, V& v) {
+  v("torch_threads", s.torch_threads, "(all cores)");
+  v("openblas_threads", s.openblas_threads);
+  v("reuse_freed_memory", s.reuse_freed_memory);
+}
 
 // What apply_thread_config put in effect.
 struct ThreadState {

@@ -62,6 +62,16 @@ struct LiveSessionConfig {
   void validate(const config::FieldCheck& check) const;
 };
 
+// calibration_source is the client's to set, not a setting.
+template <class S, class V>
+config::FieldsOf<S, LiveSessionConfig> visit_fields(S& s, V& v) {
+  v("image_is_rectified", s.image_is_rectified);
+  v("lost_reset_frames", s.lost_reset_frames, "(no bound)");
+  v("relocalise_for_s", s.relocalise_for_s, "(no bound)");
+  v.nested("stream", s.stream, "");
+  v.nested("scale", s.scale, "scale_");
+}
+
 // One input frame.
 struct LiveFrame {
   cv::Mat image;         // the source image, in `encoding` (Reconstruction::push)

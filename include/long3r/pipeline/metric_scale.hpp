@@ -41,7 +41,7 @@
 
 namespace long3r {
 
-// none: model units (scale 1); fixed: MetricScaleConfig::fixed_scale.
+// none: model units (scale 1); fixed: MetricScaleConfig::fixed_scale (field m_per_unit).
 enum class ScaleSource { kNone, kOdometry, kDepth, kFixed };
 inline const std::array<std::pair<ScaleSource, const char*>, 4>& enum_names(ScaleSource) {
   static const std::array<std::pair<ScaleSource, const char*>, 4> names{
@@ -69,7 +69,7 @@ struct MetricScaleConfig {
 template <class S, class V>
 config::FieldsOf<S, MetricScaleConfig> visit_fields(S& s, V& v) {
   v("source", s.source);
-  v("fixed_scale", s.fixed_scale);
+  v("m_per_unit", s.fixed_scale);
   v("min_baseline_m", s.min_baseline_m);
   v("min_samples", s.min_samples);
   v("max_rel_stddev", s.max_rel_stddev);

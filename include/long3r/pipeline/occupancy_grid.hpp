@@ -34,6 +34,15 @@ struct OccupancyGridConfig {
   void validate(const config::FieldCheck& check) const;
 };
 
+template <class S, class V>
+config::FieldsOf<S, OccupancyGridConfig> visit_fields(S& s, V& v) {
+  v("resolution_m", s.resolution_m);
+  v("min_height_m", s.min_height_m);
+  v("max_height_m", s.max_height_m);
+  v("max_range_m", s.max_range_m);
+  v("min_points", s.min_points);
+}
+
 struct OccupancyGrid {
   static constexpr std::int8_t kUnknown = -1, kFree = 0, kOccupied = 100;
   double resolution_m = 0.0;

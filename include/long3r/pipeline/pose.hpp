@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "long3r/io/config_fields.hpp"
 #include "long3r/pipeline/intrinsics.hpp"
 
 namespace long3r {
@@ -29,7 +30,21 @@ struct PnpConfig {
   int min_inliers = 50;            // fewer -> kTooFewInliers
   int max_correspondences = 4000;  // evenly spaced subsample of the confident pixels
   bool refine = true;              // LM refinement on the inliers
+
+  // Throws ConfigError naming the field.
+  void validate(const config::FieldCheck& check) const;
 };
+
+// conf_threshold comes from ReconstructionConfig::conf_threshold.
+template <class S, class V>
+config::FieldsOf<S, PnpConfig> visit_fields(S& s, V& v) {
+  v("reprojection_error_px", s.reprojection_error_px);
+  v("min_inliers", s.min_inliers);
+  v("iterations", s.iterations);
+  v("ransac_confidence", s.ransac_confidence);
+  v("max_correspondences", s.max_correspondences);
+  v("refine", s.refine);
+}
 
 enum class PnpStatus {
   kOk,

@@ -21,6 +21,8 @@
 #include <string>
 #include <vector>
 
+#include "long3r/io/config_fields.hpp"
+
 namespace long3r {
 
 // Encodings named as sensor_msgs/image_encodings names them.
@@ -41,7 +43,17 @@ struct PreprocessConfig {
   int width = 224;   // model input width, a positive multiple of 16
   int height = 224;  // model input height, a positive multiple of 16
   Mono16Scaling mono16 = Mono16Scaling::kImageMax;
+
+  // Throws ConfigError naming the field.
+  void validate(const config::FieldCheck& check) const;
 };
+
+// mono16 is the input's to choose (a TUM depth-like mono16 camera), not a setting.
+template <class S, class V>
+config::FieldsOf<S, PreprocessConfig> visit_fields(S& s, V& v) {
+  v("width", s.width);
+  v("height", s.height);
+}
 
 // Per-axis affine pixel mapping: to = scale * from + offset (pixel centres).
 struct PixelMapping {

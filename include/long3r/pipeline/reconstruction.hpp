@@ -45,7 +45,19 @@ struct ReconstructionConfig {
   // shipped model's confidence stays within about [1, 1.1] (docs/model_card.md)
   // and says little; 3 suits the official DUSt3R / Spann3R checkpoints.
   float conf_threshold = 1.0f;
+
+  // Throws ConfigError naming the field.
+  void validate(const config::FieldCheck& check) const;
 };
+
+// focal keeps its defaults (DUSt3R's estimate over all pixels).
+template <class S, class V>
+config::FieldsOf<S, ReconstructionConfig> visit_fields(S& s, V& v) {
+  v("conf_threshold", s.conf_threshold);
+  v.nested("preprocess", s.preprocess, "model_");
+  v.nested("map", s.map, "");
+  v.nested("pnp", s.pnp, "pnp_");
+}
 
 // Metadata key long3r_make_random_model writes ("true"): the weights are
 // random placeholders, the outputs meaningless.

@@ -42,6 +42,14 @@ struct StreamMonitorConfig {
   void validate(const config::FieldCheck& check) const;
 };
 
+template <class S, class V>
+config::FieldsOf<S, StreamMonitorConfig> visit_fields(S& s, V& v) {
+  v("max_backward_jump_s", s.max_backward_jump_s);
+  v("max_stamp_jump_s", s.max_stamp_jump_s);
+  v("size_change_frames", s.size_change_frames);
+  v("drop_zero_stamps", s.drop_zero_stamps);
+}
+
 class StreamMonitor {
  public:
   enum class Action {

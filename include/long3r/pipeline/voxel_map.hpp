@@ -34,6 +34,7 @@
 #include <vector>
 
 #include "long3r/dataset/point_cloud_io.hpp"
+#include "long3r/io/config_fields.hpp"
 #include "long3r/model/state_dict.hpp"
 
 namespace long3r {
@@ -42,7 +43,17 @@ struct VoxelMapConfig {
   double voxel_size_m = 0.02;
   std::size_t max_points = 2000000;  // hard cap on voxels (= points), > 0
   float conf_threshold = 3.0f;       // model confidence (>= 1); pixels below are not fused
+
+  // Throws ConfigError naming the field.
+  void validate(const config::FieldCheck& check) const;
 };
+
+// conf_threshold comes from ReconstructionConfig::conf_threshold.
+template <class S, class V>
+config::FieldsOf<S, VoxelMapConfig> visit_fields(S& s, V& v) {
+  v("voxel_size_m", s.voxel_size_m);
+  v("max_map_points", s.max_points);
+}
 
 // Points and colours of the map, index-aligned (RGB), in unspecified order.
 struct MapSnapshot {

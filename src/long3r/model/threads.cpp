@@ -16,6 +16,15 @@
 
 namespace long3r {
 
+void ThreadConfig::validate(const config::FieldCheck& check) const {
+  check.require(torch_threads >= 0 && torch_threads <= 256, "torch_threads",
+                "must be in [0, 256] (0 = all cores)");
+  check.require(openblas_threads >= kOpenblasThreadsAuto && openblas_threads <= 256,
+                "openblas_threads",
+                "must be -1 (by the OpenBLAS build), 0 (leave as the environment set it) or in "
+                "[1, 256]");
+}
+
 namespace {
 // OpenBLAS is loaded by torch at run time (or not at all, with another BLAS),
 // so look its functions up instead of linking against it.

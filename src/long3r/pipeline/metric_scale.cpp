@@ -26,7 +26,7 @@ constexpr double kMedianEfficiency = 1.2533;
 }  // namespace
 
 void MetricScaleConfig::validate(const config::FieldCheck& check) const {
-  check.require(std::isfinite(fixed_scale) && fixed_scale > 0.0, "fixed_scale", "must be > 0");
+  check.require(std::isfinite(fixed_scale) && fixed_scale > 0.0, "m_per_unit", "must be > 0");
   check.require(std::isfinite(min_baseline_m) && min_baseline_m > 0.0, "min_baseline_m",
                 "must be > 0");
   check.require(min_samples >= 1, "min_samples", "must be >= 1");

@@ -16,6 +16,19 @@
 
 namespace long3r {
 
+void PnpConfig::validate(const config::FieldCheck& check) const {
+  check.require(conf_threshold >= 0.0f && std::isfinite(conf_threshold), "conf_threshold",
+                "must be >= 0");
+  check.require(reprojection_error_px > 0.0 && std::isfinite(reprojection_error_px),
+                "reprojection_error_px", "must be > 0");
+  check.require(min_inliers >= 4, "min_inliers", "must be >= 4");
+  check.require(iterations >= 1, "iterations", "must be >= 1");
+  check.require(ransac_confidence > 0.0 && ransac_confidence < 1.0, "ransac_confidence",
+                "must be in (0, 1)");
+  check.require(max_correspondences >= min_inliers, "max_correspondences",
+                "must be >= min_inliers");
+}
+
 namespace {
 
 bool finite3(const cv::Vec3f& p) {

@@ -8,6 +8,12 @@
 
 namespace long3r {
 
+void PreprocessConfig::validate(const config::FieldCheck& check) const {
+  const auto multiple_of_16 = [](int v) { return v >= 16 && v <= 4096 && v % 16 == 0; };
+  check.require(multiple_of_16(width), "width", "must be a multiple of 16 in [16, 4096]");
+  check.require(multiple_of_16(height), "height", "must be a multiple of 16 in [16, 4096]");
+}
+
 namespace {
 
 constexpr const char* kSupported = "rgb8, bgr8, rgba8, bgra8, mono8, mono16";

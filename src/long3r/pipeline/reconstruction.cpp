@@ -21,6 +21,7 @@ double now_ms() {
 }
 
 ReconstructionConfig effective(ReconstructionConfig c) {
+  c.validate({"reconstruction config", ""});
   if (c.conf_threshold >= 0.0f) {
     c.pnp.conf_threshold = c.conf_threshold;
     c.map.conf_threshold = c.conf_threshold;
@@ -64,6 +65,16 @@ std::pair<cv::Mat, cv::Mat> to_mats(const at::Tensor& pts3d, const at::Tensor& c
 }
 
 }  // namespace
+
+void ReconstructionConfig::validate(const config::FieldCheck& check) const {
+  check.require(std::isfinite(conf_threshold) && (conf_threshold < 0.0f || conf_threshold >= 1.0f),
+                "conf_threshold",
+                "must be >= 1 (the model's confidence starts at 1), or negative to keep pnp's "
+                "and map's own");
+  preprocess.validate(check.nested("preprocess", "model_"));
+  map.validate(check.nested("map", ""));
+  pnp.validate(check.nested("pnp", "pnp_"));
+}
 
 bool has_random_weights(const std::map<std::string, std::string>& metadata) {
   const auto it = metadata.find(kRandomWeightsMetadataKey);

@@ -44,14 +44,18 @@ std::uint8_t round_colour(float c) {
 
 }  // namespace
 
-VoxelMap::VoxelMap(const VoxelMapConfig& config) : config_(config) {
-  if (!(config.voxel_size_m > 0.0) || !std::isfinite(config.voxel_size_m)) {
-    throw std::invalid_argument("VoxelMap: voxel_size_m must be positive and finite");
-  }
+void VoxelMapConfig::validate(const config::FieldCheck& check) const {
+  check.require(voxel_size_m > 0.0 && std::isfinite(voxel_size_m), "voxel_size_m",
+                "must be positive and finite");
   // Positions are 32-bit; a frame may add voxels beyond the cap before eviction.
-  if (config.max_points == 0 || config.max_points > (std::size_t{1} << 31)) {
-    throw std::invalid_argument("VoxelMap: max_points must be in [1, 2^31]");
-  }
+  check.require(max_points >= 1 && max_points <= (std::size_t{1} << 31), "max_map_points",
+                "must be in [1, 2^31]");
+  check.require(conf_threshold >= 0.0f && std::isfinite(conf_threshold), "conf_threshold",
+                "must be >= 0");
+}
+
+VoxelMap::VoxelMap(const VoxelMapConfig& config) : config_(config) {
+  config.validate({"voxel map config", ""});
 }
 
 Eigen::Vector3i VoxelMap::voxel_index(const Eigen::Vector3f& p) const {

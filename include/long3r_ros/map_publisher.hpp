@@ -1,0 +1,58 @@
+// ~map (the accumulated map, thinned for display) and ~grid (its occupancy
+// grid), both in map_frame and latched. Each is built only while subscribed
+// and only when the map changed since it was last sent.
+//
+// Only a z-up map (with base_frame: its floor at z = 0) has a floor to stand
+// on, so ~grid needs base_frame; gridStatus() says why there is no grid, or
+// that it is not in metres yet, for the diagnostics.
+#pragma once
+
+#include <ros/ros.h>
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "long3r/pipeline/occupancy_grid.hpp"
+#include "long3r/pipeline/voxel_map.hpp"
+
+namespace long3r_ros {
+
+class MapPublisher {
+ public:
+  using Warn = std::function<void(const std::string& kind, const std::string& message)>;
+
+  struct Config {
+    std::string map_frame;
+    double display_voxel_m = 0.0;  // ~map thinned to this voxel; 0 = the map's own
+    bool z_up = false;             // base_frame is set
+    long3r::OccupancyGridConfig grid;
+  };
+
+  MapPublisher(ros::NodeHandle& pnh, Config config, Warn warn);
+
+  // Whether the map at `revision` (a count that grows with every change) is
+  // to be published; the caller takes a snapshot only then.
+  bool wants(std::uint64_t revision) const;
+  // Publishes what wants() said. cameras_map: the path's camera positions
+  // (the grid's rays start there).
+  void publish(long3r::MapSnapshot map, const std::vector<Eigen::Vector3d>& cameras_map,
+               bool metric, std::uint64_t revision);
+  std::string gridStatus() const;
+
+ private:
+  void publishGrid(const std::vector<Eigen::Vector3f>& points_map,
+                   const std::vector<Eigen::Vector3d>& cameras_map, bool metric);
+  bool gridWanted(std::uint64_t revision) const;
+  bool cloudWanted(std::uint64_t revision) const;
+
+  Config config_;
+  Warn warn_;
+  ros::Publisher map_pub_, grid_pub_;
+  std::uint64_t map_revision_ = 0, grid_revision_ = 0;
+  std::string grid_status_ = "not subscribed";
+};
+
+}  // namespace long3r_ros

@@ -1,0 +1,75 @@
+#include "long3r_ros/map_publisher.hpp"
+
+#include <nav_msgs/OccupancyGrid.h>
+#include <sensor_msgs/PointCloud2.h>
+#include <boost/make_shared.hpp>
+
+#include <exception>
+#include <utility>
+
+#include "long3r_ros/conversions.hpp"
+
+namespace long3r_ros {
+
+MapPublisher::MapPublisher(ros::NodeHandle& pnh, Config config, Warn warn)
+    : config_(std::move(config)), warn_(std::move(warn)) {
+  map_pub_ = pnh.advertise<sensor_msgs::PointCloud2>("map", 1, /*latch=*/true);
+  grid_pub_ = pnh.advertise<nav_msgs::OccupancyGrid>("grid", 1, /*latch=*/true);
+}
+
+bool MapPublisher::gridWanted(std::uint64_t revision) const {
+  return grid_pub_.getNumSubscribers() > 0 && revision != grid_revision_;
+}
+
+bool MapPublisher::cloudWanted(std::uint64_t revision) const {
+  return map_pub_.getNumSubscribers() > 0 && revision != map_revision_;
+}
+
+bool MapPublisher::wants(std::uint64_t revision) const {
+  return gridWanted(revision) || cloudWanted(revision);
+}
+
+std::string MapPublisher::gridStatus() const {
+  return grid_pub_.getNumSubscribers() > 0 ? grid_status_ : "not subscribed";
+}
+
+void MapPublisher::publish(long3r::MapSnapshot map, const std::vector<Eigen::Vector3d>& cameras_map,
+                           bool metric, std::uint64_t revision) {
+  if (gridWanted(revision)) {
+    grid_revision_ = revision;
+    publishGrid(map.points, cameras_map, metric);
+  }
+  if (!cloudWanted(revision)) return;
+  map_revision_ = revision;
+  std_msgs::Header header;
+  header.stamp = ros::Time::now();
+  header.frame_id = config_.map_frame;
+  downsampleForDisplay(map.points, map.colors, config_.display_voxel_m);
+  // By pointer: subscribers in the same nodelet manager share it without a copy.
+  map_pub_.publish(
+      boost::make_shared<sensor_msgs::PointCloud2>(toColoredCloud(map.points, map.colors, header)));
+}
+
+void MapPublisher::publishGrid(const std::vector<Eigen::Vector3f>& points_map,
+                               const std::vector<Eigen::Vector3d>& cameras_map, bool metric) {
+  if (!config_.z_up) {
+    grid_status_ = "none: needs base_frame (the map is z-up with its floor at z = 0 only then)";
+    return;
+  }
+  try {
+    const long3r::OccupancyGrid g =
+        long3r::build_occupancy_grid(points_map, cameras_map, config_.grid);
+    std_msgs::Header header;
+    header.stamp = ros::Time::now();
+    header.frame_id = config_.map_frame;
+    if (g.width > 0) grid_pub_.publish(toOccupancyGrid(g, header));
+    grid_status_ = std::to_string(g.width) + " x " + std::to_string(g.height) + " cells, " +
+                   std::to_string(g.occupied) + " occupied, " + std::to_string(g.free) + " free" +
+                   (metric ? "" : "; in model units: the scale is not metric yet");
+  } catch (const std::exception& e) {
+    grid_status_ = std::string("not published: ") + e.what();
+    warn_("grid", "~grid " + grid_status_);
+  }
+}
+
+}  // namespace long3r_ros

@@ -1,0 +1,76 @@
+#include "long3r_ros/node_status.hpp"
+
+#include <diagnostic_msgs/DiagnosticStatus.h>
+
+namespace long3r_ros {
+
+void fillDiagnostics(const NodeStatus& n, diagnostic_updater::DiagnosticStatusWrapper& stat) {
+  using S = diagnostic_msgs::DiagnosticStatus;
+  const long3r::LiveStatus& s = n.session;
+  const WindowStats::Counts& w = n.window;
+  const bool rival = !n.tf_rival.empty();
+  if (rival) {
+    stat.summary(S::ERROR, n.tf_rival);
+  } else if (n.paused) {
+    stat.summary(S::OK, "paused (~resume to continue)");
+  } else if (n.quiet_s > n.no_input_warn_s) {
+    stat.summaryf(S::WARN, n.input_seen ? "no input for %.0f s" : "no image received in %.0f s",
+                  n.quiet_s);
+  } else if (s.lost_frames > 0) {
+    stat.summaryf(S::WARN, "tracking lost for %d frame(s) (%.1f s)", s.lost_frames, s.lost_for_s);
+  } else if (s.mapping_held) {
+    stat.summaryf(S::WARN, "map held until the metric scale is known (%d samples so far)",
+                  s.scale_estimate.samples);
+  } else if (s.calibration_refused) {
+    stat.summary(S::WARN, s.calibration);
+  } else if (w.dropped + w.failed > 0) {
+    stat.summaryf(S::WARN, "dropped %lu and failed %lu frame(s) in the window",
+                  static_cast<unsigned long>(w.dropped), static_cast<unsigned long>(w.failed));
+  } else {
+    stat.summary(S::OK, "running");
+  }
+  stat.add("frames received (window)", w.received);
+  stat.add("frames processed (window)", w.processed);
+  stat.add("frames dropped (window)", w.dropped);
+  stat.add("frames failed (window)", w.failed);
+  if (w.processed > 0) {
+    stat.addf("latency min / mean / max (s)", "%.3f / %.3f / %.3f", w.latency_min_s,
+              w.latencyMean(), w.latency_max_s);
+  } else {
+    stat.add("latency min / mean / max (s)", "no frame in the window");
+  }
+  stat.addf("seconds since the last image", "%.1f", n.quiet_s);
+  stat.add("paused", n.paused);
+  stat.add("tracking", s.tracking);
+  stat.add("tracking lost (frames)", s.lost_frames);
+  stat.addf("tracking lost (s)", "%.1f", s.lost_for_s);
+  stat.add("calibration", s.calibration);
+  stat.add("frames", n.frames);
+  const long3r::ScaleEstimate& e = s.scale_estimate;
+  stat.add("scale source", long3r::config::enum_name(n.scale_source));
+  stat.addf("scale in use (m per model unit)", "%.6g", s.scale);
+  stat.add("scale metric", s.scale_metric);
+  stat.add("map held for the scale", s.mapping_held);
+  stat.addf("scale estimate", "%.6g +- %.3g (%d samples, %d rejected)", e.scale, e.stddev,
+            e.samples, e.rejected);
+  stat.add("stream frames", s.stream_frames);
+  stat.add("streams started", s.streams);
+  stat.add("relocalisation attempts", s.relocalisation_attempts);
+  stat.add("relocalisations", s.relocalisations);
+  stat.add("map points kept from ended streams", n.archived_map_points);
+  stat.add("session file", n.session_file);
+  stat.add("grid", n.grid);
+  stat.add("tf", rival ? n.tf_rival : std::string("publishing"));
+  stat.add("memory tokens short", s.mem_short_tokens);
+  stat.add("memory tokens long", s.mem_long_tokens);
+  stat.add("relevant tokens", s.relevant_tokens);
+  stat.add("map points", n.map_points);
+  stat.add("frames received (total)", n.received);
+  stat.add("frames processed (total)", n.processed);
+  stat.add("frames failed (total)", n.failed);
+  stat.add("frames dropped: bad input (total)", n.dropped_input);
+  stat.add("frames dropped: queue full (total)", n.dropped_queue);
+  stat.add("frames dropped: paused (total)", n.dropped_paused);
+}
+
+}  // namespace long3r_ros

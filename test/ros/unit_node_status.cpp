@@ -1,0 +1,82 @@
+// The node's diagnostics from a status snapshot: the summary's precedence and
+// the figures it reports.
+#include <diagnostic_msgs/DiagnosticStatus.h>
+#include <gtest/gtest.h>
+
+#include <string>
+
+#include "long3r_ros/node_status.hpp"
+
+using long3r_ros::fillDiagnostics;
+using long3r_ros::NodeStatus;
+using S = diagnostic_msgs::DiagnosticStatus;
+
+namespace {
+
+diagnostic_updater::DiagnosticStatusWrapper diagnose(const NodeStatus& n) {
+  diagnostic_updater::DiagnosticStatusWrapper stat;
+  fillDiagnostics(n, stat);
+  return stat;
+}
+
+std::string value(const diagnostic_updater::DiagnosticStatusWrapper& stat, const std::string& key) {
+  for (const auto& kv : stat.values) {
+    if (kv.key == key) return kv.value;
+  }
+  return "(missing)";
+}
+
+}  // namespace
+
+TEST(NodeStatus, SummaryTakesTheMostUrgentCondition) {
+  NodeStatus n;
+  n.input_seen = true;
+  EXPECT_EQ(diagnose(n).level, S::OK);
+  EXPECT_EQ(diagnose(n).message, "running");
+  n.window.dropped = 2;
+  EXPECT_EQ(diagnose(n).message, "dropped 2 and failed 0 frame(s) in the window");
+  n.session.calibration_refused = true;
+  n.session.calibration = "camera_info refused: K is zero";
+  EXPECT_EQ(diagnose(n).message, "camera_info refused: K is zero");
+  n.session.mapping_held = true;
+  n.session.scale_estimate.samples = 3;
+  EXPECT_EQ(diagnose(n).message, "map held until the metric scale is known (3 samples so far)");
+  n.session.lost_frames = 4;
+  n.session.lost_for_s = 1.5;
+  EXPECT_EQ(diagnose(n).message, "tracking lost for 4 frame(s) (1.5 s)");
+  EXPECT_EQ(diagnose(n).level, S::WARN);
+  n.quiet_s = 12.0;
+  EXPECT_EQ(diagnose(n).message, "no input for 12 s");
+  n.input_seen = false;
+  EXPECT_EQ(diagnose(n).message, "no image received in 12 s");
+  n.paused = true;  // a pause is asked for: not a fault
+  EXPECT_EQ(diagnose(n).level, S::OK);
+  EXPECT_EQ(diagnose(n).message, "paused (~resume to continue)");
+  n.tf_rival = "map -> odom is also published by /amcl";
+  EXPECT_EQ(diagnose(n).level, S::ERROR);
+  EXPECT_EQ(diagnose(n).message, "map -> odom is also published by /amcl");
+  EXPECT_EQ(value(diagnose(n), "tf"), "map -> odom is also published by /amcl");
+}
+
+TEST(NodeStatus, FiguresAreReported) {
+  NodeStatus n;
+  n.scale_source = long3r::ScaleSource::kOdometry;
+  n.session.scale = 0.5;
+  n.session.scale_metric = true;
+  n.map_points = 1234;
+  n.dropped_queue = 7;
+  n.grid = "20 x 30 cells, 5 occupied, 100 free";
+  n.window.processed = 2;
+  n.window.latency_sum_s = 0.3;
+  n.window.latency_min_s = 0.1;
+  n.window.latency_max_s = 0.2;
+  const auto stat = diagnose(n);
+  EXPECT_EQ(value(stat, "scale source"), "odometry");
+  EXPECT_EQ(value(stat, "scale in use (m per model unit)"), "0.5");
+  EXPECT_EQ(value(stat, "scale metric"), "True");
+  EXPECT_EQ(value(stat, "map points"), "1234");
+  EXPECT_EQ(value(stat, "frames dropped: queue full (total)"), "7");
+  EXPECT_EQ(value(stat, "grid"), "20 x 30 cells, 5 occupied, 100 free");
+  EXPECT_EQ(value(stat, "latency min / mean / max (s)"), "0.100 / 0.150 / 0.200");
+  EXPECT_EQ(value(stat, "tf"), "publishing");
+}
