@@ -19,12 +19,13 @@ import math
 import os
 import struct
 import sys
-import types
 from functools import partial
 
 import numpy as np
 import torch
 import torch.nn as nn
+
+import official_stand_ins  # beside this script
 
 CASES = [
     # name, (H, W) of both views, seed
@@ -33,29 +34,6 @@ CASES = [
 ]
 ARCH = dict(patch_size=8, enc_embed_dim=32, enc_depth=3, enc_num_heads=2,
             dec_embed_dim=16, dec_depth=4, dec_num_heads=2, mlp_ratio=4)
-
-
-def stand_ins():
-    """Modules the official DUSt3R imports but the linear-head forward never uses."""
-    hub = types.ModuleType("huggingface_hub")
-    hub.__version__ = "0.22.0"
-
-    class PyTorchModelHubMixin:
-        def __init_subclass__(cls, **kwargs):
-            super().__init_subclass__()
-    hub.PyTorchModelHubMixin = PyTorchModelHubMixin
-    packaging = types.ModuleType("packaging")
-    version = types.ModuleType("packaging.version")
-    version.parse = lambda s: tuple(int(x) for x in s.split(".")[:3])
-    packaging.version = version
-    einops = types.ModuleType("einops")
-
-    def rearrange(*args, **kwargs):
-        raise RuntimeError("einops stand-in: only the DPT head needs it")
-    einops.rearrange = einops.repeat = rearrange
-    for name, mod in [("huggingface_hub", hub), ("packaging", packaging),
-                      ("packaging.version", version), ("einops", einops)]:
-        sys.modules.setdefault(name, mod)
 
 
 def write_safetensors(path, tensors, metadata=None):
@@ -219,7 +197,7 @@ def main():
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "..", "test", "data",
                                                   "golden"))
     a = ap.parse_args()
-    stand_ins()
+    official_stand_ins.install()
     croco = os.path.abspath(a.croco or os.path.join(a.dust3r, "croco"))
     if not os.path.isdir(os.path.join(croco, "models")):
         sys.exit("no croco/models in %s: check out the croco submodule or pass --croco" % croco)

@@ -51,12 +51,13 @@ import math
 import os
 import struct
 import sys
-import types
 from functools import partial
 
 import numpy as np
 import torch
 import torch.nn as nn
+
+import official_stand_ins  # beside this script
 
 CASES = ["dust3r_pair_sq224", "dust3r_pair_land112x80", "dust3r_pair_port80x112",
          "spann3r_seq_sq224", "spann3r_seq_land96x64"]
@@ -65,31 +66,10 @@ REF = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "test", "da
 BASE_PATH = list(sys.path)
 
 
-def stand_ins():
-    hub = types.ModuleType("huggingface_hub")
-    hub.__version__ = "0.22.0"
-
-    class PyTorchModelHubMixin:
-        def __init_subclass__(cls, **kwargs):
-            super().__init_subclass__()
-    hub.PyTorchModelHubMixin = PyTorchModelHubMixin
-    version = types.ModuleType("packaging.version")
-    version.parse = lambda s: tuple(int(x) for x in s.split(".")[:3])
-    packaging = types.ModuleType("packaging")
-    packaging.version = version
-    for name, mod in [("huggingface_hub", hub), ("packaging", packaging),
-                      ("packaging.version", version)]:
-        sys.modules.setdefault(name, mod)
-    einops = types.ModuleType("einops")
-
-    def rearrange(t, pattern, nh, nw):
-        assert pattern == "b (nh nw) c -> b c nh nw", pattern
-        return t.transpose(1, 2).reshape(t.shape[0], t.shape[2], nh, nw)
-
-    def unused(*args, **kwargs):
-        raise RuntimeError("einops stand-in: not used by these forward passes")
-    einops.rearrange, einops.repeat = rearrange, unused
-    sys.modules["einops"] = einops  # even where einops is installed: see the docstring
+def rearrange_dpt(t, pattern, nh, nw):
+    """einops.rearrange's one call in the DPT head, contiguous (see the docstring)."""
+    assert pattern == "b (nh nw) c -> b c nh nw", pattern
+    return t.transpose(1, 2).reshape(t.shape[0], t.shape[2], nh, nw)
 
 
 def encode(tensors, metadata):
@@ -591,7 +571,7 @@ def main():
         inside = "croco/models" if kind == "dust3r_pair" else "spann3r"
         if not checkouts[kind] or not os.path.isdir(os.path.join(checkouts[kind], inside)):
             ap.error("%s needs --%s, a checkout with %s" % (name, kind.split("_")[0], inside))
-    stand_ins()
+    official_stand_ins.install(rearrange=rearrange_dpt)
     torch.set_num_threads(1)
     maps = read("/proc/self/maps").decode().split("\n") if os.path.exists("/proc/self/maps") else []
     blas = sorted({line.split()[-1] for line in maps if "blas" in line.lower()})
