@@ -694,9 +694,11 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
   const long3r::ScaleSource source = params_.session.scale.source;
   c.depth_held = source != long3r::ScaleSource::kNone && !status.scale_metric &&
                  !params_.node.publish_unscaled_depth;
-  c.depth_held_why = std::string("they wait for the metric scale (scale_source ") +
-                     long3r::config::enum_name(source) +
-                     "); publish_unscaled_depth: true sends them in model units meanwhile";
+  if (c.depth_held) {
+    c.depth_held_why = std::string("they wait for the metric scale (scale_source ") +
+                       long3r::config::enum_name(source) +
+                       "); publish_unscaled_depth: true sends them in model units meanwhile";
+  }
   c.conf_threshold = params_.reconstruction.conf_threshold;
   // A pose the odometry placed has the odometry's covariance.
   if (r.posed() && r.pose_given) c.given_covariance_map = odometryCovarianceInMap(header.stamp);

@@ -28,13 +28,7 @@ void NodeletConfig::validate(const long3r::config::FieldCheck& check) const {
 }
 
 void NodeParams::validate(const long3r::config::FieldCheck& check) const {
-  node.validate(check.nested("node", ""));
-  frames.validate(check.nested("frames", ""));
-  session.validate(check.nested("session", ""));
-  grid.validate(check.nested("grid", "grid_"));
-  threads.validate(check.nested("threads", ""));
-  inference.validate(check.nested("inference", ""));
-  reconstruction.validate(check.nested("reconstruction", ""));
+  long3r::config::validate_nested(*this, check);
   // pose_source and scale_source odometry read map -> odom -> base.
   const bool robot_odometry = !frames.odom_frame.empty() && !frames.base_frame.empty();
   check.require(node.pose_source != PoseSource::kOdometry || robot_odometry, "pose_source",
@@ -62,12 +56,10 @@ const RenamedParam* renamedTo(const std::string& name) {
 // wrong XML-RPC type is an error rather than a silent fallback to the default.
 class RosReader {
  public:
-  RosReader(const ros::NodeHandle& pnh, std::string prefix)
-      : pnh_(pnh), prefix_(std::move(prefix)) {}
+  explicit RosReader(const ros::NodeHandle& pnh) : pnh_(pnh) {}
 
   template <class T>
-  void operator()(const std::string& name, T& value, const char* /*log_note*/ = nullptr) {
-    const std::string full = prefix_ + name;
+  void operator()(const std::string& full, T& value, const char* /*log_note*/) {
     if (pnh_.hasParam(full)) {
       read(full, value);
       if (const RenamedParam* r = renamedTo(full); r && pnh_.hasParam(r->old_name)) {
@@ -83,11 +75,6 @@ class RosReader {
                pnh_.resolveName(r->old_name).c_str(), r->name);
       read(r->old_name, value);
     }
-  }
-  template <class T>
-  void nested(const char* /*key*/, T& value, const char* flat_prefix) {
-    RosReader r(pnh_, prefix_ + flat_prefix);
-    visit_fields(value, r);
   }
 
  private:
@@ -127,17 +114,14 @@ class RosReader {
   }
 
   const ros::NodeHandle& pnh_;
-  std::string prefix_;
 };
 
 // "name: value" lines; a log note stands beside a zero or empty value.
 class Describer {
  public:
-  explicit Describer(std::string prefix = "") : prefix_(std::move(prefix)) {}
-
   template <class T>
-  void operator()(const std::string& name, const T& value, const char* log_note = nullptr) {
-    out_ << (out_.tellp() > 0 ? "\n" : "") << prefix_ << name << ": ";
+  void operator()(const std::string& name, const T& value, const char* log_note) {
+    out_ << (out_.tellp() > 0 ? "\n" : "") << name << ": ";
     if constexpr (std::is_same<T, std::string>::value) {
       out_ << (value.empty() && log_note ? log_note : value);
     } else if constexpr (std::is_enum<T>::value) {
@@ -147,46 +131,18 @@ class Describer {
       if (log_note && value == T{}) out_ << " " << log_note;
     }
   }
-  template <class T>
-  void nested(const char* /*key*/, const T& value, const char* flat_prefix) {
-    Describer d(prefix_ + flat_prefix);
-    visit_fields(value, d);
-    const std::string lines = d.out_.str();
-    if (!lines.empty()) out_ << (out_.tellp() > 0 ? "\n" : "") << lines;
-  }
   std::string str() const { return out_.str(); }
 
  private:
-  std::string prefix_;
   std::ostringstream out_;
-};
-
-// The flat names.
-class NameLister {
- public:
-  NameLister(std::vector<std::string>* names, std::string prefix)
-      : names_(names), prefix_(std::move(prefix)) {}
-  template <class T>
-  void operator()(const std::string& name, const T&, const char* = nullptr) {
-    names_->push_back(prefix_ + name);
-  }
-  template <class T>
-  void nested(const char* /*key*/, const T& value, const char* flat_prefix) {
-    NameLister n(names_, prefix_ + flat_prefix);
-    visit_fields(value, n);
-  }
-
- private:
-  std::vector<std::string>* names_;
-  std::string prefix_;
 };
 
 }  // namespace
 
 NodeParams readParams(const ros::NodeHandle& pnh) {
   NodeParams p;
-  RosReader reader(pnh, "");
-  visit_fields(p, reader);
+  RosReader reader(pnh);
+  long3r::config::visit_flat(p, reader);
   try {
     p.validate({"parameter", pnh.getNamespace() + "/", true});
   } catch (const long3r::ConfigError& e) {
@@ -197,15 +153,16 @@ NodeParams readParams(const ros::NodeHandle& pnh) {
 
 std::string describe(const NodeParams& params) {
   Describer d;
-  visit_fields(params, d);
+  long3r::config::visit_flat(params, d);
   return d.str();
 }
 
 std::vector<std::string> parameterNames() {
   std::vector<std::string> names;
   const NodeParams defaults;
-  NameLister lister(&names, "");
-  visit_fields(defaults, lister);
+  long3r::config::visit_flat(defaults, [&names](const std::string& name, const auto&, const char*) {
+    names.push_back(name);
+  });
   return names;
 }
 

@@ -215,23 +215,18 @@ class CliOptions {
 // take true / false.
 class CliFieldOptions {
  public:
-  CliFieldOptions(CliOptions* cli, std::string prefix) : cli_(cli), prefix_(std::move(prefix)) {}
+  explicit CliFieldOptions(CliOptions* cli) : cli_(cli) {}
 
   template <class T>
-  void operator()(const std::string& name, T& value, const char* log_note = nullptr) {
-    std::string flag = "--" + prefix_ + name;
+  void operator()(const std::string& name, T& value, const char* log_note) {
+    std::string flag = "--" + name;
     for (char& c : flag) c = c == '_' ? '-' : c;
-    std::string help = "the node's parameter " + prefix_ + name;
+    std::string help = "the node's parameter " + name;
     if constexpr (std::is_enum_v<T>) help += ": " + config::enum_choices<T>();
     CliOptions::Option& o = cli_->option(flag, placeholder<T>(), &value, help);
     if constexpr (!std::is_enum_v<T>) {
       if (log_note && value == T{}) o.shown_default(format_note(value, log_note));
     }
-  }
-  template <class T>
-  void nested(const char* /*key*/, T& value, const char* flat_prefix) {
-    CliFieldOptions sub(cli_, prefix_ + flat_prefix);
-    visit_fields(value, sub);
   }
 
  private:
@@ -257,13 +252,12 @@ class CliFieldOptions {
   }
 
   CliOptions* cli_;
-  std::string prefix_;
 };
 
 template <class T>
 void add_config_options(CliOptions& cli, T* config) {
-  CliFieldOptions options(&cli, "");
-  visit_fields(*config, options);
+  CliFieldOptions options(&cli);
+  config::visit_flat(*config, options);
 }
 
 }  // namespace long3r

@@ -7,6 +7,7 @@
 #include <stdexcept>
 #include <string>
 #include <type_traits>
+#include <utility>
 
 namespace long3r {
 
@@ -29,8 +30,9 @@ namespace config {
 //   v.nested("scale", s.scale, "scale_");  a struct: an object "scale" in JSON,
 //                                          flat names "scale_<field>" in ROS
 // A struct's validate(check) names its fields through check.field(name) and
-// its nested structs' through check.nested(key, flat_prefix), so that errors
-// name the field as the reader of the moment spells it.
+// has its nested structs validated by validate_nested(*this, check), which
+// takes their keys and prefixes from the list, so that errors name the field
+// as the reader of the moment spells it.
 template <class S, class T>
 using FieldsOf = std::enable_if_t<std::is_same<std::remove_const_t<S>, T>::value>;
 
@@ -88,6 +90,55 @@ std::string enum_choices() {
     s += std::string(s.empty() ? "" : " or ") + "\"" + entry.second + "\"";
   }
   return s;
+}
+
+// The flat names of a field list: f(flat_name, field, log_note) for every
+// field, a nested struct's fields under its flat prefix (ROS parameters,
+// command-line options, logs). T may be const.
+template <class F>
+class FlatVisitor {
+ public:
+  FlatVisitor(F& f, std::string prefix) : f_(f), prefix_(std::move(prefix)) {}
+  template <class T>
+  void operator()(const std::string& name, T& value, const char* log_note = nullptr) {
+    f_(prefix_ + name, value, log_note);
+  }
+  template <class T>
+  void nested(const char* /*key*/, T& value, const char* flat_prefix) {
+    FlatVisitor sub(f_, prefix_ + flat_prefix);
+    visit_fields(value, sub);
+  }
+
+ private:
+  F& f_;
+  std::string prefix_;
+};
+template <class T, class F>
+void visit_flat(T& config, F&& f, const std::string& prefix = "") {
+  FlatVisitor<std::remove_reference_t<F>> v(f, prefix);
+  visit_fields(config, v);
+}
+
+// For a validate() whose struct nests others: validates each nested struct
+// of its field list with the check its key and flat prefix give, so that
+// those are written in the list only.
+class NestedValidator {
+ public:
+  explicit NestedValidator(const FieldCheck& check) : check_(check) {}
+  template <class U>
+  void operator()(const std::string& /*name*/, const U& /*field*/, const char* = nullptr) {}
+  template <class U>
+  void nested(const char* key, const U& value, const char* flat_prefix) {
+    value.validate(check_.nested(key, flat_prefix));
+  }
+
+ private:
+  const FieldCheck& check_;
+};
+template <class T>
+void validate_nested(const T& config, const FieldCheck& check) {
+  NestedValidator v(check);
+  visit_fields(config, v);
 }
 
 }  // namespace config

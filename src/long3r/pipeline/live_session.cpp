@@ -37,8 +37,7 @@ cv::Mat depth_in_metres(const cv::Mat& depth) {
 }  // namespace
 
 void LiveSessionConfig::validate(const config::FieldCheck& check) const {
-  stream.validate(check.nested("stream", ""));
-  scale.validate(check.nested("scale", "scale_"));
+  config::validate_nested(*this, check);
   check.require(lost_reset_frames >= 0, "lost_reset_frames", "must be >= 0 (0 = no bound)");
   check.require(relocalise_for_s >= 0.0 && std::isfinite(relocalise_for_s), "relocalise_for_s",
                 "must be >= 0 (0 = no bound)");

@@ -71,9 +71,7 @@ void ReconstructionConfig::validate(const config::FieldCheck& check) const {
                 "conf_threshold",
                 "must be >= 1 (the model's confidence starts at 1), or negative to keep pnp's "
                 "and map's own");
-  preprocess.validate(check.nested("preprocess", "model_"));
-  map.validate(check.nested("map", ""));
-  pnp.validate(check.nested("pnp", "pnp_"));
+  config::validate_nested(*this, check);
 }
 
 bool has_random_weights(const std::map<std::string, std::string>& metadata) {
