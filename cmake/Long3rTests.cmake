@@ -7,8 +7,8 @@ include(GoogleTest)
 # Tests live by module (test/<module>/) beside test/support/, the fixtures
 # they share (tiny model configurations, synthetic frames and cameras). Two
 # gtest binaries, by what they need:
-#   long3r_model_tests  test/{io,model,memory}: libtorch only (builds wherever
-#                       the model does, CUDA libtorch included);
+#   long3r_model_tests  test/{config,io,model,memory}: libtorch only (builds
+#                       wherever the model does, CUDA libtorch included);
 #   long3r_cv_tests     test/{pipeline,dataset,eval,synth,train}: the OpenCV,
 #                       PCL and Eigen side.
 # Each gtest case becomes its own ctest entry, so ctest's summary counts
@@ -58,7 +58,7 @@ function(long3r_add_gtest_binary name)
     PROPERTIES LABELS unit ENVIRONMENT "OMP_NUM_THREADS=2")
 endfunction()
 
-long3r_add_gtest_binary(long3r_model_tests FOLDERS io model memory
+long3r_add_gtest_binary(long3r_model_tests FOLDERS config io model memory
   LIBS long3r_model long3r_test_support)
 if(LONG3R_HAVE_CV)
   long3r_add_gtest_binary(long3r_cv_tests

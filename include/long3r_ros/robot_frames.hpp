@@ -31,7 +31,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "long3r/io/config_fields.hpp"
+#include "long3r/config/config_fields.hpp"
 
 namespace long3r_ros {
 

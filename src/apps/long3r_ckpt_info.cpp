@@ -10,7 +10,7 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
-#include "long3r/io/cli_options.hpp"
+#include "long3r/config/cli_options.hpp"
 #include "long3r/model/safetensors.hpp"
 
 namespace {

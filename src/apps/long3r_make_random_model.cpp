@@ -20,7 +20,7 @@
 #include <string>
 #include <vector>
 
-#include "long3r/io/cli_options.hpp"
+#include "long3r/config/cli_options.hpp"
 #include "long3r/model/long3r_model.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/safetensors.hpp"

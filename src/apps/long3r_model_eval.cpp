@@ -13,8 +13,8 @@
 #include <string>
 #include <vector>
 
+#include "long3r/config/cli_options.hpp"
 #include "long3r/io/atomic_file.hpp"
-#include "long3r/io/cli_options.hpp"
 #include "long3r/model/checkpoint.hpp"
 #include "long3r/model/inference.hpp"
 #include "long3r/model/model_config.hpp"

@@ -34,9 +34,9 @@
 #include <string>
 #include <vector>
 
+#include "long3r/config/cli_options.hpp"
 #include "long3r/dataset/tum_dataset.hpp"
 #include "long3r/io/atomic_file.hpp"
-#include "long3r/io/cli_options.hpp"
 #include "long3r/model/inference_config.hpp"
 #include "long3r/model/safetensors.hpp"
 #include "long3r/model/threads.hpp"

@@ -7,7 +7,7 @@
 #include <iostream>
 #include <string>
 
-#include "long3r/io/cli_options.hpp"
+#include "long3r/config/cli_options.hpp"
 #include "long3r/synth/synth.hpp"
 #include "long3r/synth/tum_writer.hpp"
 

@@ -11,7 +11,7 @@
 #include <string>
 #include <thread>
 
-#include "long3r/io/cli_options.hpp"
+#include "long3r/config/cli_options.hpp"
 #include "long3r/model/threads.hpp"
 #include "long3r/train/train.hpp"
 #ifdef LONG3R_TRAIN_WITH_OPENCV

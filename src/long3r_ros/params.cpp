@@ -8,7 +8,7 @@
 #include <sstream>
 #include <type_traits>
 
-#include "long3r/io/config_fields.hpp"
+#include "long3r/config/config_fields.hpp"
 
 namespace long3r_ros {
 

@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "long3r/io/config_json.hpp"
+#include "long3r/config/config_json.hpp"
 #include "long3r/io/safetensors_header.hpp"
 #include "long3r/memory/memory_gating.hpp"
 #include "long3r/model/inference.hpp"

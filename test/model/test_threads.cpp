@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "long3r/io/cli_options.hpp"
+#include "long3r/config/cli_options.hpp"
 #include "long3r/model/threads.hpp"
 #include "support/test_support.hpp"
 

@@ -8,7 +8,7 @@
 
 #include <vector>
 
-#include "long3r/io/config_fields.hpp"
+#include "long3r/config/config_fields.hpp"
 #include "long3r/pipeline/occupancy_grid.hpp"
 
 namespace long3r {

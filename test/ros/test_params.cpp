@@ -3,7 +3,7 @@
 #include <gtest/gtest.h>
 #include <ros/ros.h>
 
-#include "long3r/io/config_json.hpp"
+#include "long3r/config/config_json.hpp"
 #include "long3r_ros/params.hpp"
 
 using long3r_ros::ParamError;

@@ -2,7 +2,7 @@
 // (Spann3rMemory, JSON section "spatial_memory" of a Spann3R model) and
 // LONG3R's 3D spatio-temporal memory (SpatioTemporalMemory, section "long3r").
 // The model configuration embeds these structs; each lists its fields once
-// (visit_fields, see include/long3r/io/config_json.hpp) and checks itself
+// (visit_fields, see include/long3r/config/config_json.hpp) and checks itself
 // (validate).
 #pragma once
 
@@ -11,7 +11,7 @@
 #include <string>
 #include <utility>
 
-#include "long3r/io/config_fields.hpp"
+#include "long3r/config/config_fields.hpp"
 
 namespace long3r {
 

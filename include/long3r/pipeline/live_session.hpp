@@ -34,7 +34,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "long3r/io/config_fields.hpp"
+#include "long3r/config/config_fields.hpp"
 #include "long3r/pipeline/camera_rectifier.hpp"
 #include "long3r/pipeline/metric_scale.hpp"
 #include "long3r/pipeline/reconstruction.hpp"

@@ -36,7 +36,7 @@
 #include <utility>
 #include <vector>
 
-#include "long3r/io/config_fields.hpp"
+#include "long3r/config/config_fields.hpp"
 #include "long3r/pipeline/preprocess.hpp"
 
 namespace long3r {

@@ -19,7 +19,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "long3r/io/config_fields.hpp"
+#include "long3r/config/config_fields.hpp"
 
 namespace long3r {
 

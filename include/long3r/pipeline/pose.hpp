@@ -17,7 +17,7 @@
 #include <string>
 #include <vector>
 
-#include "long3r/io/config_fields.hpp"
+#include "long3r/config/config_fields.hpp"
 #include "long3r/pipeline/intrinsics.hpp"
 
 namespace long3r {

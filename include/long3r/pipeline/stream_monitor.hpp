@@ -20,7 +20,7 @@
 
 #include <string>
 
-#include "long3r/io/config_fields.hpp"
+#include "long3r/config/config_fields.hpp"
 
 namespace long3r {
 

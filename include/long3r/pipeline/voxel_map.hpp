@@ -33,8 +33,8 @@
 #include <unordered_map>
 #include <vector>
 
+#include "long3r/config/config_fields.hpp"
 #include "long3r/dataset/point_cloud_io.hpp"
-#include "long3r/io/config_fields.hpp"
 #include "long3r/model/state_dict.hpp"
 
 namespace long3r {

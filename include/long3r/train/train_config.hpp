@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "long3r/io/config_fields.hpp"
+#include "long3r/config/config_fields.hpp"
 #include "long3r/model/model_config.hpp"
 
 namespace long3r {
@@ -148,7 +148,7 @@ struct TrainConfig {
   int64_t total_steps() const;
 };
 
-// Field lists (JSON keys in docs/training.md; see include/long3r/io/config_json.hpp).
+// Field lists (JSON keys in docs/training.md; see include/long3r/config/config_json.hpp).
 template <class S, class V>
 config::FieldsOf<S, TrainStage> visit_fields(S& s, V& v) {
   v.derive(s.name, v.path());  // unnamed stages are called by their place

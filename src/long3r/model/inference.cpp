@@ -11,7 +11,7 @@
 #include <set>
 #include <sstream>
 
-#include "long3r/io/cli_options.hpp"
+#include "long3r/config/cli_options.hpp"
 
 namespace long3r {
 

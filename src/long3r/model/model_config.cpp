@@ -12,7 +12,7 @@
 #include <cmath>
 #include <cstdlib>
 
-#include "long3r/io/config_json.hpp"
+#include "long3r/config/config_json.hpp"
 
 namespace long3r {
 

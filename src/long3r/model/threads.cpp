@@ -12,7 +12,7 @@
 #include <malloc.h>
 #endif
 
-#include "long3r/io/cli_options.hpp"
+#include "long3r/config/cli_options.hpp"
 
 namespace long3r {
 

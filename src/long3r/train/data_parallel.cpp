@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "long3r/io/config_fields.hpp"
+#include "long3r/config/config_fields.hpp"
 #include "long3r/io/fnv1a.hpp"
 
 #ifdef LONG3R_WITH_C10D

@@ -5,7 +5,7 @@
 #include <fstream>
 #include <sstream>
 
-#include "long3r/io/config_json.hpp"
+#include "long3r/config/config_json.hpp"
 #include "long3r/model/model_config.hpp"
 #include "long3r/train/train.hpp"
 

@@ -1,4 +1,4 @@
-// Tests of the configuration JSON helper (include/long3r/io/config_json.hpp):
+// Tests of the configuration JSON helper (include/long3r/config/config_json.hpp):
 // one field list drives reading (defaults, type checks, unknown keys named,
 // the comment key, nested structs, lists, enums, "inf") and writing, and the
 // strict parser.
@@ -11,7 +11,7 @@
 #include <utility>
 #include <vector>
 
-#include "long3r/io/config_json.hpp"
+#include "long3r/config/config_json.hpp"
 
 namespace demo {
 

@@ -1,4 +1,4 @@
-#include "long3r/io/cli_options.hpp"
+#include "long3r/config/cli_options.hpp"
 
 #include <algorithm>
 #include <cerrno>

@@ -1,6 +1,6 @@
 // What a config struct's header needs to describe its fields, without any JSON
 // library: the error type, a checker for validate() that names the field, and
-// name lookups of enums (see include/long3r/io/config_json.hpp for the field
+// name lookups of enums (see include/long3r/config/config_json.hpp for the field
 // lists and the JSON side).
 #pragma once
 

@@ -1,5 +1,5 @@
-// Field readers of the configuration JSON; see include/long3r/io/config_json.hpp.
-#include "long3r/io/config_json.hpp"
+// Field readers of the configuration JSON; see include/long3r/config/config_json.hpp.
+#include "long3r/config/config_json.hpp"
 
 namespace long3r {
 namespace config {

@@ -9,7 +9,7 @@
 #include <utility>
 #include <vector>
 
-#include "long3r/io/cli_options.hpp"
+#include "long3r/config/cli_options.hpp"
 #include "support/test_support.hpp"
 
 namespace {

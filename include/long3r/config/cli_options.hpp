@@ -21,7 +21,7 @@
 #include <type_traits>
 #include <vector>
 
-#include "long3r/io/config_fields.hpp"
+#include "long3r/config/config_fields.hpp"
 
 namespace long3r {
 

@@ -30,7 +30,7 @@
 #include <utility>
 #include <vector>
 
-#include "long3r/io/config_fields.hpp"
+#include "long3r/config/config_fields.hpp"
 
 namespace long3r {
 
