@@ -25,7 +25,6 @@
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <diagnostic_updater/publisher.h>
 #include <image_transport/image_transport.h>
-#include <message_filters/cache.h>
 #include <nav_msgs/Odometry.h>
 #include <nav_msgs/Path.h>
 #include <nodelet/nodelet.h>
@@ -34,7 +33,6 @@
 #include <sensor_msgs/CompressedImage.h>
 #include <sensor_msgs/Image.h>
 #include <std_srvs/Trigger.h>
-#include <tf2_msgs/TFMessage.h>
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/transform_broadcaster.h>
 #include <tf2_ros/transform_listener.h>
@@ -60,6 +58,8 @@
 #include "long3r_ros/node_status.hpp"
 #include "long3r_ros/params.hpp"
 #include "long3r_ros/robot_frames.hpp"
+#include "long3r_ros/stamped_inputs.hpp"
+#include "long3r_ros/tf_rival_watch.hpp"
 #include "long3r_ros/window_stats.hpp"
 
 namespace long3r_ros {
@@ -80,8 +80,6 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   void imageCallback(const sensor_msgs::ImageConstPtr& msg);
   void compressedCallback(const sensor_msgs::CompressedImageConstPtr& msg);
   void enqueue(InputFrame frame);
-  void cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg);
-  void depthCallback(const sensor_msgs::ImageConstPtr& msg);
   void tfTimerCallback(const ros::TimerEvent& event);
 
   bool resetService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
@@ -99,7 +97,6 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   void workerLoop();
   void handleFrame(const InputFrame& frame);
   void flushPending();
-  std::optional<long3r::CameraModel> cameraFor(const ros::Time& stamp);
   void copyStatus();  // session_mutex_ held
 
   // long3r::LiveSessionClient: what the session asks of ROS, and its results.
@@ -107,7 +104,7 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   Eigen::Vector3d odometry_camera_position_m(const long3r::LiveResult& result) override;
   cv::Mat depth(const long3r::LiveResult& result) override;
   void on_result(long3r::LiveResult& result) override;
-  void on_stream_ending(const long3r::Reconstruction& ending) override;
+  std::optional<Eigen::Isometry3d> T_map_W() override;
   void on_new_stream(const std::string& why) override;
   long3r::StateDict session_state() override;
   void restore_session_state(const long3r::StateDict& state) override;
@@ -124,7 +121,8 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
 
   std::unique_ptr<image_transport::ImageTransport> it_;
   image_transport::Subscriber image_sub_;
-  ros::Subscriber compressed_sub_, camera_info_sub_, depth_sub_, odom_sub_;
+  ros::Subscriber compressed_sub_;
+  std::unique_ptr<StampedInputs> stamped_;  // camera_info, depth, odometry by stamp
   std::unique_ptr<FramePublisher> frame_pub_;
   std::unique_ptr<MapPublisher> map_pub_;
   ros::Publisher path_pub_;
@@ -132,13 +130,9 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   ros::ServiceServer save_session_srv_, load_session_srv_;
   ros::WallTimer map_timer_;
   ros::Timer tf_timer_;  // republishes map -> odom (odometry mode), as SLAM nodes do
-  // Another node publishing our transform (amcl, a second SLAM node): ours
-  // stops while it does (statically: for good), named in the log and diagnostics.
-  ros::Subscriber tf_watch_sub_, tf_static_watch_sub_;
-  std::atomic<double> rival_tf_wall_s_{-1e9};
-  std::atomic<bool> rival_tf_static_{false};
+  // Another node publishing our transform: ours stops while it does.
+  std::unique_ptr<TfRivalWatch> tf_rival_;
   bool rivalPublishing() const;
-  void tfWatchCallback(const ros::MessageEvent<tf2_msgs::TFMessage const>& event, bool is_static);
   tf2_ros::TransformBroadcaster tf_broadcaster_;
   tf2_ros::Buffer tf_buffer_;
   std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
@@ -147,31 +141,14 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   double min_rate_hz_ = 0.0, max_rate_hz_ = 0.0;
   std::unique_ptr<diagnostic_updater::TopicDiagnostic> output_diagnostic_;
 
-  // camera_info and depth messages by stamp, to pair each image with its own.
-  // Sized in subscribe() to reach back over the whole image queue, plus this
-  // (what arrives while the worker runs one frame).
-  static constexpr unsigned kCacheMargin = 30;
-  message_filters::Cache<sensor_msgs::CameraInfo> camera_info_cache_{kCacheMargin};
-  message_filters::Cache<sensor_msgs::Image> depth_cache_{kCacheMargin};
-  // pose_source odometry: the base driver's odometry messages, whose pose
-  // covariance goes with the poses they place (20 s at 100 Hz).
-  message_filters::Cache<nav_msgs::Odometry> odom_cache_{2000};
-  void odomCallback(const nav_msgs::OdometryConstPtr& msg);
-  // The covariance of the odometry message at `stamp`, in map; nullopt (and a
-  // throttled warning saying why) when there is none to use.
-  std::optional<Eigen::Matrix<double, 6, 6>> odometryCovarianceInMap(const ros::Time& stamp);
-
   // The session and what is tied to its stream, guarded together: the worker
   // pushes frames, the services reset and save.
   std::mutex session_mutex_;
   std::unique_ptr<long3r::LiveSession> session_;
   std::unique_ptr<RobotFrames> frames_;
-  // The maps of the streams that ended (tracking lost, time jumps, size
-  // changes), in map: ~map, ~grid and ~save_map keep them. Without odometry
-  // (odom_frame) each stream's map frame starts at its own first frame, so
-  // these maps are not registered to the current one. ~reset clears them.
-  std::unique_ptr<long3r::VoxelMap> archive_;
-  // The map in map: the archive and the current stream's (locks itself).
+  // The map in map, the ended streams' included (LiveSession::ended_maps():
+  // without odom_frame each stream's map frame starts at its own first
+  // frame, so those are not registered to the current one). Locks itself.
   long3r::MapSnapshot mapSnapshot();
 
   std::unique_ptr<long3r::BoundedQueue<InputFrame>> queue_;
@@ -196,7 +173,6 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
     // Camera positions of the path in map (for ~grid).
     std::vector<Eigen::Vector3d> cameras_map;
     std::string grid = "not subscribed";
-    std::string tf_rival;  // the node also publishing our transform, if any
   };
   std::mutex state_mutex_;
   State state_;

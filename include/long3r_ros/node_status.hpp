@@ -28,7 +28,7 @@ struct NodeStatus {
   std::string session_file = "none";   // the last session saved or loaded
   std::string grid = "not subscribed";
   std::string tf_rival;  // the node also publishing our transform; empty: none
-  std::size_t map_points = 0, archived_map_points = 0;
+  std::size_t map_points = 0, ended_map_points = 0;
   std::uint64_t received = 0, processed = 0, failed = 0;  // totals
   std::uint64_t dropped_input = 0, dropped_queue = 0, dropped_paused = 0;
 };

@@ -1,12 +1,9 @@
 #include "long3r_ros/long3r_nodelet.hpp"
 
-#include <cv_bridge/cv_bridge.h>
 #include <geometry_msgs/PoseStamped.h>
 #include <geometry_msgs/TransformStamped.h>
 #include <ros/package.h>
-#include <sensor_msgs/image_encodings.h>
 #include <tf2_eigen/tf2_eigen.h>
-#include <boost/function.hpp>
 #include <pluginlib/class_list_macros.hpp>
 
 #include <algorithm>
@@ -50,23 +47,6 @@ double wallNow() { return ros::WallTime::now().toSec(); }
 // queue (queue_size) drops them counted. So this one is generous.
 constexpr std::uint32_t kSubscriberQueue = 30;
 
-// The message of `cache` whose stamp is nearest to `stamp`, at most max_dt_s
-// away (null when there is none).
-template <class M>
-boost::shared_ptr<const M> nearestInCache(const message_filters::Cache<M>& cache,
-                                          const ros::Time& stamp, double max_dt_s) {
-  const ros::Duration window(max_dt_s);
-  const ros::Time from = stamp.toSec() > max_dt_s ? stamp - window : ros::Time(0);
-  boost::shared_ptr<const M> nearest;
-  for (const auto& m : cache.getInterval(from, stamp + window)) {
-    if (!nearest || std::abs((m->header.stamp - stamp).toSec()) <
-                        std::abs((nearest->header.stamp - stamp).toSec())) {
-      nearest = m;
-    }
-  }
-  return nearest;
-}
-
 }  // namespace
 
 Long3rNodelet::~Long3rNodelet() { shutdown(); }
@@ -96,7 +76,6 @@ void Long3rNodelet::onInit() {
   NODELET_INFO_STREAM("configuration:\n" << describe(params_));
   tf_listener_ = std::make_unique<tf2_ros::TransformListener>(tf_buffer_, getNodeHandle());
   frames_ = std::make_unique<RobotFrames>(params_.frames, tf_buffer_);
-  archive_ = std::make_unique<long3r::VoxelMap>(params_.reconstruction.map);
   loadModel();
   advertise();
   loadStartSession();
@@ -190,15 +169,11 @@ void Long3rNodelet::advertise() {
                                   &Long3rNodelet::mapTimerCallback, this);
   if (params_.node.publish_tf &&
       !(params_.frames.odom_frame.empty() && params_.frames.base_frame.empty())) {
-    using TfEvent = ros::MessageEvent<tf2_msgs::TFMessage const>;
-    tf_watch_sub_ = nh.subscribe<tf2_msgs::TFMessage>(
-        "/tf", 100, boost::function<void(const TfEvent&)>([this](const TfEvent& e) {
-          tfWatchCallback(e, false);
-        }));
-    tf_static_watch_sub_ = nh.subscribe<tf2_msgs::TFMessage>(
-        "/tf_static", 100, boost::function<void(const TfEvent&)>([this](const TfEvent& e) {
-          tfWatchCallback(e, true);
-        }));
+    // The transform we publish: map -> odom, or map -> base without odometry.
+    tf_rival_ = std::make_unique<TfRivalWatch>(
+        nh, params_.frames.map_frame,
+        params_.frames.odom_frame.empty() ? params_.frames.base_frame : params_.frames.odom_frame,
+        getName());
   }
   if (params_.node.publish_tf && !params_.frames.odom_frame.empty() &&
       params_.node.tf_publish_rate_hz > 0.0) {
@@ -220,22 +195,26 @@ void Long3rNodelet::advertise() {
 void Long3rNodelet::subscribe() {
   ros::NodeHandle& nh = getNodeHandle();
   ros::NodeHandle& pnh = getPrivateNodeHandle();
-  // The worker pairs each queued image with the camera_info and depth of its
-  // stamp, so the caches reach back as far as the image queue does.
-  const auto reach = static_cast<unsigned>(params_.node.queue_size) + kCacheMargin;
-  camera_info_cache_.setCacheSize(reach);
-  depth_cache_.setCacheSize(reach);
-  if (params_.node.use_camera_info) {
-    camera_info_sub_ = nh.subscribe("camera_info", 10, &Long3rNodelet::cameraInfoCallback, this);
+  StampedInputs::Config stamped;
+  stamped.camera_info = params_.node.use_camera_info;
+  stamped.depth = params_.session.scale.source == long3r::ScaleSource::kDepth;
+  stamped.odometry = params_.node.pose_source == PoseSource::kOdometry;
+  // The worker pairs each queued image with the messages of its stamp, so
+  // the caches reach back as far as the image queue does, plus what arrives
+  // while the worker runs one frame.
+  stamped.reach = static_cast<unsigned>(params_.node.queue_size) + 30;
+  stamped.odom_frame = params_.frames.odom_frame;
+  stamped.base_frame = params_.frames.base_frame;
+  stamped_ = std::make_unique<StampedInputs>(
+      nh, stamped, [this](const std::string& kind, const std::string& message) {
+        warnThrottled(kind, message);
+      });
+  if (stamped.depth) {
+    NODELET_INFO("metric scale from the depth images on %s", stamped_->depthTopic().c_str());
   }
-  if (params_.session.scale.source == long3r::ScaleSource::kDepth) {
-    depth_sub_ = nh.subscribe("depth", kSubscriberQueue, &Long3rNodelet::depthCallback, this);
-    NODELET_INFO("metric scale from the depth images on %s", depth_sub_.getTopic().c_str());
-  }
-  if (params_.node.pose_source == PoseSource::kOdometry) {
-    odom_sub_ = nh.subscribe("odom", 100, &Long3rNodelet::odomCallback, this);
+  if (stamped.odometry) {
     NODELET_INFO("covariance of the odometry-placed poses from %s (nav_msgs/Odometry)",
-                 odom_sub_.getTopic().c_str());
+                 stamped_->odomTopic().c_str());
   }
   it_ = std::make_unique<image_transport::ImageTransport>(nh);
   const std::vector<std::string> loadable = it_->getLoadableTransports();
@@ -295,79 +274,7 @@ void Long3rNodelet::enqueue(InputFrame frame) {
   }
 }
 
-void Long3rNodelet::cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg) {
-  camera_info_cache_.add(msg);  // validated by the worker, with the image it calibrates
-}
-
-void Long3rNodelet::depthCallback(const sensor_msgs::ImageConstPtr& msg) {
-  depth_cache_.add(msg);  // read by the worker with the result of the image of its stamp
-}
-
-void Long3rNodelet::odomCallback(const nav_msgs::OdometryConstPtr& msg) {
-  odom_cache_.add(msg);  // read by the worker with the result placed at its stamp
-}
-
-// How far from a frame's stamp an odometry message may be for its covariance
-// (base drivers publish at 10 Hz or more).
-constexpr double kOdomCovarianceMaxDtS = 0.1;
-
-std::optional<Eigen::Matrix<double, 6, 6>> Long3rNodelet::odometryCovarianceInMap(
-    const ros::Time& stamp) {
-  const std::string topic = odom_sub_.getTopic();
-  std::string why =
-      "no odometry message on " + topic + format(" within %.0f ms", 1e3 * kOdomCovarianceMaxDtS);
-  if (const nav_msgs::OdometryConstPtr nearest =
-          nearestInCache(odom_cache_, stamp, kOdomCovarianceMaxDtS)) {
-    if (auto cov =
-            poseCovarianceOfOdometry(*nearest, params_.frames.odom_frame, params_.frames.base_frame,
-                                     frames_->T_map_odom().linear(), &why)) {
-      return cov;
-    }
-    why = "the odometry on " + topic + ": " + why;
-  }
-  warnThrottled("odometry covariance",
-                format("frame at t=%.3f placed by odometry: ", stamp.toSec()) + why +
-                    "; ~odometry and ~pose_with_covariance carry the model's PnP covariance "
-                    "instead (none when PnP failed)");
-  return std::nullopt;
-}
-
-// How long another publisher of our transform silences ours after its last
-// message on /tf.
-constexpr double kRivalHoldS = 5.0;
-
-bool Long3rNodelet::rivalPublishing() const {
-  return rival_tf_static_ || wallNow() - rival_tf_wall_s_ < kRivalHoldS;
-}
-
-// The transform we publish (map -> odom, or map -> base without odometry)
-// coming from another node: one frame would have two publishers fighting
-// over it. Ours gives way, and says to whom.
-void Long3rNodelet::tfWatchCallback(const ros::MessageEvent<tf2_msgs::TFMessage const>& event,
-                                    bool is_static) {
-  const std::string& publisher = event.getPublisherName();
-  if (publisher == ros::this_node::getName()) return;
-  const std::string& ours =
-      params_.frames.odom_frame.empty() ? params_.frames.base_frame : params_.frames.odom_frame;
-  for (const geometry_msgs::TransformStamped& t : event.getMessage()->transforms) {
-    if (t.child_frame_id != ours || t.header.frame_id != params_.frames.map_frame) continue;
-    const bool news = !rivalPublishing();
-    const std::string what = params_.frames.map_frame + " -> " + ours + " is also published by " +
-                             publisher + (is_static ? " (static)" : "") +
-                             ": ours stopped while it is, so that the frame has one publisher";
-    {
-      // Named before it counts: the diagnostics never see a nameless rival.
-      std::lock_guard<std::mutex> lock(state_mutex_);
-      state_.tf_rival = what;
-    }
-    rival_tf_wall_s_ = wallNow();
-    if (is_static) rival_tf_static_ = true;
-    if (news) {
-      NODELET_ERROR("%s", what.c_str());
-    }
-    return;
-  }
-}
+bool Long3rNodelet::rivalPublishing() const { return tf_rival_ && tf_rival_->rivalPublishing(); }
 
 void Long3rNodelet::tfTimerCallback(const ros::TimerEvent&) {
   std::optional<geometry_msgs::TransformStamped> t;
@@ -426,7 +333,7 @@ void Long3rNodelet::handleFrame(const InputFrame& frame) {
   f.encoding = decoded.encoding;
   f.stamp_s = header.stamp.toSec();
   f.clock_s = frame.arrival.toSec();
-  if (params_.node.use_camera_info) f.camera = cameraFor(header.stamp);
+  if (params_.node.use_camera_info) f.camera = stamped_->camera(header.stamp);
   f.tag = header;
   std::lock_guard<std::mutex> lock(session_mutex_);
   try {
@@ -436,20 +343,6 @@ void Long3rNodelet::handleFrame(const InputFrame& frame) {
     throw;
   }
   copyStatus();
-}
-
-// The camera_info of this stamp, else the latest before it, else the first
-// after it (the session validates it against the image).
-std::optional<long3r::CameraModel> Long3rNodelet::cameraFor(const ros::Time& stamp) {
-  sensor_msgs::CameraInfoConstPtr info;
-  const auto exact = camera_info_cache_.getInterval(stamp, stamp);
-  if (!exact.empty()) {
-    info = exact.back();
-  } else if (!(info = camera_info_cache_.getElemBeforeTime(stamp))) {
-    info = camera_info_cache_.getElemAfterTime(stamp);
-  }
-  if (!info) return std::nullopt;
-  return toCameraModel(*info);
 }
 
 void Long3rNodelet::flushPending() {
@@ -529,25 +422,8 @@ Eigen::Vector3d Long3rNodelet::odometry_camera_position_m(const long3r::LiveResu
   }
 }
 
-// The depth image of the result's stamp (exact, else within 20 ms).
 cv::Mat Long3rNodelet::depth(const long3r::LiveResult& result) {
-  const auto& header = std::any_cast<const std_msgs::Header&>(result.tag);
-  const sensor_msgs::ImageConstPtr depth = nearestInCache(depth_cache_, header.stamp, 0.02);
-  if (!depth) {
-    throw Unavailable("depth missing", format("no depth image within 20 ms of the frame at t=%.3f "
-                                              "(scale_source depth)",
-                                              header.stamp.toSec()));
-  }
-  namespace enc = sensor_msgs::image_encodings;
-  if (depth->encoding != enc::TYPE_16UC1 && depth->encoding != enc::TYPE_32FC1) {
-    throw Unavailable("depth encoding", "depth image not used: encoding '" + depth->encoding +
-                                            "' (16UC1 mm or 32FC1 m)");
-  }
-  try {
-    return cv_bridge::toCvShare(depth)->image;
-  } catch (const std::exception& e) {
-    throw Unavailable("depth encoding", std::string("depth image not used: ") + e.what());
-  }
+  return stamped_->depth(std::any_cast<const std_msgs::Header&>(result.tag).stamp);
 }
 
 void Long3rNodelet::on_event(const long3r::LiveEvent& e) {
@@ -564,37 +440,28 @@ void Long3rNodelet::on_event(const long3r::LiveEvent& e) {
   }
 }
 
-// The ending stream's map stays in ~map, where it was in map.
-void Long3rNodelet::on_stream_ending(const long3r::Reconstruction& ending) {
-  if (ending.map().empty() || !frames_->anchored()) return;
-  long3r::MapSnapshot snap = ending.map().snapshot();
-  const Eigen::Isometry3f T_map_W = frames_->T_map_W().cast<float>();
-  for (Eigen::Vector3f& p : snap.points) p = T_map_W * p;
-  archive_->integrate(snap.points, snap.colors, static_cast<std::int64_t>(archive_->revision()));
-  NODELET_INFO("the ending stream's %zu map points stay in ~map (%zu kept from ended streams)%s",
-               snap.points.size(), archive_->size(),
-               params_.frames.odom_frame.empty()
-                   ? "; without odom_frame the next stream's map is not registered to them"
-                   : "");
+// Where the ending stream's map stays in ~map.
+std::optional<Eigen::Isometry3d> Long3rNodelet::T_map_W() {
+  if (!frames_->anchored()) return std::nullopt;
+  return frames_->T_map_W();
 }
 
 long3r::MapSnapshot Long3rNodelet::mapSnapshot() {
-  long3r::MapSnapshot snap = session_->reconstruction().map().snapshot();
-  Eigen::Isometry3f T_map_W;
+  Eigen::Isometry3d T_map_W;
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
-    T_map_W = state_.T_map_W.cast<float>();
+    T_map_W = state_.T_map_W;
   }
-  for (Eigen::Vector3f& p : snap.points) p = T_map_W * p;
-  if (!archive_->empty()) {
-    const long3r::MapSnapshot old = archive_->snapshot();
-    snap.points.insert(snap.points.end(), old.points.begin(), old.points.end());
-    snap.colors.insert(snap.colors.end(), old.colors.begin(), old.colors.end());
-  }
-  return snap;
+  return session_->map_snapshot(T_map_W);
 }
 
 void Long3rNodelet::on_new_stream(const std::string&) {
+  if (params_.frames.odom_frame.empty() && !session_->ended_maps().empty()) {
+    NODELET_INFO(
+        "without odom_frame the new stream's map is not registered to the %zu points "
+        "kept in ~map from ended streams",
+        session_->ended_maps().size());
+  }
   frames_->reset();
   {
     std::lock_guard<std::mutex> state_lock(state_mutex_);
@@ -607,7 +474,6 @@ void Long3rNodelet::on_new_stream(const std::string&) {
 long3r::StateDict Long3rNodelet::session_state() {
   long3r::StateDict state;
   if (frames_->anchored()) state["T_map_W"] = long3r::pose_to_tensor(frames_->T_map_W());
-  if (!archive_->empty()) long3r::put_state(state, "archive.", archive_->state());
   if (frames_->started() && frames_->mode() == RobotFrames::Mode::kMapToOdom &&
       frames_->odometryAnchored()) {
     state["T_map_odom"] = long3r::pose_to_tensor(frames_->T_map_odom());
@@ -622,15 +488,6 @@ void Long3rNodelet::restore_session_state(const long3r::StateDict& state) {
     const auto it = state.find(key);
     return it == state.end() ? std::nullopt : long3r::pose_from_tensor(it->second);
   };
-  archive_->clear();
-  const long3r::StateDict archive = long3r::sub_state(state, "archive.");
-  if (!archive.empty()) {  // the maps of ended streams, in map
-    try {
-      archive_->restore(long3r::StateReader(archive, "the session's maps of ended streams"));
-    } catch (const long3r::StateError& e) {
-      NODELET_WARN("%s; they are left out of ~map", e.what());
-    }
-  }
   if (const std::optional<Eigen::Isometry3d> T_map_W = pose("T_map_W")) {
     frames_->continueSession(*T_map_W, pose("T_map_odom"));
   } else {
@@ -701,7 +558,10 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
   }
   c.conf_threshold = params_.reconstruction.conf_threshold;
   // A pose the odometry placed has the odometry's covariance.
-  if (r.posed() && r.pose_given) c.given_covariance_map = odometryCovarianceInMap(header.stamp);
+  if (r.posed() && r.pose_given) {
+    c.given_covariance_map =
+        stamped_->odometryCovarianceInMap(header.stamp, frames_->T_map_odom().linear());
+  }
   frame_pub_->publish(r, c);
   if (!r.posed()) return;
 
@@ -728,9 +588,8 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
 void Long3rNodelet::mapTimerCallback(const ros::WallTimerEvent&) {
   if (diagnostics_) diagnostics_->update();
   if (!session_) return;
-  // The map locks itself: no wait for the model step. Both only grow in
-  // revision: their sum changes whenever either does.
-  const std::uint64_t revision = session_->reconstruction().map().revision() + archive_->revision();
+  // The maps lock themselves: no wait for the model step.
+  const std::uint64_t revision = session_->map_revision();
   if (map_pub_->wants(revision)) {
     std::vector<Eigen::Vector3d> cameras;
     bool metric = false;
@@ -751,7 +610,6 @@ bool Long3rNodelet::resetService(std_srvs::Trigger::Request&, std_srvs::Trigger:
   {
     std::lock_guard<std::mutex> lock(session_mutex_);
     session_->reset("reset requested");
-    archive_->clear();
     copyStatus();
   }
   queue_->clear();
@@ -879,8 +737,8 @@ void Long3rNodelet::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) 
     n.frames = state_.frames;
     n.session_file = state_.session_file;
     n.grid = state_.grid;
-    if (rivalPublishing()) n.tf_rival = state_.tf_rival;
   }
+  if (tf_rival_) n.tf_rival = tf_rival_->describe();
   n.window = window_.window();
   window_.rotate();
   const double last_input = last_input_wall_s_;
@@ -890,7 +748,7 @@ void Long3rNodelet::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) 
   n.paused = paused_;
   n.scale_source = params_.session.scale.source;
   n.map_points = session_ ? session_->reconstruction().map().size() : 0;
-  n.archived_map_points = archive_ ? archive_->size() : 0;
+  n.ended_map_points = session_ ? session_->ended_maps().size() : 0;
   n.received = frames_received_;
   n.processed = frames_processed_;
   n.failed = frames_failed_;
@@ -908,9 +766,8 @@ void Long3rNodelet::shutdown() {
   // callback running into a half-destroyed nodelet is undefined behaviour.
   image_sub_.shutdown();
   compressed_sub_.shutdown();
-  camera_info_sub_.shutdown();
-  depth_sub_.shutdown();
-  odom_sub_.shutdown();
+  if (stamped_) stamped_->shutdown();
+  if (tf_rival_) tf_rival_->shutdown();
   tf_timer_.stop();
   reset_srv_.shutdown();
   pause_srv_.shutdown();

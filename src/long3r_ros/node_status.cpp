@@ -57,7 +57,7 @@ void fillDiagnostics(const NodeStatus& n, diagnostic_updater::DiagnosticStatusWr
   stat.add("streams started", s.streams);
   stat.add("relocalisation attempts", s.relocalisation_attempts);
   stat.add("relocalisations", s.relocalisations);
-  stat.add("map points kept from ended streams", n.archived_map_points);
+  stat.add("map points kept from ended streams", n.ended_map_points);
   stat.add("session file", n.session_file);
   stat.add("grid", n.grid);
   stat.add("tf", rival ? n.tf_rival : std::string("publishing"));

@@ -143,6 +143,7 @@ TEST(LiveSession, RelocalisationIsBoundedInTimeAndTheEndingStreamIsHandedOver) {
   ASSERT_EQ(s.client.ended_map_points.size(), 1u);
   EXPECT_GT(s.client.ended_map_points[0], 0u);
   EXPECT_EQ(s.session->status().relocalisations, 0u);
+  EXPECT_TRUE(s.session->ended_maps().empty());  // the client ties W to no map frame
   LiveSessionConfig bad;
   bad.relocalise_for_s = -1.0;
   EXPECT_THROW(bad.validate({"live session config", ""}), ConfigError);

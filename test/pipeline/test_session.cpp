@@ -400,5 +400,74 @@ TEST(Session, AFailedSaveLeavesTheOldFileAndAModelWithoutIdentityCannotSave) {
   EXPECT_EQ(test::folder_entries(dir), (std::vector<std::string>{"map.l3s"}));
 }
 
+// A new stream never wipes the map: the ended stream's map stays where the
+// client's map frame has it, sessions keep it, only reset() clears it.
+TEST(Session, MapsOfEndedStreamsAreKeptInTheMapFrameSavedAndClearedByReset) {
+  Session s(kFrames);
+  Eigen::Isometry3d T_map_W0 = Eigen::Isometry3d::Identity();
+  T_map_W0.translation() = Eigen::Vector3d(3.0, -1.0, 0.5);
+  s.client.map_frame = T_map_W0;
+  for (int k = 0; k < 4; ++k) s.push(k, 10.0 + 0.1 * k);
+  s.push(4, 2.0);  // time jumps back: a new stream
+  s.push(5, 2.1);
+  s.session->flush();
+  ASSERT_EQ(s.session->status().streams, 2u);
+  ASSERT_EQ(s.client.ended_maps.size(), 1u);
+  const MapSnapshot& old_W = s.client.ended_maps[0];
+  const VoxelMap& ended = s.session->ended_maps();
+  ASSERT_GT(ended.size(), 0u);
+  EXPECT_LE(ended.size(), old_W.points.size());  // re-binned after the move, never more
+  EXPECT_NE(s.client.event("the ending stream's " + std::to_string(old_W.points.size()) +
+                           " map points stay in the map"),
+            nullptr)
+      << "last event: " << (s.client.events.empty() ? "" : s.client.events.back().message);
+  // Its points moved into the map frame: the centroids agree.
+  auto centroid = [](const std::vector<Eigen::Vector3f>& points) {
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    for (const Eigen::Vector3f& p : points) c += p.cast<double>();
+    return Eigen::Vector3d(c / static_cast<double>(points.size()));
+  };
+  const double voxel_m = s.session->reconstruction().config().map.voxel_size_m;
+  EXPECT_LT((centroid(ended.snapshot().points) - T_map_W0 * centroid(old_W.points)).norm(),
+            voxel_m);
+  // The whole map: the current stream's, placed by its own T_map_W, and the ended one's.
+  Eigen::Isometry3d T_map_W1 = Eigen::Isometry3d::Identity();
+  T_map_W1.translation() = Eigen::Vector3d(-2.0, 0.0, 0.0);
+  const MapSnapshot whole = s.session->map_snapshot(T_map_W1);
+  const MapSnapshot current = s.session->reconstruction().map().snapshot();
+  ASSERT_EQ(whole.points.size(), current.points.size() + ended.size());
+  ASSERT_EQ(whole.colors.size(), whole.points.size());
+  EXPECT_TRUE(whole.points[0].isApprox((T_map_W1.cast<float>() * current.points[0]), 1e-6f));
+  const std::uint64_t revision = s.session->map_revision();
+
+  // Saved and loaded exactly, with the current stream.
+  const std::string path = session_path("ended_maps");
+  s.session->save(path);
+  Session loaded(kFrames);
+  loaded.session->load(path);
+  expect_same_map(loaded.session->ended_maps(), ended);
+  expect_same_map(loaded.session->reconstruction().map(), s.session->reconstruction().map());
+
+  // A damaged kept map refuses the whole file; the running session is untouched.
+  StateDict file = read_session(path, loaded.session->identity());
+  file["ended_maps.hits"] = at::zeros_like(file.at("ended_maps.hits"));
+  const std::string damaged = session_path("ended_maps_damaged");
+  write_session(damaged, loaded.session->identity(), file, {});
+  Session other(kFrames);
+  for (int k = 0; k < 2; ++k) other.push(k, 10.0 + 0.1 * k);
+  const Fingerprint before(other);
+  const std::string error = error_of([&] { other.session->load(damaged); });
+  EXPECT_NE(error.find("ended_maps.hits"), std::string::npos) << error;
+  EXPECT_TRUE(Fingerprint(other) == before);
+  EXPECT_TRUE(other.session->ended_maps().empty());
+
+  // reset() clears them, with the current stream.
+  s.session->reset("reset requested");
+  EXPECT_TRUE(s.session->ended_maps().empty());
+  EXPECT_EQ(s.client.ended_maps.size(), 2u);  // the client still hears of the ending
+  EXPECT_NE(s.session->map_revision(), revision);
+  EXPECT_TRUE(s.session->map_snapshot(T_map_W1).points.empty());
+}
+
 }  // namespace
 }  // namespace long3r

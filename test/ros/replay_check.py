@@ -223,7 +223,7 @@ class ReplayCheck(unittest.TestCase):
         self.assertTrue(any(m.startswith('tracking lost for') for m in self.rec.get('diagnostics')),
                         'the diagnostics never said tracking was lost')
         # A new stream never wipes the map: the ended streams' points stay in ~map.
-        self.assertTrue(wait_for(lambda: any('stay in ~map' in m for m in self.rec.get('logs')), 10),
+        self.assertTrue(wait_for(lambda: any('map points stay in the map' in m for m in self.rec.get('logs')), 10),
                         'no log line keeping the ended stream\'s map')
         maps = [m for m in self.rec.get('maps') if m.width > 0]
         self.assertGreaterEqual(len(maps), 2)

@@ -57,9 +57,14 @@ struct Recorder : LiveSessionClient {
     log.push_back("result " + std::to_string(std::any_cast<int>(r.tag)));
     results.push_back(r);
   }
+  // Where W sits in the map frame of the maps of ended streams (none: not kept).
+  std::optional<Eigen::Isometry3d> map_frame;
+  std::optional<Eigen::Isometry3d> T_map_W() override { return map_frame; }
   void on_stream_ending(const Reconstruction& ending) override {
     ended_map_points.push_back(ending.map().size());
+    ended_maps.push_back(ending.map().snapshot());
   }
+  std::vector<MapSnapshot> ended_maps;  // in W of each stream that ended
   void on_new_stream(const std::string& why) override { log.push_back("new stream: " + why); }
   std::vector<std::size_t> ended_map_points;  // of each stream that ended
   void on_event(const LiveEvent& e) override { events.push_back(e); }

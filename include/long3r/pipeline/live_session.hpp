@@ -14,7 +14,11 @@
 //   - metric scale (metric_scale.hpp): samples from the odometry's camera
 //     displacements or from registered depth images, asked of the client when
 //     a frame's result is known; once the estimate converges the stream is
-//     rescaled, and every result leaves here in the stream's final scale.
+//     rescaled, and every result leaves here in the stream's final scale;
+//   - the maps of ended streams: a new stream never wipes the map the user
+//     built; the ending stream's map is kept in the client's map frame
+//     (LiveSessionClient::T_map_W) beside the new one, saved with sessions,
+//     and cleared only by reset().
 // Each frame carries the caller's tag (a ROS header) back with its result.
 //
 // Frames: W is the camera optical frame of the stream's frame 0 (as in
@@ -139,6 +143,11 @@ class LiveSessionClient {
   // from another client (long3r_reconstruct's, loaded by the node).
   virtual StateDict session_state() { return {}; }
   virtual void restore_session_state(const StateDict& state) { (void)state; }
+  // Where the ending stream's W sits in the client's map frame, asked when a
+  // stream ends (before on_stream_ending()): its map is kept there
+  // (LiveSession::ended_maps()). nullopt (the default): W is tied to no map
+  // frame, and the ending stream's map is not kept.
+  virtual std::optional<Eigen::Isometry3d> T_map_W() { return std::nullopt; }
 
   // Results, in frame order.
   virtual void on_result(LiveResult& result) = 0;
@@ -184,8 +193,8 @@ class LiveSession {
   void push(LiveFrame frame);
   // The pending frame's result now (a pause in the input); the stream goes on.
   void flush();
-  // Starts a new stream with the next frame (memory, map, path, scale);
-  // `why` names the reason in the warning.
+  // Starts a new stream with the next frame (memory, map, path, scale) and
+  // clears the maps of ended streams; `why` names the reason in the warning.
   void reset(const std::string& why);
 
   // Sessions (session.hpp). save() delivers the pending frame's result (as
@@ -202,6 +211,16 @@ class LiveSession {
   SessionIdentity identity() const;
 
   LiveStatus status() const { return status_; }
+  // The maps of the streams that ended since the last reset() (tracking
+  // lost, time jumps, size changes), in the client's map frame. Like the
+  // current stream's map it locks itself: another thread may read it.
+  const VoxelMap& ended_maps() const { return ended_maps_; }
+  // The whole map in the client's map frame: the current stream's, placed by
+  // T_map_W, and the ended streams'. Callable from any thread (both maps
+  // lock themselves), as is map_revision(), which changes whenever either
+  // map does.
+  MapSnapshot map_snapshot(const Eigen::Isometry3d& T_map_W) const;
+  std::uint64_t map_revision() const;
   const Reconstruction& reconstruction() const { return recon_; }
   Reconstruction& reconstruction() { return recon_; }
   const LiveSessionConfig& config() const { return config_; }
@@ -217,7 +236,8 @@ class LiveSession {
   void track_loss(const FrameResult& r);
   void update_scale(LiveResult& result);
   std::optional<double> depth_sample(const LiveResult& result);
-  void new_stream(const std::string& why);
+  void new_stream(const std::string& why, bool keep_map);
+  void keep_ended_map();
   void start_stream_scale();
   void info(const std::string& kind, const std::string& message);
   void warn(const std::string& kind, const std::string& message, bool dropped = false);
@@ -225,6 +245,7 @@ class LiveSession {
   LiveSessionConfig config_;
   LiveSessionClient& client_;
   Reconstruction recon_;
+  VoxelMap ended_maps_;
   StreamMonitor monitor_;
   std::optional<LiveFrame> held_;  // see StreamMonitor::kHold
   std::deque<Pending> pending_;

@@ -59,6 +59,7 @@ LiveSession::LiveSession(std::unique_ptr<StreamingModel> model,
     : config_(config),
       client_(client),
       recon_(std::move(model), reconstruction),
+      ended_maps_(reconstruction.map),
       monitor_(config.stream),
       scale_policy_(config.scale),
       scale_sampler_(config.scale) {
@@ -109,7 +110,8 @@ void LiveSession::push(LiveFrame frame) {
     case A::kNewStreamTimeBackwards:
     case A::kNewStreamSizeChanged:
       flush();  // the old stream's last frame is delivered, not lost
-      new_stream(format("frame at t=%.3f: ", stamp_s) + StreamMonitor::describe(d.action));
+      new_stream(format("frame at t=%.3f: ", stamp_s) + StreamMonitor::describe(d.action),
+                 /*keep_map=*/true);
       process(std::move(frame));
       return;
     case A::kHold:
@@ -206,16 +208,18 @@ cv::Mat LiveSession::calibrate(const LiveFrame& frame) {
 
 void LiveSession::reset(const std::string& why) {
   monitor_.reset();
-  new_stream(why);
+  ended_maps_.clear();
+  new_stream(why, /*keep_map=*/false);
 }
 
-void LiveSession::new_stream(const std::string& why) {
+void LiveSession::new_stream(const std::string& why, bool keep_map) {
   LiveEvent e;
   e.level = LiveEvent::Level::kWarning;
   e.kind = "new stream";
   e.message = why + ": starting a new stream (memory, map and path start over)";
   e.throttle = false;  // each one is news
   client_.on_event(e);
+  if (keep_map) keep_ended_map();
   client_.on_stream_ending(recon_);
   recon_.reset();
   pending_.clear();
@@ -225,6 +229,39 @@ void LiveSession::new_stream(const std::string& why) {
   status_.stream_frames = 0;
   start_stream_scale();
   client_.on_new_stream(why);
+}
+
+// The ending stream's map joins the maps of ended streams, where the client's
+// map frame has it.
+void LiveSession::keep_ended_map() {
+  if (recon_.map().empty()) return;
+  const std::optional<Eigen::Isometry3d> T_map_W = client_.T_map_W();
+  if (!T_map_W) return;
+  MapSnapshot snap = recon_.map().snapshot();
+  const Eigen::Isometry3f T = T_map_W->cast<float>();
+  for (Eigen::Vector3f& p : snap.points) p = T * p;
+  ended_maps_.integrate(snap.points, snap.colors,
+                        static_cast<std::int64_t>(ended_maps_.revision()));
+  info("kept map", "the ending stream's " + std::to_string(snap.points.size()) +
+                       " map points stay in the map (" + std::to_string(ended_maps_.size()) +
+                       " kept from ended streams, until a reset)");
+}
+
+MapSnapshot LiveSession::map_snapshot(const Eigen::Isometry3d& T_map_W) const {
+  MapSnapshot snap = recon_.map().snapshot();
+  const Eigen::Isometry3f T = T_map_W.cast<float>();
+  for (Eigen::Vector3f& p : snap.points) p = T * p;
+  if (!ended_maps_.empty()) {
+    const MapSnapshot ended = ended_maps_.snapshot();
+    snap.points.insert(snap.points.end(), ended.points.begin(), ended.points.end());
+    snap.colors.insert(snap.colors.end(), ended.colors.begin(), ended.colors.end());
+  }
+  return snap;
+}
+
+// Both revisions only grow: their sum changes whenever either does.
+std::uint64_t LiveSession::map_revision() const {
+  return recon_.map().revision() + ended_maps_.revision();
 }
 
 void LiveSession::start_stream_scale() {
@@ -261,6 +298,7 @@ void LiveSession::save(const std::string& path) {
   state["live.scale.samples"] = at::tensor(scale.samples, at::kDouble);
   put_real(state, "live.scale.applied", scale.applied);
   put_int(state, "live.scale.metric", scale.metric ? 1 : 0);
+  if (!ended_maps_.empty()) put_state(state, "ended_maps.", ended_maps_.state());
   put_state(state, "client.", client_.session_state());
   char scale_text[64];
   std::snprintf(scale_text, sizeof scale_text, "%.6g%s", recon_.scale(),
@@ -277,6 +315,7 @@ void LiveSession::save(const std::string& path) {
 void LiveSession::load(const std::string& path) {
   const StateDict file = read_session(path, identity());
   ScalePolicy::State scale;
+  VoxelMap ended(recon_.config().map);
   try {
     const StateReader r(file, "session", "live.scale.");
     const at::Tensor samples = r.floating("samples", {-1}).to(at::kDouble).contiguous();
@@ -286,12 +325,22 @@ void LiveSession::load(const std::string& path) {
     if (!(scale.applied > 0.0) || !std::isfinite(scale.applied)) {
       r.fail("applied", "must be positive and finite");
     }
+    // Validated whole before anything changes. Files of earlier versions kept
+    // them with the node's state.
+    for (const char* prefix : {"ended_maps.", "client.archive."}) {
+      const StateReader r(file, "session", prefix);
+      if (r.has("index")) {
+        ended.restore(r);
+        break;
+      }
+    }
     recon_.restore(sub_state(file, "reconstruction."));
   } catch (const StateError& e) {
     throw SessionError(path + ": damaged session: " + e.what());
   }
   // The stream now is the file's: stamps start over, and so does what the
   // client keeps per stream.
+  ended_maps_.restore(ended.records());
   monitor_.reset();
   held_.reset();
   pending_.clear();
@@ -381,11 +430,13 @@ void LiveSession::track_loss(const FrameResult& r) {
                      " (tracking lost for " + std::to_string(lost) +
                      " frame(s); each new frame is tried against the memory and map)");
     if (config_.lost_reset_frames > 0 && lost >= config_.lost_reset_frames) {
-      new_stream("tracking lost for " + std::to_string(lost) +
-                 " consecutive frames (lost_reset_frames)");
+      new_stream(
+          "tracking lost for " + std::to_string(lost) + " consecutive frames (lost_reset_frames)",
+          /*keep_map=*/true);
     } else if (config_.relocalise_for_s > 0.0 && lost_s >= config_.relocalise_for_s) {
       new_stream(format("tracking lost for %.1f s without relocalising (relocalise_for_s %g)",
-                        lost_s, config_.relocalise_for_s));
+                        lost_s, config_.relocalise_for_s),
+                 /*keep_map=*/true);
     }
   }
   status_.lost_for_s = lost > 0 ? r.stamp - lost_since_stamp_ : 0.0;
