@@ -9,8 +9,8 @@ include(GoogleTest)
 # gtest binaries, by what they need:
 #   long3r_model_tests  test/{config,io,model,memory}: libtorch only (builds
 #                       wherever the model does, CUDA libtorch included);
-#   long3r_cv_tests     test/{pipeline,dataset,eval,synth,train}: the OpenCV,
-#                       PCL and Eigen side.
+#   long3r_cv_tests     test/{geometry,pipeline,dataset,eval,synth,train}: the
+#                       Eigen, OpenCV and PCL side.
 # Each gtest case becomes its own ctest entry, so ctest's summary counts
 # individual tests.
 # The shared fixtures, compiled once: long3r_test_support (libtorch only) for
@@ -62,7 +62,7 @@ long3r_add_gtest_binary(long3r_model_tests FOLDERS config io model memory
   LIBS long3r_model long3r_test_support)
 if(LONG3R_HAVE_CV)
   long3r_add_gtest_binary(long3r_cv_tests
-    FOLDERS pipeline dataset eval synth train
+    FOLDERS geometry pipeline dataset eval synth train
     LIBS long3r_train_cv long3r_synth_cv long3r_cv_test_support)
 endif()
 

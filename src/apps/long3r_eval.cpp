@@ -12,9 +12,9 @@
 
 #include "long3r/config/cli_options.hpp"
 #include "long3r/dataset/image_file.hpp"
-#include "long3r/dataset/point_cloud_io.hpp"
 #include "long3r/dataset/tum_dataset.hpp"
 #include "long3r/eval/eval.hpp"
+#include "long3r/geometry/cv/point_cloud_io.hpp"
 #include "long3r/io/atomic_file.hpp"
 
 namespace {

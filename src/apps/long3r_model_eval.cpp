@@ -20,7 +20,7 @@
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/safetensors.hpp"
 #include "long3r/model/threads.hpp"
-#include "long3r/train/train_cv.hpp"
+#include "long3r/train/cv/train_cv.hpp"
 
 namespace {
 

@@ -8,8 +8,8 @@
 #include <string>
 
 #include "long3r/config/cli_options.hpp"
+#include "long3r/synth/cv/tum_writer.hpp"
 #include "long3r/synth/synth.hpp"
-#include "long3r/synth/tum_writer.hpp"
 
 int main(int argc, char** argv) {
   using namespace long3r::synth;

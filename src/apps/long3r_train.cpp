@@ -15,7 +15,7 @@
 #include "long3r/model/threads.hpp"
 #include "long3r/train/train.hpp"
 #ifdef LONG3R_TRAIN_WITH_OPENCV
-#include "long3r/train/train_cv.hpp"
+#include "long3r/train/cv/train_cv.hpp"
 #endif
 
 namespace {

@@ -6,9 +6,9 @@
 #include <fstream>
 
 #include "long3r/dataset/tum_dataset.hpp"
-#include "long3r/synth/sensor_image.hpp"
+#include "long3r/synth/cv/sensor_image.hpp"
+#include "long3r/synth/cv/tum_writer.hpp"
 #include "long3r/synth/synth.hpp"
-#include "long3r/synth/tum_writer.hpp"
 #include "support/test_support.hpp"
 
 using namespace long3r;

@@ -13,7 +13,7 @@
 #include "long3r/model/model_config.hpp"
 #include "long3r/model/spann3r_model.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
-#include "long3r/synth/sensor_image.hpp"
+#include "long3r/synth/cv/sensor_image.hpp"
 #include "long3r/synth/synth.hpp"
 #include "support/cv_test_support.hpp"
 

@@ -11,7 +11,7 @@
 #include <filesystem>
 #include <stdexcept>
 
-#include "long3r/synth/sensor_image.hpp"
+#include "long3r/synth/cv/sensor_image.hpp"
 
 namespace long3r::test {
 

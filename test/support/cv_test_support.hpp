@@ -13,12 +13,12 @@
 #include <string>
 #include <vector>
 
+#include "long3r/geometry/pinhole_intrinsics.hpp"
 #include "long3r/model/streaming.hpp"
-#include "long3r/pipeline/pinhole_intrinsics.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
-#include "long3r/synth/dataset_layouts.hpp"
+#include "long3r/synth/cv/dataset_layouts.hpp"
 #include "long3r/synth/synth.hpp"
-#include "long3r/train/datasets/dataset_io.hpp"
+#include "long3r/train/cv/datasets/dataset_io.hpp"
 
 namespace long3r::test {
 
@@ -73,7 +73,7 @@ class FakeModel : public StreamingModel {
 
 // ---------------------------------------------------- dataset layouts
 // test/train/test_dataset_<layout>.cpp: a layout's writer
-// (synth/dataset_layouts.hpp) and reader (train/datasets/dataset_io.hpp)
+// (synth/cv/dataset_layouts.hpp) and reader (train/cv/datasets/dataset_io.hpp)
 // against each other.
 
 // How closely a read frame must match the frame its writer was given; each

@@ -8,8 +8,8 @@
 #include <string>
 #include <vector>
 
-#include "long3r/synth/dataset_layouts.hpp"
-#include "long3r/train/datasets/dataset_io.hpp"
+#include "long3r/synth/cv/dataset_layouts.hpp"
+#include "long3r/train/cv/datasets/dataset_io.hpp"
 #include "support/cv_test_support.hpp"
 #include "support/test_support.hpp"
 

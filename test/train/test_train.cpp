@@ -24,9 +24,9 @@
 #include "long3r/model/long3r_model.hpp"
 #include "long3r/model/safetensors.hpp"
 #include "long3r/pipeline/pose.hpp"
-#include "long3r/synth/dataset_layouts.hpp"
+#include "long3r/synth/cv/dataset_layouts.hpp"
+#include "long3r/train/cv/train_cv.hpp"
 #include "long3r/train/train.hpp"
-#include "long3r/train/train_cv.hpp"
 #include "support/test_support.hpp"
 
 namespace fs = std::filesystem;

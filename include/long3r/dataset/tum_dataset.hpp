@@ -26,15 +26,9 @@
 #include <utility>
 #include <vector>
 
-#include "long3r/pipeline/pinhole_intrinsics.hpp"
+#include "long3r/geometry/pinhole_intrinsics.hpp"
 
 namespace long3r {
-
-// The lines of a text data file (TUM lists, trajectories, .xyz clouds) with
-// '#' comments and blank lines dropped and commas made spaces, each with its
-// 1-based line number for error messages. Throws std::runtime_error when the
-// file cannot be opened.
-std::vector<std::pair<int, std::string>> data_lines(const std::string& path);
 
 // Timestamped camera poses T_W_C (one trajectory).
 struct PoseTrajectory {

@@ -32,8 +32,8 @@
 #include <vector>
 
 #include "long3r/dataset/tum_dataset.hpp"
-#include "long3r/eval/umeyama.hpp"
-#include "long3r/pipeline/pinhole_intrinsics.hpp"
+#include "long3r/geometry/pinhole_intrinsics.hpp"
+#include "long3r/geometry/umeyama.hpp"
 
 namespace long3r {
 
@@ -49,7 +49,7 @@ ErrorStatistics error_statistics(const std::vector<double>& errors);
 double median_of(std::vector<double> values);
 
 // ------------------------------------------------------------- point clouds
-// (files: long3r/dataset/point_cloud_io.hpp)
+// (files: long3r/geometry/cv/point_cloud_io.hpp)
 
 // Centroid of the points in each voxel (cubes of `voxel` metres), in order of
 // first occurrence. voxel <= 0 returns the input.

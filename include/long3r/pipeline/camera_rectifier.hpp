@@ -23,7 +23,7 @@
 #include <string>
 #include <vector>
 
-#include "long3r/pipeline/pinhole_intrinsics.hpp"
+#include "long3r/geometry/pinhole_intrinsics.hpp"
 
 namespace long3r {
 

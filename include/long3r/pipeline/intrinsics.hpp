@@ -14,7 +14,7 @@
 #include <optional>
 #include <string>
 
-#include "long3r/pipeline/pinhole_intrinsics.hpp"
+#include "long3r/geometry/pinhole_intrinsics.hpp"
 #include "long3r/pipeline/preprocess.hpp"
 
 namespace long3r {

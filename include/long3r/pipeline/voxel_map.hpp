@@ -34,7 +34,7 @@
 #include <vector>
 
 #include "long3r/config/config_fields.hpp"
-#include "long3r/dataset/point_cloud_io.hpp"
+#include "long3r/geometry/cv/point_cloud_io.hpp"
 #include "long3r/model/state_dict.hpp"
 
 namespace long3r {
@@ -170,7 +170,7 @@ class VoxelMap {
   std::uint64_t revision_ = 0;
 };
 
-// Writes a coloured point cloud atomically (see point_cloud_io.hpp and
+// Writes a coloured point cloud atomically (see geometry/cv/point_cloud_io.hpp and
 // atomic_file.hpp: on any error `path` is untouched, no temporary is left and
 // the std::runtime_error says what failed). The extension (case-insensitive)
 // selects the format:

@@ -33,8 +33,8 @@
 // This header is the generator's core (library long3r_synth: Eigen and
 // libtorch only, so that training data can be rendered on a machine without
 // OpenCV). What needs OpenCV is in long3r_synth_cv: the LensRays constructor
-// (lens_rays.cpp), sensor noise and OpenCV images (sensor_image.hpp) and the
-// TUM writer (tum_writer.hpp).
+// (cv/lens_rays.cpp), sensor noise and OpenCV images (cv/sensor_image.hpp) and the
+// TUM writer (cv/tum_writer.hpp).
 #pragma once
 
 #include <ATen/core/Tensor.h>
@@ -47,7 +47,7 @@
 #include <string>
 #include <vector>
 
-#include "long3r/pipeline/pinhole_intrinsics.hpp"
+#include "long3r/geometry/pinhole_intrinsics.hpp"
 
 namespace long3r::synth {
 
@@ -232,7 +232,7 @@ struct Sequence {
 Sequence generate_sequence(const SequenceConfig& config);
 
 // CPU tensors, row-major (the memory layout of the OpenCV images of the same
-// content: sensor_image.hpp makes those).
+// content: cv/sensor_image.hpp makes those).
 struct RenderedFrame {
   at::Tensor bgr;         // [H, W, 3] uint8, BGR order, sRGB-encoded
   at::Tensor depth;       // [H, W] float32, z-depth in metres (0 where no surface)

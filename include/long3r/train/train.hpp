@@ -11,7 +11,7 @@
 // generator's core only), so that it builds and trains on a machine with
 // nothing but a libtorch, e.g. a CUDA one. What needs OpenCV, PCL or the
 // pipeline (TUM folders as data, PnP poses and the point-cloud metrics in
-// validation, the loss-curve PNG) is in train_cv.hpp and reaches the trainer
+// validation, the loss-curve PNG) is in cv/train_cv.hpp and reaches the trainer
 // through TrainerExtensions.
 #pragma once
 
@@ -30,9 +30,9 @@
 #include <string>
 #include <vector>
 
+#include "long3r/geometry/pinhole_intrinsics.hpp"
 #include "long3r/model/long3r_model.hpp"
 #include "long3r/model/streaming.hpp"
-#include "long3r/pipeline/pinhole_intrinsics.hpp"
 #include "long3r/synth/synth.hpp"
 #include "long3r/train/data_parallel.hpp"
 #include "long3r/train/train_config.hpp"
@@ -62,7 +62,7 @@ struct RawFrame {
 };
 
 // A recorded sequence used as training data: frames with depth, pose and
-// calibration (TUM folders: open_tum_training_source in train_cv.hpp).
+// calibration (TUM folders: open_tum_training_source in cv/train_cv.hpp).
 class RecordedSource {
  public:
   virtual ~RecordedSource() = default;
@@ -81,7 +81,7 @@ class RecordedFrameError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-// The sequences of one dataset of data.datasets (train/datasets/dataset_io.hpp).
+// The sequences of one dataset of data.datasets (train/cv/datasets/dataset_io.hpp).
 struct OpenedDataset {
   std::vector<std::unique_ptr<RecordedSource>> sequences;
   std::vector<std::string> skipped;  // "<path>: <why>" of each sequence left out
@@ -397,7 +397,7 @@ PredictionMetrics pointmap_metrics(const SequencePrediction& prediction,
 
 // Inference-mode run of `model` (switched to inference and back) over the
 // sequences: the loss, probe_loss's registered share, and `score`'s figures
-// (pointmap_metrics when empty; train_cv.hpp's full_validation_scorer adds
+// (pointmap_metrics when empty; cv/train_cv.hpp's full_validation_scorer adds
 // Acc / Comp / NC and the ATE of PnP poses). Averages over sequences.
 ValidationMetrics validate(Long3rModel& model, const std::vector<SequenceSample>& sequences,
                            const LossConfig& loss, const ValidationConfig& config,
@@ -414,7 +414,7 @@ SequencePrediction constant_depth_prediction(const SequenceSample& sample, doubl
 // Oracle of the loss probe (docs/model_card.md, "Why the model does not
 // register"), from the ground truth, confidence 1: frame 0's exact pointmap
 // for every frame (ignores the images after the first). The other oracle,
-// true_depth_no_motion_prediction, is in train_cv.hpp.
+// true_depth_no_motion_prediction, is in cv/train_cv.hpp.
 SequencePrediction first_frame_prediction(const SequenceSample& sample);
 
 // What a prediction costs in the training loss, and how much of that is
@@ -468,7 +468,7 @@ double frame_placement_error(const at::Tensor& pred, const at::Tensor& gt, const
 struct LogRow;
 
 // What the trainer takes from the OpenCV side when it is built
-// (train_cv.hpp: opencv_trainer_extensions()). Each part may be empty, as on
+// (cv/train_cv.hpp: opencv_trainer_extensions()). Each part may be empty, as on
 // a machine with nothing but a libtorch.
 struct TrainerExtensions {
   PredictionScorer score;              // validation figures; empty: pointmap_metrics

@@ -62,7 +62,7 @@ struct SynthDataConfig {
 };
 
 // The public datasets' layouts that data.datasets reads (docs/training.md,
-// "Datasets"; train/datasets/dataset_io.hpp).
+// "Datasets"; train/cv/datasets/dataset_io.hpp).
 inline const char* const kDatasetLayouts[] = {"scannet", "scannetpp",  "arkitscenes",
                                               "co3d",    "blendedmvs", "habitat"};
 

@@ -16,6 +16,7 @@
 #include <tuple>
 
 #include "long3r/io/atomic_file.hpp"
+#include "long3r/io/data_lines.hpp"
 
 namespace long3r {
 
@@ -51,23 +52,6 @@ std::string join(const std::string& root, const std::string& rel) {
 }
 
 }  // namespace
-
-std::vector<std::pair<int, std::string>> data_lines(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw std::runtime_error("cannot open " + path);
-  std::vector<std::pair<int, std::string>> out;
-  std::string line;
-  int number = 0;
-  while (std::getline(in, line)) {
-    ++number;
-    const size_t hash = line.find('#');
-    if (hash != std::string::npos) line.resize(hash);
-    std::replace(line.begin(), line.end(), ',', ' ');
-    if (line.find_first_not_of(" \t\r\n") == std::string::npos) continue;
-    out.emplace_back(number, line);
-  }
-  return out;
-}
 
 std::vector<Eigen::Vector3d> PoseTrajectory::positions() const {
   std::vector<Eigen::Vector3d> out;

@@ -4,7 +4,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "long3r/dataset/point_cloud_io.hpp"
+#include "long3r/geometry/cv/point_cloud_io.hpp"
 #include "long3r/pipeline/voxel_map.hpp"
 
 namespace long3r {

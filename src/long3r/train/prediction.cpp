@@ -9,7 +9,7 @@
 #include <limits>
 #include <stdexcept>
 
-#include "long3r/eval/umeyama.hpp"
+#include "long3r/geometry/umeyama.hpp"
 #include "long3r/train/correspondences.hpp"
 #include "long3r/train/train.hpp"
 
