@@ -19,7 +19,7 @@ PACKAGES=(
   ros-base-dev catkin libroscpp-dev libnodelet-dev python3-nodelet
   libpcl-ros-dev libcv-bridge-dev libimage-transport-dev libtf2-ros-dev
   libtf2-geometry-msgs-dev libtf2-eigen-dev libdiagnostic-updater-dev libimage-geometry-dev
-  libmessage-filters-dev libdepth-image-proc-dev
+  libmessage-filters-dev libdepth-image-proc-dev libpcl-conversions-dev
   libsensor-msgs-dev libgeometry-msgs-dev libnav-msgs-dev libstd-srvs-dev
   ros-message-generation ros-message-runtime
   python3-rosbag python3-rospy python3-rosservice python3-rostest python3-rosnode

@@ -20,9 +20,11 @@
 #include <string>
 #include <vector>
 
+#include "long3r/geometry/cv/pcl_cloud.hpp"
 #include "long3r/pipeline/camera_rectifier.hpp"
 #include "long3r/pipeline/frame_result.hpp"
 #include "long3r/pipeline/occupancy_grid.hpp"
+#include "long3r/pipeline/voxel_map.hpp"
 #include "long3r_ros/Pointmap.h"
 
 namespace long3r_ros {
@@ -46,21 +48,26 @@ sensor_msgs::PointCloud2 toFrameCloud(const sensor_msgs::ImageConstPtr& depth,
                                       const sensor_msgs::CameraInfo& info, const cv::Mat& conf,
                                       const cv::Mat& rgb);
 
-// Unorganised cloud with fields x, y, z, rgb. colors are RGB.
 // The grid as nav_msgs/OccupancyGrid (the same cell layout: rows along y from
 // the origin corner, -1 unknown, 0 free, 100 occupied) in header.frame_id.
 nav_msgs::OccupancyGrid toOccupancyGrid(const long3r::OccupancyGrid& grid,
                                         const std_msgs::Header& header);
 
+// The map as PCL's unorganised coloured cloud (~map, in map; published
+// through pcl_conversions: fields x, y, z, rgb). Throws std::invalid_argument
+// when points and colours differ in number.
+using MapCloud = long3r::ColoredCloud;
+MapCloud toPclCloud(const long3r::MapSnapshot& map);
+
 // The map thinned for display (~map with map_display_voxel_m): one point per
 // cube of voxel_m, the centroid of its points' positions and colours (PCL's
 // VoxelGrid). Unchanged for voxel_m <= 0.
-void downsampleForDisplay(std::vector<Eigen::Vector3f>& points,
-                          std::vector<std::array<std::uint8_t, 3>>& colors, double voxel_m);
-
-sensor_msgs::PointCloud2 toColoredCloud(const std::vector<Eigen::Vector3f>& points,
-                                        const std::vector<std::array<std::uint8_t, 3>>& colors,
-                                        const std_msgs::Header& header);
+void downsampleForDisplay(MapCloud& cloud, double voxel_m);
+// Isolated points left out for display (map_display_outlier_neighbours): a
+// point whose mean distance to its `neighbours` nearest points exceeds the
+// mean over all points by `stddev` standard deviations (PCL's
+// StatisticalOutlierRemoval). Unchanged for neighbours <= 0.
+void removeIsolatedPoints(MapCloud& cloud, int neighbours, double stddev);
 
 // A pose covariance (position, then rotation about the fixed axes: ROS's
 // order) of a camera pose in W, as the covariance of the body pose in map:

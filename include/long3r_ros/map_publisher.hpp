@@ -1,6 +1,7 @@
 // ~map (the accumulated map, thinned for display) and ~grid (its occupancy
-// grid), both in map_frame and latched. Each is built only while subscribed
-// and only when the map changed since it was last sent.
+// grid), both in map_frame and latched. ~map goes out as PCL's coloured cloud
+// (pcl::PointXYZRGB, through pcl_conversions), filtered by PCL for display. Each is built only
+// while subscribed and only when the map changed since it was last sent.
 //
 // Only a z-up map (with base_frame: its floor at z = 0) has a floor to stand
 // on, so ~grid needs base_frame; gridStatus() says why there is no grid, or
@@ -26,8 +27,10 @@ class MapPublisher {
 
   struct Config {
     std::string map_frame;
-    double display_voxel_m = 0.0;  // ~map thinned to this voxel; 0 = the map's own
-    bool z_up = false;             // base_frame is set
+    double display_voxel_m = 0.0;        // ~map thinned to this voxel; 0 = the map's own
+    int display_outlier_neighbours = 0;  // ~map without isolated points; 0 = off
+    double display_outlier_stddev = 1.0;
+    bool z_up = false;  // base_frame is set
     long3r::OccupancyGridConfig grid;
   };
 

@@ -55,8 +55,12 @@ struct NodeletConfig {
   double flush_after_s = 1.0;           // publish the pending frame after this silence
   double map_publish_period_s = 1.0;    // republish the map (if changed) this often
   double map_display_voxel_m = 0.0;     // ~map downsampled to this voxel (PCL); 0 = the map's own
-  double tf_publish_rate_hz = 20.0;     // map -> odom republished this often; 0 = with frames only
-  double tf_delay_s = 0.0;              // map -> odom forward-dated by this (as rtabmap's tf_delay)
+  // ~map without isolated points (PCL's StatisticalOutlierRemoval over this
+  // many neighbours, beyond this many standard deviations); 0 = off.
+  int map_display_outlier_neighbours = 0;
+  double map_display_outlier_stddev = 1.0;
+  double tf_publish_rate_hz = 20.0;  // map -> odom republished this often; 0 = with frames only
+  double tf_delay_s = 0.0;           // map -> odom forward-dated by this (as rtabmap's tf_delay)
   // With a scale source: ~depth and ~frame_cloud wait for the metric scale
   // (false), or go out in model units meanwhile (true).
   bool publish_unscaled_depth = false;
@@ -80,6 +84,8 @@ long3r::config::FieldsOf<S, NodeletConfig> visit_fields(S& s, V& v) {
   v("flush_after_s", s.flush_after_s);
   v("map_publish_period_s", s.map_publish_period_s);
   v("map_display_voxel_m", s.map_display_voxel_m, "(the map's voxels)");
+  v("map_display_outlier_neighbours", s.map_display_outlier_neighbours, "(off)");
+  v("map_display_outlier_stddev", s.map_display_outlier_stddev);
   v("tf_publish_rate_hz", s.tf_publish_rate_hz, "(with frames only)");
   v("tf_delay_s", s.tf_delay_s);
   v("publish_unscaled_depth", s.publish_unscaled_depth);

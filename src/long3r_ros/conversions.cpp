@@ -2,6 +2,7 @@
 
 #include <depth_image_proc/depth_conversions.h>
 #include <image_geometry/pinhole_camera_model.h>
+#include <pcl/filters/statistical_outlier_removal.h>
 #include <pcl/filters/voxel_grid.h>
 #include <pcl/point_types.h>
 #include <sensor_msgs/image_encodings.h>
@@ -92,57 +93,30 @@ sensor_msgs::PointCloud2 toFrameCloud(const sensor_msgs::ImageConstPtr& depth,
   return *cloud;
 }
 
-void downsampleForDisplay(std::vector<Eigen::Vector3f>& points,
-                          std::vector<std::array<std::uint8_t, 3>>& colors, double voxel_m) {
-  if (!(voxel_m > 0.0) || points.empty()) return;
-  pcl::PointCloud<pcl::PointXYZRGB>::Ptr cloud(new pcl::PointCloud<pcl::PointXYZRGB>);
-  cloud->resize(points.size());
-  for (std::size_t i = 0; i < points.size(); ++i) {
-    pcl::PointXYZRGB& p = (*cloud)[i];
-    p.x = points[i].x();
-    p.y = points[i].y();
-    p.z = points[i].z();
-    p.r = colors[i][0];
-    p.g = colors[i][1];
-    p.b = colors[i][2];
-  }
-  pcl::VoxelGrid<pcl::PointXYZRGB> grid;
-  grid.setInputCloud(cloud);
-  const float leaf = static_cast<float>(voxel_m);
-  grid.setLeafSize(leaf, leaf, leaf);
-  pcl::PointCloud<pcl::PointXYZRGB> out;
-  grid.filter(out);
-  points.resize(out.size());
-  colors.resize(out.size());
-  for (std::size_t i = 0; i < out.size(); ++i) {
-    points[i] = Eigen::Vector3f(out[i].x, out[i].y, out[i].z);
-    colors[i] = {out[i].r, out[i].g, out[i].b};
-  }
+MapCloud toPclCloud(const long3r::MapSnapshot& map) {
+  return long3r::to_pcl_cloud(map.points, map.colors);
 }
 
-sensor_msgs::PointCloud2 toColoredCloud(const std::vector<Eigen::Vector3f>& points,
-                                        const std::vector<std::array<std::uint8_t, 3>>& colors,
-                                        const std_msgs::Header& header) {
-  if (points.size() != colors.size()) {
-    throw std::invalid_argument("toColoredCloud: points and colors differ in size");
-  }
-  sensor_msgs::PointCloud2 cloud;
-  cloud.header = header;
-  sensor_msgs::PointCloud2Modifier modifier(cloud);
-  modifier.setPointCloud2FieldsByString(2, "xyz", "rgb");
-  modifier.resize(points.size());
-  cloud.height = 1;
-  cloud.width = static_cast<std::uint32_t>(points.size());
-  cloud.is_dense = true;
-  sensor_msgs::PointCloud2Iterator<float> it_x(cloud, "x");
-  sensor_msgs::PointCloud2Iterator<float> it_rgb(cloud, "rgb");
-  for (std::size_t i = 0; i < points.size(); ++i, ++it_x, ++it_rgb) {
-    it_x[0] = points[i].x();
-    it_x[1] = points[i].y();
-    it_x[2] = points[i].z();
-    *it_rgb = packRgb(colors[i][0], colors[i][1], colors[i][2]);
-  }
-  return cloud;
+void downsampleForDisplay(MapCloud& cloud, double voxel_m) {
+  if (!(voxel_m > 0.0) || cloud.empty()) return;
+  pcl::VoxelGrid<pcl::PointXYZRGB> grid;
+  grid.setInputCloud(MapCloud::ConstPtr(&cloud, [](const MapCloud*) {}));  // not owned
+  const float leaf = static_cast<float>(voxel_m);
+  grid.setLeafSize(leaf, leaf, leaf);
+  MapCloud out;
+  grid.filter(out);
+  cloud.swap(out);
+}
+
+void removeIsolatedPoints(MapCloud& cloud, int neighbours, double stddev) {
+  if (neighbours <= 0 || cloud.size() <= static_cast<std::size_t>(neighbours)) return;
+  pcl::StatisticalOutlierRemoval<pcl::PointXYZRGB> sor;
+  sor.setInputCloud(MapCloud::ConstPtr(&cloud, [](const MapCloud*) {}));  // not owned
+  sor.setMeanK(neighbours);
+  sor.setStddevMulThresh(stddev);
+  MapCloud out;
+  sor.filter(out);
+  cloud.swap(out);
 }
 
 std::array<double, 36> poseCovarianceInMap(const Eigen::Matrix<double, 6, 6>& cov_W,

@@ -150,6 +150,8 @@ void Long3rNodelet::advertise() {
   map_pub_ = std::make_unique<MapPublisher>(
       pnh,
       MapPublisher::Config{params_.frames.map_frame, params_.node.map_display_voxel_m,
+                           params_.node.map_display_outlier_neighbours,
+                           params_.node.map_display_outlier_stddev,
                            !params_.frames.base_frame.empty(), params_.grid},
       [this](const std::string& kind, const std::string& message) {
         warnThrottled(kind, message);

@@ -1,6 +1,7 @@
 #include "long3r_ros/map_publisher.hpp"
 
 #include <nav_msgs/OccupancyGrid.h>
+#include <pcl_conversions/pcl_conversions.h>
 #include <sensor_msgs/PointCloud2.h>
 #include <boost/make_shared.hpp>
 
@@ -41,13 +42,15 @@ void MapPublisher::publish(long3r::MapSnapshot map, const std::vector<Eigen::Vec
   }
   if (!cloudWanted(revision)) return;
   map_revision_ = revision;
-  std_msgs::Header header;
-  header.stamp = ros::Time::now();
-  header.frame_id = config_.map_frame;
-  downsampleForDisplay(map.points, map.colors, config_.display_voxel_m);
+  MapCloud cloud = toPclCloud(map);
+  downsampleForDisplay(cloud, config_.display_voxel_m);
+  removeIsolatedPoints(cloud, config_.display_outlier_neighbours, config_.display_outlier_stddev);
   // By pointer: subscribers in the same nodelet manager share it without a copy.
-  map_pub_.publish(
-      boost::make_shared<sensor_msgs::PointCloud2>(toColoredCloud(map.points, map.colors, header)));
+  auto msg = boost::make_shared<sensor_msgs::PointCloud2>();
+  pcl::toROSMsg(cloud, *msg);
+  msg->header.stamp = ros::Time::now();
+  msg->header.frame_id = config_.map_frame;
+  map_pub_.publish(msg);
 }
 
 void MapPublisher::publishGrid(const std::vector<Eigen::Vector3f>& points_map,

@@ -19,6 +19,10 @@ void NodeletConfig::validate(const long3r::config::FieldCheck& check) const {
   check.require(map_publish_period_s > 0.0, "map_publish_period_s", "must be > 0");
   check.require(map_display_voxel_m >= 0.0 && std::isfinite(map_display_voxel_m),
                 "map_display_voxel_m", "must be >= 0 (0 = the map's own voxels)");
+  check.require(map_display_outlier_neighbours >= 0 && map_display_outlier_neighbours <= 1000,
+                "map_display_outlier_neighbours", "must be in [0, 1000] (0 = off)");
+  check.require(map_display_outlier_stddev > 0.0 && std::isfinite(map_display_outlier_stddev),
+                "map_display_outlier_stddev", "must be > 0");
   check.require(tf_publish_rate_hz >= 0.0 && tf_publish_rate_hz <= 1000.0, "tf_publish_rate_hz",
                 "must be in [0, 1000] (0 = with frames only)");
   check.require(tf_delay_s >= 0.0 && tf_delay_s <= 10.0, "tf_delay_s", "must be in [0, 10]");

@@ -1,7 +1,10 @@
 // save_point_cloud / load_point_cloud: every format round-trips exactly, the
 // bytes written are the documented layout, and the PLY reader takes the
-// variants other tools write (ascii, big endian, double, extra elements).
+// variants other tools write (ascii, big endian, double, extra elements);
+// PCL's readers take what it writes.
 #include <gtest/gtest.h>
+#include <pcl/io/pcd_io.h>
+#include <pcl/io/ply_io.h>
 
 #include <cmath>
 #include <cstring>
@@ -13,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "long3r/geometry/cv/pcl_cloud.hpp"
 #include "long3r/geometry/cv/point_cloud_io.hpp"
 
 namespace long3r {
@@ -63,6 +67,41 @@ TEST(PointCloudIo, EveryFormatRoundTripsExactly) {
   }
   EXPECT_EQ(static_cast<int>(std::distance(fs::directory_iterator(dir), {})), files);
   EXPECT_EQ(load_point_cloud(dir + "/c0.ply").size(), pts.size());
+}
+
+// What users open our files with: PCL's own readers take ~save_map's and
+// long3r_reconstruct's coloured PLY and PCD, binary and ascii, point for point.
+TEST(PointCloudIo, PclReadsThemBackAsColouredClouds) {
+  const std::string dir = temp_dir("point_cloud_io_pcl");
+  const auto pts = random_points(300, 3);
+  std::vector<Rgb8> colors(pts.size());
+  for (size_t i = 0; i < colors.size(); ++i) {
+    colors[i] = {static_cast<uint8_t>(5 * i), static_cast<uint8_t>(i),
+                 static_cast<uint8_t>(255 - i)};
+  }
+  const ColoredCloud expected = to_pcl_cloud(pts, colors);
+  for (const char* ext : {".ply", ".pcd"}) {
+    for (bool ascii : {false, true}) {
+      const std::string path = dir + "/map" + (ascii ? "_ascii" : "") + ext;
+      PointCloudWriteOptions o;
+      o.ascii = ascii;
+      o.comment = "long3r test";
+      save_point_cloud(path, pts, &colors, o);
+      ColoredCloud read;
+      const int rc = std::string(ext) == ".ply" ? pcl::io::loadPLYFile(path, read)
+                                                : pcl::io::loadPCDFile(path, read);
+      ASSERT_EQ(rc, 0) << path;
+      ASSERT_EQ(read.size(), expected.size()) << path;
+      for (size_t i = 0; i < read.size(); ++i) {
+        ASSERT_EQ(read[i].getVector3fMap(), expected[i].getVector3fMap()) << path << " " << i;
+        ASSERT_EQ(read[i].r, expected[i].r) << path << " " << i;
+        ASSERT_EQ(read[i].g, expected[i].g) << path << " " << i;
+        ASSERT_EQ(read[i].b, expected[i].b) << path << " " << i;
+      }
+    }
+  }
+  std::vector<Rgb8> fewer(colors.begin(), colors.end() - 1);
+  EXPECT_THROW(to_pcl_cloud(pts, fewer), std::invalid_argument);
 }
 
 // The layouts long3r_eval's outputs and the tests rely on, byte for byte.

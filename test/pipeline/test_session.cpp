@@ -448,8 +448,19 @@ TEST(Session, MapsOfEndedStreamsAreKeptInTheMapFrameSavedAndClearedByReset) {
   expect_same_map(loaded.session->ended_maps(), ended);
   expect_same_map(loaded.session->reconstruction().map(), s.session->reconstruction().map());
 
-  // A damaged kept map refuses the whole file; the running session is untouched.
+  // Files that kept them with the node's own state ("client.archive.") load them too.
   StateDict file = read_session(path, loaded.session->identity());
+  StateDict earlier;
+  for (const auto& [key, value] : file) {
+    earlier[key.rfind("ended_maps.", 0) == 0 ? "client.archive." + key.substr(11) : key] = value;
+  }
+  const std::string earlier_path = session_path("ended_maps_earlier");
+  write_session(earlier_path, loaded.session->identity(), earlier, {});
+  Session reloaded(kFrames);
+  reloaded.session->load(earlier_path);
+  expect_same_map(reloaded.session->ended_maps(), ended);
+
+  // A damaged kept map refuses the whole file; the running session is untouched.
   file["ended_maps.hits"] = at::zeros_like(file.at("ended_maps.hits"));
   const std::string damaged = session_path("ended_maps_damaged");
   write_session(damaged, loaded.session->identity(), file, {});

@@ -1,5 +1,6 @@
 // Message conversions: field layout, values, holes, and size checks.
 #include <gtest/gtest.h>
+#include <pcl_conversions/pcl_conversions.h>
 #include <sensor_msgs/point_cloud2_iterator.h>
 
 #include <cmath>
@@ -124,43 +125,77 @@ TEST(Conversions, PoseCovarianceOfOdometry) {
   EXPECT_FALSE(poseCovarianceOfOdometry(odom, "odom", "base_link", R, &why));
 }
 
-TEST(Conversions, ColoredCloud) {
-  std::vector<Eigen::Vector3f> p{{1, 2, 3}, {4, 5, 6}};
-  std::vector<std::array<std::uint8_t, 3>> c{{{255, 0, 0}}, {{0, 0, 255}}};
-  auto cloud = toColoredCloud(p, c, {});
+// ~map's cloud: PCL's coloured points, as a PointCloud2 through pcl_conversions.
+TEST(Conversions, MapCloudThroughPcl) {
+  long3r::MapSnapshot map;
+  map.points = {{1, 2, 3}, {4, 5, 6}};
+  map.colors = {{{255, 0, 0}}, {{0, 0, 255}}};
+  const MapCloud pcl_cloud = toPclCloud(map);
+  sensor_msgs::PointCloud2 cloud;
+  pcl::toROSMsg(pcl_cloud, cloud);
   EXPECT_EQ(cloud.width, 2u);
   EXPECT_EQ(cloud.height, 1u);
+  EXPECT_TRUE(cloud.is_dense);
   sensor_msgs::PointCloud2ConstIterator<float> x(cloud, "x"), col(cloud, "rgb");
   EXPECT_FLOAT_EQ(x[2], 3.0f);
-  EXPECT_EQ(unpack(*col), 0xFF0000u);
+  EXPECT_EQ(unpack(*col) & 0xFFFFFFu, 0xFF0000u);
   ++x;
   ++col;
   EXPECT_FLOAT_EQ(x[0], 4.0f);
-  EXPECT_EQ(unpack(*col), 0x0000FFu);
-  c.pop_back();
-  EXPECT_THROW(toColoredCloud(p, c, {}), std::invalid_argument);
+  EXPECT_EQ(unpack(*col) & 0xFFFFFFu, 0x0000FFu);
+  map.colors.pop_back();
+  EXPECT_THROW(toPclCloud(map), std::invalid_argument);
 }
 
 TEST(Conversions, DisplayDownsamplingKeepsOneCentroidPerVoxel) {
   // Two points in one 0.1 m voxel, one in another: two points, the first the
   // centroid of the pair (position and colour).
-  std::vector<Eigen::Vector3f> p{{0.01f, 0.01f, 0.01f}, {0.03f, 0.05f, 0.07f}, {0.55f, 0.0f, 0.0f}};
-  std::vector<std::array<std::uint8_t, 3>> c{{{100, 0, 0}}, {{200, 0, 50}}, {{0, 0, 255}}};
-  auto q = p;
-  auto d = c;
-  long3r_ros::downsampleForDisplay(q, d, 0.0);  // off
+  long3r::MapSnapshot map;
+  map.points = {{0.01f, 0.01f, 0.01f}, {0.03f, 0.05f, 0.07f}, {0.55f, 0.0f, 0.0f}};
+  map.colors = {{{100, 0, 0}}, {{200, 0, 50}}, {{0, 0, 255}}};
+  MapCloud q = toPclCloud(map);
+  downsampleForDisplay(q, 0.0);  // off
   EXPECT_EQ(q.size(), 3u);
-  long3r_ros::downsampleForDisplay(q, d, 0.1);
+  downsampleForDisplay(q, 0.1);
   ASSERT_EQ(q.size(), 2u);
-  ASSERT_EQ(d.size(), 2u);
-  const std::size_t pair = q[0].x() < 0.3f ? 0 : 1;
-  EXPECT_NEAR(q[pair].x(), 0.02f, 1e-6);
-  EXPECT_NEAR(q[pair].y(), 0.03f, 1e-6);
-  EXPECT_NEAR(q[pair].z(), 0.04f, 1e-6);
-  EXPECT_EQ(d[pair][0], 150);
-  EXPECT_EQ(d[pair][2], 25);
-  EXPECT_NEAR(q[1 - pair].x(), 0.55f, 1e-6);
-  EXPECT_EQ(d[1 - pair][2], 255);
+  const std::size_t pair = q[0].x < 0.3f ? 0 : 1;
+  EXPECT_NEAR(q[pair].x, 0.02f, 1e-6);
+  EXPECT_NEAR(q[pair].y, 0.03f, 1e-6);
+  EXPECT_NEAR(q[pair].z, 0.04f, 1e-6);
+  EXPECT_EQ(q[pair].r, 150);
+  EXPECT_EQ(q[pair].b, 25);
+  EXPECT_NEAR(q[1 - pair].x, 0.55f, 1e-6);
+  EXPECT_EQ(q[1 - pair].b, 255);
+}
+
+TEST(Conversions, IsolatedPointsLeftOutForDisplay) {
+  // A 10 x 10 grid of points 1 cm apart and two strays a metre away: the
+  // strays go, the grid stays whole.
+  long3r::MapSnapshot map;
+  for (int i = 0; i < 10; ++i) {
+    for (int j = 0; j < 10; ++j) {
+      map.points.emplace_back(0.01f * static_cast<float>(i), 0.01f * static_cast<float>(j), 1.0f);
+      map.colors.push_back({{1, 2, 3}});
+    }
+  }
+  map.points.emplace_back(1.0f, 1.0f, 2.0f);
+  map.points.emplace_back(-1.0f, 0.5f, 0.0f);
+  map.colors.push_back({{9, 9, 9}});
+  map.colors.push_back({{9, 9, 9}});
+  MapCloud cloud = toPclCloud(map);
+  removeIsolatedPoints(cloud, 0, 1.0);  // off
+  EXPECT_EQ(cloud.size(), 102u);
+  removeIsolatedPoints(cloud, 8, 1.0);
+  ASSERT_EQ(cloud.size(), 100u);
+  for (const pcl::PointXYZRGB& p : cloud) {
+    EXPECT_FLOAT_EQ(p.z, 1.0f);
+    EXPECT_EQ(p.r, 1);
+  }
+  // Fewer points than neighbours: nothing to compare, the cloud is kept.
+  MapCloud few =
+      toPclCloud(long3r::MapSnapshot{{{0, 0, 0}, {5, 5, 5}}, {{{1, 1, 1}}, {{2, 2, 2}}}});
+  removeIsolatedPoints(few, 8, 1.0);
+  EXPECT_EQ(few.size(), 2u);
 }
 
 TEST(Conversions, OccupancyGridLayout) {
