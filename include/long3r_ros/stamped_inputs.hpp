@@ -26,13 +26,15 @@ namespace long3r_ros {
 
 class StampedInputs {
  public:
+  // What arrives while the worker runs one frame.
+  static constexpr unsigned kReachMargin = 30;
   struct Config {
     bool camera_info = true;  // use_camera_info
     bool depth = false;       // scale_source depth
     bool odometry = false;    // pose_source odometry
     // How many messages of each image-rate topic to keep: as many as the
-    // image queue reaches back over, plus those that arrive meanwhile.
-    unsigned reach = 30;
+    // image queue reaches back over, plus kReachMargin.
+    unsigned reach = kReachMargin;
     std::string odom_frame, base_frame;  // the odometry's frames, as the robot has them
   };
   using Warn = std::function<void(const std::string& kind, const std::string& message)>;

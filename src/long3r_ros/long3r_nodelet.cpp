@@ -202,9 +202,8 @@ void Long3rNodelet::subscribe() {
   stamped.depth = params_.session.scale.source == long3r::ScaleSource::kDepth;
   stamped.odometry = params_.node.pose_source == PoseSource::kOdometry;
   // The worker pairs each queued image with the messages of its stamp, so
-  // the caches reach back as far as the image queue does, plus what arrives
-  // while the worker runs one frame.
-  stamped.reach = static_cast<unsigned>(params_.node.queue_size) + 30;
+  // the caches reach back as far as the image queue does.
+  stamped.reach = static_cast<unsigned>(params_.node.queue_size) + StampedInputs::kReachMargin;
   stamped.odom_frame = params_.frames.odom_frame;
   stamped.base_frame = params_.frames.base_frame;
   stamped_ = std::make_unique<StampedInputs>(
