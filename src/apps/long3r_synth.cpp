@@ -1,5 +1,5 @@
 // long3r_synth: renders a procedural indoor sequence with exact ground truth
-// into a TUM RGB-D style folder (see include/long3r/synth/synth.hpp, docs/evaluation.md).
+// into a TUM RGB-D style folder (see include/long3r/synth/generate.hpp, docs/evaluation.md).
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -9,7 +9,8 @@
 
 #include "long3r/config/cli_options.hpp"
 #include "long3r/synth/cv/tum_writer.hpp"
-#include "long3r/synth/synth.hpp"
+#include "long3r/synth/generate.hpp"
+#include "long3r/synth/render.hpp"
 
 int main(int argc, char** argv) {
   using namespace long3r::synth;

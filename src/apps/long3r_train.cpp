@@ -13,7 +13,9 @@
 
 #include "long3r/config/cli_options.hpp"
 #include "long3r/model/threads.hpp"
-#include "long3r/train/train.hpp"
+#include "long3r/train/data_parallel.hpp"
+#include "long3r/train/train_config.hpp"
+#include "long3r/train/trainer.hpp"
 #ifdef LONG3R_TRAIN_WITH_OPENCV
 #include "long3r/train/cv/train_cv.hpp"
 #endif

@@ -8,7 +8,8 @@
 #include "long3r/dataset/tum_dataset.hpp"
 #include "long3r/synth/cv/sensor_image.hpp"
 #include "long3r/synth/cv/tum_writer.hpp"
-#include "long3r/synth/synth.hpp"
+#include "long3r/synth/generate.hpp"
+#include "long3r/synth/render.hpp"
 #include "support/test_support.hpp"
 
 using namespace long3r;

@@ -14,7 +14,6 @@
 #include "long3r/model/spann3r_model.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 #include "long3r/synth/cv/sensor_image.hpp"
-#include "long3r/synth/synth.hpp"
 #include "support/cv_test_support.hpp"
 
 namespace long3r {

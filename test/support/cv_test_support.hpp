@@ -17,8 +17,10 @@
 #include "long3r/model/streaming.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 #include "long3r/synth/cv/dataset_layouts.hpp"
-#include "long3r/synth/synth.hpp"
+#include "long3r/synth/generate.hpp"
 #include "long3r/train/cv/datasets/dataset_io.hpp"
+#include "long3r/train/train_config.hpp"
+#include "long3r/train/train_data.hpp"
 
 namespace long3r::test {
 

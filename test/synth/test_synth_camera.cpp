@@ -15,7 +15,9 @@
 #include "long3r/io/data_lines.hpp"
 #include "long3r/synth/cv/sensor_image.hpp"
 #include "long3r/synth/cv/tum_writer.hpp"
-#include "long3r/synth/synth.hpp"
+#include "long3r/synth/generate.hpp"
+#include "long3r/synth/geometry.hpp"
+#include "long3r/synth/render.hpp"
 #include "support/test_support.hpp"
 
 using namespace long3r;

@@ -25,8 +25,16 @@
 #include "long3r/model/safetensors.hpp"
 #include "long3r/pipeline/pose.hpp"
 #include "long3r/synth/cv/dataset_layouts.hpp"
+#include "long3r/train/blind_control.hpp"
+#include "long3r/train/cross_view_completion.hpp"
 #include "long3r/train/cv/train_cv.hpp"
-#include "long3r/train/train.hpp"
+#include "long3r/train/data_parallel.hpp"
+#include "long3r/train/prediction.hpp"
+#include "long3r/train/train_config.hpp"
+#include "long3r/train/train_data.hpp"
+#include "long3r/train/train_loss.hpp"
+#include "long3r/train/trainer.hpp"
+#include "long3r/train/weight_init.hpp"
 #include "support/test_support.hpp"
 
 namespace fs = std::filesystem;

@@ -1,6 +1,7 @@
 // Training configuration (docs/training.md), torch-free: the curriculum
 // stages, loss weights, optimiser, data sources, validation and checkpointing,
-// each struct with its defaults and its field list for the JSON file.
+// each struct with its defaults and its field list for the JSON file, and the
+// learning-rate schedule of the stages (train/train_config.cpp).
 #pragma once
 
 #include <cstdint>
@@ -108,7 +109,7 @@ struct ValidationConfig {
   int64_t stride = 3;
   int pixel_step = 2;   // subsampling of the clouds for Acc / Comp / NC
   bool normals = true;  // NC (costs a k-NN normal estimate)
-  // The blind control (blind_control in train.hpp): how much better the model
+  // The blind control (blind_control in blind_control.hpp): how much better the model
   // places a frame given its true reference than given the frame itself as
   // its own reference. Held-out scenes val_seed_begin + i for i <
   // blind_scenes, blind_starts evenly spaced start frames per scene, each
@@ -260,5 +261,16 @@ ModelConfig resolve_model_config(const std::string& name_or_path);
 // that a configuration names the model file beside it wherever it is run
 // from; anything else is returned unchanged.
 std::string locate_model_config(const std::string& model, const std::string& config_dir);
+
+// The learning-rate schedule over the stages.
+struct StagePosition {
+  int64_t index = 0;       // stage index; stages.size() when past the end
+  int64_t local_step = 0;  // step within the stage
+};
+StagePosition stage_at(const TrainConfig& config, int64_t step);
+// Learning rate of global step `step` (0-based): per stage, linear warm-up
+// lr * (s + 1) / warmup for s < warmup, then cosine from lr to lr * min_ratio
+// over the remaining steps of the stage.
+double learning_rate_at(const TrainConfig& config, int64_t step);
 
 }  // namespace long3r

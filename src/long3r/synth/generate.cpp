@@ -8,7 +8,8 @@
 #include <cmath>
 #include <stdexcept>
 
-#include "long3r/synth/synth.hpp"
+#include "long3r/synth/generate.hpp"
+#include "long3r/synth/geometry.hpp"
 
 namespace long3r::synth {
 

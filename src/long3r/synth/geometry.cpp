@@ -3,7 +3,7 @@
 #include <cmath>
 #include <limits>
 
-#include "long3r/synth/synth.hpp"
+#include "long3r/synth/geometry.hpp"
 
 namespace long3r::synth {
 

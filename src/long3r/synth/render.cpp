@@ -7,7 +7,9 @@
 #include <stdexcept>
 #include <thread>
 
-#include "long3r/synth/synth.hpp"
+#include "long3r/synth/geometry.hpp"
+#include "long3r/synth/render.hpp"
+#include "long3r/synth/texture.hpp"
 
 namespace long3r::synth {
 

@@ -8,7 +8,8 @@
 #include <cmath>
 #include <cstdint>
 
-#include "long3r/synth/synth.hpp"
+#include "long3r/synth/geometry.hpp"
+#include "long3r/synth/texture.hpp"
 
 namespace long3r::synth {
 

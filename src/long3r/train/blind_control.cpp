@@ -11,8 +11,10 @@
 #include <stdexcept>
 
 #include "long3r/geometry/umeyama.hpp"
+#include "long3r/train/blind_control.hpp"
 #include "long3r/train/correspondences.hpp"
-#include "long3r/train/train.hpp"
+#include "long3r/train/prediction.hpp"
+#include "long3r/train/train_data.hpp"
 
 namespace long3r {
 

@@ -10,7 +10,8 @@
 #include <cstdint>
 #include <vector>
 
-#include "long3r/train/train.hpp"
+#include "long3r/train/prediction.hpp"
+#include "long3r/train/train_data.hpp"
 
 namespace long3r {
 

@@ -1,5 +1,6 @@
 // Cross-view completion, the pretext task of a "cross_view_completion" stage
-// (include/long3r/train/train.hpp): patches, the visible set, the loss.
+// (include/long3r/train/cross_view_completion.hpp): patches, the visible set,
+// the loss.
 #include <ATen/ATen.h>
 #include <ATen/CPUGeneratorImpl.h>
 #include <c10/core/InferenceMode.h>
@@ -8,7 +9,9 @@
 #include <cmath>
 #include <stdexcept>
 
-#include "long3r/train/train.hpp"
+#include "long3r/train/cross_view_completion.hpp"
+#include "long3r/train/prediction.hpp"
+#include "long3r/train/train_data.hpp"
 
 namespace long3r {
 

@@ -11,7 +11,10 @@
 
 #include "long3r/geometry/umeyama.hpp"
 #include "long3r/train/correspondences.hpp"
-#include "long3r/train/train.hpp"
+#include "long3r/train/prediction.hpp"
+#include "long3r/train/train_config.hpp"
+#include "long3r/train/train_data.hpp"
+#include "long3r/train/train_loss.hpp"
 
 namespace long3r {
 

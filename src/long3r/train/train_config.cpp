@@ -7,7 +7,7 @@
 
 #include "long3r/config/config_json.hpp"
 #include "long3r/model/model_config.hpp"
-#include "long3r/train/train.hpp"
+#include "long3r/train/train_config.hpp"
 
 namespace long3r {
 

@@ -8,7 +8,10 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "long3r/train/train.hpp"
+#include "long3r/synth/generate.hpp"
+#include "long3r/synth/render.hpp"
+#include "long3r/train/train_config.hpp"
+#include "long3r/train/train_data.hpp"
 
 namespace long3r {
 

@@ -10,7 +10,10 @@
 #include <stdexcept>
 
 #include "long3r/model/safetensors.hpp"
-#include "long3r/train/train.hpp"
+#include "long3r/train/prediction.hpp"
+#include "long3r/train/train_config.hpp"
+#include "long3r/train/train_data.hpp"
+#include "long3r/train/train_loss.hpp"
 
 namespace long3r {
 

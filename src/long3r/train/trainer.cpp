@@ -31,7 +31,15 @@
 #include "long3r/model/autocast.hpp"
 #include "long3r/model/inference.hpp"
 #include "long3r/model/model_config.hpp"
-#include "long3r/train/train.hpp"
+#include "long3r/train/blind_control.hpp"
+#include "long3r/train/cross_view_completion.hpp"
+#include "long3r/train/data_parallel.hpp"
+#include "long3r/train/prediction.hpp"
+#include "long3r/train/train_config.hpp"
+#include "long3r/train/train_data.hpp"
+#include "long3r/train/train_loss.hpp"
+#include "long3r/train/trainer.hpp"
+#include "long3r/train/weight_init.hpp"
 
 namespace long3r {
 

@@ -5,7 +5,7 @@
 #include <torch/nn/modules/linear.h>
 #include <torch/nn/modules/normalization.h>
 
-#include "long3r/train/train.hpp"
+#include "long3r/train/weight_init.hpp"
 
 namespace long3r {
 

@@ -1,13 +1,14 @@
 // The generator's images as OpenCV sees them (library long3r_synth_cv): a
 // rendered frame's tensors as cv::Mat, and what the image sensor adds to the
-// rendered image (mono output, noise; see SensorConfig in synth.hpp).
+// rendered image (mono output, noise; see SensorConfig in generate.hpp).
 #pragma once
 
 #include <opencv2/core.hpp>
 
 #include <cstdint>
 
-#include "long3r/synth/synth.hpp"
+#include "long3r/synth/generate.hpp"
+#include "long3r/synth/render.hpp"
 
 namespace long3r::synth {
 

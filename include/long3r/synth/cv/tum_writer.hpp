@@ -6,7 +6,8 @@
 #include <functional>
 #include <string>
 
-#include "long3r/synth/synth.hpp"
+#include "long3r/synth/generate.hpp"
+#include "long3r/synth/render.hpp"
 
 namespace long3r::synth {
 

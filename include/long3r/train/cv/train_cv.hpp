@@ -1,7 +1,7 @@
 // The trainer's OpenCV side (library long3r_train_cv: the pipeline's PnP,
 // the evaluation metrics, the dataset reader, plots): held-out scoring with
 // the paper's metrics, TUM folders as training data, the loss-curve picture,
-// and the extensions that hand these to the trainer's core (train.hpp).
+// and the extensions that hand these to the trainer's core (trainer.hpp).
 #pragma once
 
 #include <opencv2/core.hpp>
@@ -10,7 +10,10 @@
 #include <string>
 #include <vector>
 
-#include "long3r/train/train.hpp"
+#include "long3r/train/prediction.hpp"
+#include "long3r/train/train_config.hpp"
+#include "long3r/train/train_data.hpp"
+#include "long3r/train/trainer.hpp"
 
 namespace long3r {
 

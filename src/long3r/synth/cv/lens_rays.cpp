@@ -6,7 +6,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "long3r/synth/synth.hpp"
+#include "long3r/synth/render.hpp"
 
 namespace long3r::synth {
 

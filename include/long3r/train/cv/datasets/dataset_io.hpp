@@ -20,8 +20,8 @@
 #include <string>
 #include <vector>
 
-#include "long3r/train/train.hpp"
 #include "long3r/train/train_config.hpp"
+#include "long3r/train/train_data.hpp"
 
 namespace long3r::datasets {
 

@@ -4,7 +4,8 @@
 
 #include "long3r/synth/cv/dataset_layouts.hpp"
 #include "long3r/synth/cv/sensor_image.hpp"
-#include "long3r/synth/synth.hpp"
+#include "long3r/synth/generate.hpp"
+#include "long3r/synth/render.hpp"
 
 namespace long3r::synth {
 

@@ -2,6 +2,7 @@
 // include/long3r/train/cv/datasets/dataset_io.hpp.
 #include "long3r/train/cv/datasets/dataset_io.hpp"
 
+#include <ATen/ATen.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
