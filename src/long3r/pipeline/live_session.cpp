@@ -34,6 +34,14 @@ cv::Mat depth_in_metres(const cv::Mat& depth) {
   return metres;
 }
 
+// A stream's map (in its W) as the client's map frame has it.
+MapSnapshot snapshot_in(const VoxelMap& map, const Eigen::Isometry3d& T_map_W) {
+  MapSnapshot snap = map.snapshot();
+  const Eigen::Isometry3f T = T_map_W.cast<float>();
+  for (Eigen::Vector3f& p : snap.points) p = T * p;
+  return snap;
+}
+
 }  // namespace
 
 void LiveSessionConfig::validate(const config::FieldCheck& check) const {
@@ -237,9 +245,7 @@ void LiveSession::keep_ended_map() {
   if (recon_.map().empty()) return;
   const std::optional<Eigen::Isometry3d> T_map_W = client_.T_map_W();
   if (!T_map_W) return;
-  MapSnapshot snap = recon_.map().snapshot();
-  const Eigen::Isometry3f T = T_map_W->cast<float>();
-  for (Eigen::Vector3f& p : snap.points) p = T * p;
+  const MapSnapshot snap = snapshot_in(recon_.map(), *T_map_W);
   ended_maps_.integrate(snap.points, snap.colors,
                         static_cast<std::int64_t>(ended_maps_.revision()));
   info("kept map", "the ending stream's " + std::to_string(snap.points.size()) +
@@ -248,9 +254,7 @@ void LiveSession::keep_ended_map() {
 }
 
 MapSnapshot LiveSession::map_snapshot(const Eigen::Isometry3d& T_map_W) const {
-  MapSnapshot snap = recon_.map().snapshot();
-  const Eigen::Isometry3f T = T_map_W.cast<float>();
-  for (Eigen::Vector3f& p : snap.points) p = T * p;
+  MapSnapshot snap = snapshot_in(recon_.map(), T_map_W);
   if (!ended_maps_.empty()) {
     const MapSnapshot ended = ended_maps_.snapshot();
     snap.points.insert(snap.points.end(), ended.points.begin(), ended.points.end());
