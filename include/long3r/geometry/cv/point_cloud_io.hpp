@@ -13,7 +13,10 @@
 //              read through PCL (any PCD it reads; non-finite points dropped)
 //   .xyz/.txt  "x y z [r g b]" per line; read: '#' comments, blank lines,
 //              commas as separators, extra columns ignored
-// Writes go through AtomicFile (long3r/io/atomic_file.hpp).
+// Writes go through AtomicFile (long3r/io/atomic_file.hpp). The writers are
+// ours and PCL's readers take their files (tested): PCL's PCDWriter refuses
+// an empty cloud, and an empty map (~save_map before the first frame) is a
+// valid file.
 #pragma once
 
 #include <Eigen/Core>

@@ -37,6 +37,24 @@ std::uint32_t pack_rgb(const Rgb8& c) {
          static_cast<std::uint32_t>(c[2]);
 }
 
+// "x y z [r g b]" per line: the .xyz format and the vertices of an ascii PLY.
+void write_text_points(AtomicFile& f, const std::vector<Eigen::Vector3f>& points,
+                       const std::vector<Rgb8>* colors) {
+  char line[128];
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    const Eigen::Vector3f& p = points[i];
+    // %.9g round-trips a float exactly.
+    int n = std::snprintf(line, sizeof(line), "%.9g %.9g %.9g", p.x(), p.y(), p.z());
+    if (colors) {
+      const Rgb8& c = (*colors)[i];
+      n += std::snprintf(line + n, sizeof(line) - static_cast<std::size_t>(n), " %u %u %u",
+                         unsigned{c[0]}, unsigned{c[1]}, unsigned{c[2]});
+    }
+    line[n++] = '\n';
+    f.write(line, static_cast<std::size_t>(n));
+  }
+}
+
 void write_ply(AtomicFile& f, const std::vector<Eigen::Vector3f>& points,
                const std::vector<Rgb8>* colors, const PointCloudWriteOptions& o) {
   std::string header =
@@ -47,26 +65,16 @@ void write_ply(AtomicFile& f, const std::vector<Eigen::Vector3f>& points,
   if (colors) header += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
   header += "end_header\n";
   f.write(header);
-  char line[128];
+  if (o.ascii) {
+    write_text_points(f, points, colors);
+    return;
+  }
   unsigned char rec[15];
   const std::size_t rec_size = colors ? 15 : 12;
   for (std::size_t i = 0; i < points.size(); ++i) {
-    const Eigen::Vector3f& p = points[i];
-    if (o.ascii) {
-      // %.9g round-trips a float exactly.
-      int n = std::snprintf(line, sizeof(line), "%.9g %.9g %.9g", p.x(), p.y(), p.z());
-      if (colors) {
-        const Rgb8& c = (*colors)[i];
-        n += std::snprintf(line + n, sizeof(line) - static_cast<std::size_t>(n), " %u %u %u",
-                           unsigned{c[0]}, unsigned{c[1]}, unsigned{c[2]});
-      }
-      line[n++] = '\n';
-      f.write(line, static_cast<std::size_t>(n));
-    } else {
-      for (int a = 0; a < 3; ++a) put_le32(rec + 4 * a, float_bits(p[a]));
-      if (colors) std::memcpy(rec + 12, (*colors)[i].data(), 3);
-      f.write(rec, rec_size);
-    }
+    for (int a = 0; a < 3; ++a) put_le32(rec + 4 * a, float_bits(points[i][a]));
+    if (colors) std::memcpy(rec + 12, (*colors)[i].data(), 3);
+    f.write(rec, rec_size);
   }
 }
 
@@ -96,22 +104,6 @@ void write_pcd(AtomicFile& f, const std::vector<Eigen::Vector3f>& points,
       if (colors) put_le32(rec + 12, pack_rgb((*colors)[i]));
       f.write(rec, rec_size);
     }
-  }
-}
-
-void write_xyz(AtomicFile& f, const std::vector<Eigen::Vector3f>& points,
-               const std::vector<Rgb8>* colors) {
-  char line[128];
-  for (std::size_t i = 0; i < points.size(); ++i) {
-    const Eigen::Vector3f& p = points[i];
-    int n = std::snprintf(line, sizeof(line), "%.9g %.9g %.9g", p.x(), p.y(), p.z());
-    if (colors) {
-      const Rgb8& c = (*colors)[i];
-      n += std::snprintf(line + n, sizeof(line) - static_cast<std::size_t>(n), " %u %u %u",
-                         unsigned{c[0]}, unsigned{c[1]}, unsigned{c[2]});
-    }
-    line[n++] = '\n';
-    f.write(line, static_cast<std::size_t>(n));
   }
 }
 
@@ -316,7 +308,7 @@ void save_point_cloud(const std::string& path, const std::vector<Eigen::Vector3f
       write_pcd(file, points, colors, options);
       break;
     case PointCloudFormat::kXyz:
-      write_xyz(file, points, colors);
+      write_text_points(file, points, colors);
       break;
   }
   file.commit();
