@@ -24,7 +24,7 @@ function(long3r_add_test_support name)
   target_compile_definitions(${name} PRIVATE LONG3R_BINARY_DIR="${PROJECT_BINARY_DIR}")
 endfunction()
 long3r_add_test_support(long3r_test_support
-  SOURCES test/support/test_support.cpp LIBS long3r_model)
+  SOURCES test/support/test_support.cpp LIBS long3r_network)
 if(LONG3R_HAVE_CV)
   long3r_add_test_support(long3r_cv_test_support
     SOURCES test/support/cv_test_support.cpp
@@ -59,7 +59,7 @@ function(long3r_add_gtest_binary name)
 endfunction()
 
 long3r_add_gtest_binary(long3r_model_tests FOLDERS config io model memory
-  LIBS long3r_model long3r_test_support)
+  LIBS long3r_network long3r_test_support)
 if(LONG3R_HAVE_CV)
   long3r_add_gtest_binary(long3r_cv_tests
     FOLDERS geometry pipeline dataset eval synth train

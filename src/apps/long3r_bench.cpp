@@ -24,10 +24,10 @@
 #include <vector>
 
 #include "long3r/config/cli_options.hpp"
-#include "long3r/model/inference.hpp"
-#include "long3r/model/long3r_model.hpp"
-#include "long3r/model/model_config.hpp"
-#include "long3r/model/threads.hpp"
+#include "long3r/model/network/long3r_model.hpp"
+#include "long3r/model/network/model_config.hpp"
+#include "long3r/model/runtime/inference.hpp"
+#include "long3r/model/runtime/threads.hpp"
 
 namespace {
 

@@ -11,7 +11,7 @@
 #include <string>
 
 #include "long3r/config/cli_options.hpp"
-#include "long3r/model/safetensors.hpp"
+#include "long3r/model/loading/safetensors.hpp"
 
 namespace {
 

@@ -35,11 +35,11 @@
 #include <vector>
 
 #include "long3r/config/cli_options.hpp"
-#include "long3r/model/dust3r_model.hpp"
-#include "long3r/model/inference.hpp"
-#include "long3r/model/model_config.hpp"
-#include "long3r/model/safetensors.hpp"
-#include "long3r/model/spann3r_model.hpp"
+#include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/network/dust3r_model.hpp"
+#include "long3r/model/network/model_config.hpp"
+#include "long3r/model/network/spann3r_model.hpp"
+#include "long3r/model/runtime/inference.hpp"
 
 namespace {
 

@@ -22,12 +22,12 @@
 #include <vector>
 
 #include "long3r/config/cli_options.hpp"
-#include "long3r/model/inference.hpp"
-#include "long3r/model/long3r_model.hpp"
-#include "long3r/model/model_shell.hpp"
-#include "long3r/model/safetensors.hpp"
-#include "long3r/model/spann3r_model.hpp"
-#include "long3r/model/threads.hpp"
+#include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/network/long3r_model.hpp"
+#include "long3r/model/network/model_shell.hpp"
+#include "long3r/model/network/spann3r_model.hpp"
+#include "long3r/model/runtime/inference.hpp"
+#include "long3r/model/runtime/threads.hpp"
 
 namespace {
 

@@ -21,10 +21,10 @@
 #include <vector>
 
 #include "long3r/config/cli_options.hpp"
-#include "long3r/model/long3r_model.hpp"
-#include "long3r/model/model_config.hpp"
-#include "long3r/model/safetensors.hpp"
-#include "long3r/model/spann3r_model.hpp"
+#include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/network/long3r_model.hpp"
+#include "long3r/model/network/model_config.hpp"
+#include "long3r/model/network/spann3r_model.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 
 namespace {

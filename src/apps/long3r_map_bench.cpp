@@ -25,7 +25,7 @@
 
 #include "long3r/config/cli_options.hpp"
 #include "long3r/geometry/cv/pcl_cloud.hpp"
-#include "long3r/model/inference.hpp"
+#include "long3r/model/runtime/inference.hpp"
 #include "long3r/pipeline/voxel_map.hpp"
 
 namespace {

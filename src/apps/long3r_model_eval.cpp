@@ -15,11 +15,11 @@
 
 #include "long3r/config/cli_options.hpp"
 #include "long3r/io/atomic_file.hpp"
-#include "long3r/model/checkpoint.hpp"
-#include "long3r/model/inference.hpp"
-#include "long3r/model/model_config.hpp"
-#include "long3r/model/safetensors.hpp"
-#include "long3r/model/threads.hpp"
+#include "long3r/model/loading/checkpoint.hpp"
+#include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/network/model_config.hpp"
+#include "long3r/model/runtime/inference.hpp"
+#include "long3r/model/runtime/threads.hpp"
 #include "long3r/train/cv/train_cv.hpp"
 
 namespace {

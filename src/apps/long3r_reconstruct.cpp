@@ -37,9 +37,9 @@
 #include "long3r/config/cli_options.hpp"
 #include "long3r/dataset/tum_dataset.hpp"
 #include "long3r/io/atomic_file.hpp"
-#include "long3r/model/inference_config.hpp"
-#include "long3r/model/safetensors.hpp"
-#include "long3r/model/threads.hpp"
+#include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/runtime/inference_config.hpp"
+#include "long3r/model/runtime/threads.hpp"
 #include "long3r/pipeline/live_session.hpp"
 
 namespace fs = std::filesystem;

@@ -12,7 +12,7 @@
 #include <thread>
 
 #include "long3r/config/cli_options.hpp"
-#include "long3r/model/threads.hpp"
+#include "long3r/model/runtime/threads.hpp"
 #include "long3r/train/data_parallel.hpp"
 #include "long3r/train/train_config.hpp"
 #include "long3r/train/trainer.hpp"

@@ -19,7 +19,7 @@
 #include <string>
 #include <vector>
 
-#include "long3r/model/safetensors.hpp"
+#include "long3r/model/loading/safetensors.hpp"
 
 namespace {
 

@@ -20,7 +20,7 @@
 #include <vector>
 
 #include "long3r/memory/spann3r_memory.hpp"
-#include "long3r/model/safetensors.hpp"
+#include "long3r/model/loading/safetensors.hpp"
 #include "support/test_support.hpp"
 
 namespace {

@@ -12,10 +12,10 @@
 #include <string>
 #include <vector>
 
-#include "long3r/model/dust3r_model.hpp"
-#include "long3r/model/inference.hpp"
-#include "long3r/model/long3r_model.hpp"
-#include "long3r/model/safetensors.hpp"
+#include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/network/dust3r_model.hpp"
+#include "long3r/model/network/long3r_model.hpp"
+#include "long3r/model/runtime/inference.hpp"
 #include "support/test_support.hpp"
 
 namespace {

@@ -14,12 +14,12 @@
 #include "long3r/config/config_json.hpp"
 #include "long3r/io/safetensors_header.hpp"
 #include "long3r/memory/memory_gating.hpp"
-#include "long3r/model/inference.hpp"
-#include "long3r/model/long3r_model.hpp"
-#include "long3r/model/model_shell.hpp"
-#include "long3r/model/safetensors.hpp"
-#include "long3r/model/spann3r_model.hpp"
-#include "long3r/model/streaming.hpp"
+#include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/network/long3r_model.hpp"
+#include "long3r/model/network/model_shell.hpp"
+#include "long3r/model/network/spann3r_model.hpp"
+#include "long3r/model/network/streaming.hpp"
+#include "long3r/model/runtime/inference.hpp"
 #include "support/test_support.hpp"
 
 namespace {

@@ -1,4 +1,4 @@
-// Tests of load_module_strict (include/long3r/model/checkpoint.hpp) on a small
+// Tests of load_module_strict (include/long3r/model/loading/checkpoint.hpp) on a small
 // hand-built module that has the DPT head's peculiarity: one conv registered
 // under two names.
 #include <gtest/gtest.h>
@@ -10,7 +10,7 @@
 #include <map>
 #include <string>
 
-#include "long3r/model/checkpoint.hpp"
+#include "long3r/model/loading/checkpoint.hpp"
 
 namespace {
 

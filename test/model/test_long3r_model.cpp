@@ -1,5 +1,5 @@
-// Tests of the LONG3R model (include/long3r/model/long3r_model.hpp and
-// src/long3r/model/long3r_modules.hpp): the memory block against a hand
+// Tests of the LONG3R model (include/long3r/model/network/long3r_model.hpp and
+// src/long3r/model/network/long3r_modules.hpp): the memory block against a hand
 // computation, the stream protocol (latency, flush from head 2, reset,
 // determinism, batching), the memory bound on a long stream, gradients in
 // training mode, the strict checkpoint round trip, and the LONG3R config.
@@ -15,10 +15,10 @@
 #include <vector>
 
 #include "long3r/memory/memory_gating.hpp"
-#include "long3r/model/long3r_model.hpp"
-#include "long3r/model/long3r_modules.hpp"
-#include "long3r/model/model_config.hpp"
-#include "long3r/model/safetensors.hpp"
+#include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/network/long3r_model.hpp"
+#include "long3r/model/network/long3r_modules.hpp"
+#include "long3r/model/network/model_config.hpp"
 #include "support/test_support.hpp"
 
 namespace {

@@ -1,4 +1,4 @@
-// Tests of the network blocks (src/long3r/model/modules.hpp): attention
+// Tests of the network blocks (src/long3r/model/network/modules.hpp): attention
 // against a hand computation, shapes through encoder / decoder / DPT head for
 // grids of odd size, postprocess, and the portrait transposition of
 // landscape_only models.
@@ -10,8 +10,8 @@
 #include <cmath>
 #include <stdexcept>
 
-#include "long3r/model/checkpoint.hpp"
-#include "long3r/model/modules.hpp"
+#include "long3r/model/loading/checkpoint.hpp"
+#include "long3r/model/network/modules.hpp"
 #include "support/test_support.hpp"
 
 namespace {

@@ -1,4 +1,4 @@
-// Tests of the model configuration parser (include/long3r/model/model_config.hpp):
+// Tests of the model configuration parser (include/long3r/model/network/model_config.hpp):
 // the golden checkpoints' configs, defaults, and one error per rule.
 #include <gtest/gtest.h>
 
@@ -6,8 +6,8 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
-#include "long3r/model/model_config.hpp"
-#include "long3r/model/safetensors.hpp"
+#include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/network/model_config.hpp"
 
 namespace {
 

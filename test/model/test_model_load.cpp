@@ -9,9 +9,9 @@
 #include <stdexcept>
 #include <string>
 
-#include "long3r/model/dust3r_model.hpp"
-#include "long3r/model/safetensors.hpp"
-#include "long3r/model/spann3r_model.hpp"
+#include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/network/dust3r_model.hpp"
+#include "long3r/model/network/spann3r_model.hpp"
 #include "support/test_support.hpp"
 
 namespace {

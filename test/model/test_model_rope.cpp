@@ -1,4 +1,4 @@
-// Tests of the 2D RoPE (src/long3r/model/modules.hpp): table caching, table
+// Tests of the 2D RoPE (src/long3r/model/network/modules.hpp): table caching, table
 // values against the closed form, and the rotation against a direct port of
 // the official formula (chunk into y/x halves, rotate_half, embedding lookup).
 #include <ATen/ATen.h>
@@ -7,7 +7,7 @@
 
 #include <cmath>
 
-#include "long3r/model/modules.hpp"
+#include "long3r/model/network/modules.hpp"
 
 namespace {
 

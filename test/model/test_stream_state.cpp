@@ -13,9 +13,9 @@
 #include <string>
 #include <vector>
 
-#include "long3r/model/long3r_model.hpp"
-#include "long3r/model/safetensors.hpp"
-#include "long3r/model/spann3r_model.hpp"
+#include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/network/long3r_model.hpp"
+#include "long3r/model/network/spann3r_model.hpp"
 #include "support/test_support.hpp"
 
 namespace long3r {

@@ -11,7 +11,7 @@
 #include <vector>
 
 #include "long3r/config/cli_options.hpp"
-#include "long3r/model/threads.hpp"
+#include "long3r/model/runtime/threads.hpp"
 #include "support/test_support.hpp"
 
 namespace {

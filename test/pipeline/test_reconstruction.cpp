@@ -10,8 +10,8 @@
 #include <opencv2/imgproc.hpp>
 
 #include "long3r/io/safetensors_header.hpp"
-#include "long3r/model/model_config.hpp"
-#include "long3r/model/spann3r_model.hpp"
+#include "long3r/model/network/model_config.hpp"
+#include "long3r/model/network/spann3r_model.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 #include "long3r/synth/cv/sensor_image.hpp"
 #include "support/cv_test_support.hpp"

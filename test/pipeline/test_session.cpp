@@ -17,7 +17,7 @@
 #include <vector>
 
 #include "long3r/io/safetensors_header.hpp"
-#include "long3r/model/safetensors.hpp"
+#include "long3r/model/loading/safetensors.hpp"
 #include "long3r/pipeline/live_session.hpp"
 #include "long3r/pipeline/session.hpp"
 #include "support/cv_test_support.hpp"

@@ -14,7 +14,7 @@
 #include <vector>
 
 #include "long3r/geometry/pinhole_intrinsics.hpp"
-#include "long3r/model/streaming.hpp"
+#include "long3r/model/network/streaming.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 #include "long3r/synth/cv/dataset_layouts.hpp"
 #include "long3r/synth/generate.hpp"

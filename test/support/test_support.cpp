@@ -14,7 +14,7 @@
 #include <limits>
 #include <map>
 
-#include "long3r/model/checkpoint.hpp"
+#include "long3r/model/loading/checkpoint.hpp"
 
 namespace long3r::test {
 

@@ -10,7 +10,7 @@
 #include <utility>
 #include <vector>
 
-#include "long3r/model/model_config.hpp"
+#include "long3r/model/network/model_config.hpp"
 
 namespace torch::nn {
 class Module;

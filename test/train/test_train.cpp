@@ -20,9 +20,9 @@
 #include <utility>
 #include <vector>
 
-#include "long3r/model/inference.hpp"
-#include "long3r/model/long3r_model.hpp"
-#include "long3r/model/safetensors.hpp"
+#include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/network/long3r_model.hpp"
+#include "long3r/model/runtime/inference.hpp"
 #include "long3r/pipeline/pose.hpp"
 #include "long3r/synth/cv/dataset_layouts.hpp"
 #include "long3r/train/blind_control.hpp"

@@ -29,7 +29,7 @@
 
 #include "long3r/memory/memory_config.hpp"  // SpatioTemporalMemoryConfig
 #include "long3r/memory/memory_gating.hpp"
-#include "long3r/model/state_dict.hpp"
+#include "long3r/model/loading/state_dict.hpp"
 
 namespace long3r {
 

@@ -13,7 +13,7 @@
 #include <cstddef>
 #include <cstdint>
 
-#include "long3r/model/streaming.hpp"
+#include "long3r/model/network/streaming.hpp"
 #include "long3r/pipeline/intrinsics.hpp"
 #include "long3r/pipeline/pose.hpp"
 

@@ -25,8 +25,8 @@
 #include <utility>
 #include <vector>
 
-#include "long3r/model/state_dict.hpp"
-#include "long3r/model/streaming.hpp"
+#include "long3r/model/loading/state_dict.hpp"
+#include "long3r/model/network/streaming.hpp"
 #include "long3r/pipeline/frame_result.hpp"
 #include "long3r/pipeline/intrinsics.hpp"
 #include "long3r/pipeline/pose.hpp"

@@ -20,8 +20,8 @@
 #include <stdexcept>
 #include <string>
 
-#include "long3r/model/state_dict.hpp"
-#include "long3r/model/streaming.hpp"
+#include "long3r/model/loading/state_dict.hpp"
+#include "long3r/model/network/streaming.hpp"
 
 namespace long3r {
 

@@ -35,7 +35,7 @@
 
 #include "long3r/config/config_fields.hpp"
 #include "long3r/geometry/cv/point_cloud_io.hpp"
-#include "long3r/model/state_dict.hpp"
+#include "long3r/model/loading/state_dict.hpp"
 
 namespace long3r {
 
@@ -129,7 +129,7 @@ class VoxelMap {
   // an index out of range or twice, a mean outside its voxel, non-finite
   // values, no hits); the map is unchanged then.
   void restore(const std::vector<VoxelRecord>& records);
-  // records() as a state dict (sessions, model/state_dict.hpp): index, mean,
+  // records() as a state dict (sessions, model/loading/state_dict.hpp): index, mean,
   // color, hits, last_seen per voxel; restore() of one is exact, validated
   // first (StateError naming the entry; the map unchanged then).
   StateDict state() const;

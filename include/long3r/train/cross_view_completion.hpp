@@ -10,7 +10,7 @@
 #include <limits>
 #include <vector>
 
-#include "long3r/model/long3r_model.hpp"
+#include "long3r/model/network/long3r_model.hpp"
 #include "long3r/train/train_data.hpp"
 
 namespace long3r {

@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "long3r/config/config_fields.hpp"
-#include "long3r/model/model_config.hpp"
+#include "long3r/model/network/model_config.hpp"
 
 namespace long3r {
 

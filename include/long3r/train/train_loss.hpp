@@ -10,8 +10,8 @@
 #include <utility>
 #include <vector>
 
-#include "long3r/model/long3r_model.hpp"
-#include "long3r/model/streaming.hpp"
+#include "long3r/model/network/long3r_model.hpp"
+#include "long3r/model/network/streaming.hpp"
 #include "long3r/train/blind_control.hpp"
 #include "long3r/train/cross_view_completion.hpp"
 #include "long3r/train/prediction.hpp"

@@ -24,7 +24,7 @@
 #include <string>
 #include <vector>
 
-#include "long3r/model/long3r_model.hpp"
+#include "long3r/model/network/long3r_model.hpp"
 #include "long3r/train/data_parallel.hpp"
 #include "long3r/train/prediction.hpp"
 #include "long3r/train/train_config.hpp"

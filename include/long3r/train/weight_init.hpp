@@ -2,7 +2,7 @@
 // (train/weight_init.cpp).
 #pragma once
 
-#include "long3r/model/long3r_model.hpp"
+#include "long3r/model/network/long3r_model.hpp"
 
 namespace long3r {
 

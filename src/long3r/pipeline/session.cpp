@@ -7,7 +7,7 @@
 #include <cstdio>
 #include <vector>
 
-#include "long3r/model/safetensors.hpp"
+#include "long3r/model/loading/safetensors.hpp"
 
 namespace long3r {
 namespace {

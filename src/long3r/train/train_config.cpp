@@ -6,7 +6,7 @@
 #include <sstream>
 
 #include "long3r/config/config_json.hpp"
-#include "long3r/model/model_config.hpp"
+#include "long3r/model/network/model_config.hpp"
 #include "long3r/train/train_config.hpp"
 
 namespace long3r {

@@ -9,7 +9,7 @@
 #include <limits>
 #include <stdexcept>
 
-#include "long3r/model/safetensors.hpp"
+#include "long3r/model/loading/safetensors.hpp"
 #include "long3r/train/prediction.hpp"
 #include "long3r/train/train_config.hpp"
 #include "long3r/train/train_data.hpp"

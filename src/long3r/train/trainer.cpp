@@ -28,9 +28,9 @@
 #include <thread>
 
 #include "long3r/io/atomic_file.hpp"
-#include "long3r/model/autocast.hpp"
-#include "long3r/model/inference.hpp"
-#include "long3r/model/model_config.hpp"
+#include "long3r/model/network/model_config.hpp"
+#include "long3r/model/runtime/autocast.hpp"
+#include "long3r/model/runtime/inference.hpp"
 #include "long3r/train/blind_control.hpp"
 #include "long3r/train/cross_view_completion.hpp"
 #include "long3r/train/data_parallel.hpp"

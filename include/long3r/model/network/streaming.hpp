@@ -15,8 +15,8 @@
 #include <optional>
 #include <string>
 
-#include "long3r/model/inference_config.hpp"
-#include "long3r/model/state_dict.hpp"
+#include "long3r/model/loading/state_dict.hpp"
+#include "long3r/model/runtime/inference_config.hpp"
 
 namespace long3r {
 

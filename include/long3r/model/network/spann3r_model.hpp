@@ -24,9 +24,9 @@
 #include <string>
 
 #include "long3r/memory/spann3r_memory.hpp"
-#include "long3r/model/model_shell.hpp"
-#include "long3r/model/model_trace.hpp"
-#include "long3r/model/streaming.hpp"
+#include "long3r/model/network/model_shell.hpp"
+#include "long3r/model/network/model_trace.hpp"
+#include "long3r/model/network/streaming.hpp"
 
 namespace long3r {
 

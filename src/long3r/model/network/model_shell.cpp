@@ -1,6 +1,6 @@
 // The shared model shell and the streaming-model factory; see
-// include/long3r/model/model_shell.hpp and streaming.hpp.
-#include "long3r/model/model_shell.hpp"
+// include/long3r/model/network/model_shell.hpp and streaming.hpp.
+#include "long3r/model/network/model_shell.hpp"
 
 #include <ATen/ATen.h>
 #include <torch/nn/module.h>
@@ -11,11 +11,11 @@
 #include <stdexcept>
 
 #include "long3r/io/fnv1a.hpp"
-#include "long3r/model/checkpoint.hpp"
-#include "long3r/model/long3r_model.hpp"
-#include "long3r/model/safetensors.hpp"
-#include "long3r/model/spann3r_model.hpp"
-#include "long3r/model/streaming.hpp"
+#include "long3r/model/loading/checkpoint.hpp"
+#include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/network/long3r_model.hpp"
+#include "long3r/model/network/spann3r_model.hpp"
+#include "long3r/model/network/streaming.hpp"
 
 namespace long3r {
 namespace {

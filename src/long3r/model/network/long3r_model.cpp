@@ -1,6 +1,6 @@
 // LONG3R streaming inference and training forward; see
-// include/long3r/model/long3r_model.hpp.
-#include "long3r/model/long3r_model.hpp"
+// include/long3r/model/network/long3r_model.hpp.
+#include "long3r/model/network/long3r_model.hpp"
 
 #include <ATen/ATen.h>
 #include <c10/core/InferenceMode.h>
@@ -9,7 +9,7 @@
 #include <cmath>
 #include <stdexcept>
 
-#include "long3r/model/long3r_modules.hpp"
+#include "long3r/model/network/long3r_modules.hpp"
 
 namespace long3r {
 

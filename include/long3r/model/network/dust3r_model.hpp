@@ -15,8 +15,8 @@
 #include <memory>
 #include <string>
 
-#include "long3r/model/model_shell.hpp"
-#include "long3r/model/model_trace.hpp"
+#include "long3r/model/network/model_shell.hpp"
+#include "long3r/model/network/model_trace.hpp"
 
 namespace long3r {
 

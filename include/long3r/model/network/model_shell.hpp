@@ -10,9 +10,9 @@
 #include <memory>
 #include <string>
 
-#include "long3r/model/inference.hpp"
-#include "long3r/model/model_config.hpp"
-#include "long3r/model/model_trace.hpp"  // TensorMap
+#include "long3r/model/network/model_config.hpp"
+#include "long3r/model/network/model_trace.hpp"  // TensorMap
+#include "long3r/model/runtime/inference.hpp"
 
 namespace torch {
 namespace nn {

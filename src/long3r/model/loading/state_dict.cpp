@@ -1,5 +1,5 @@
-// Saved component states; see include/long3r/model/state_dict.hpp.
-#include "long3r/model/state_dict.hpp"
+// Saved component states; see include/long3r/model/loading/state_dict.hpp.
+#include "long3r/model/loading/state_dict.hpp"
 
 #include <ATen/ATen.h>
 

@@ -1,5 +1,5 @@
-// torch::nn modules of the DUSt3R / Spann3R networks (private to the model
-// library and its tests; includes torch/nn).
+// torch::nn modules of the DUSt3R / Spann3R networks (private to long3r_network
+// and its tests; includes torch/nn).
 //
 // Every submodule is registered under the name the official PyTorch module
 // tree uses, so that official state_dicts load by name with
@@ -26,9 +26,9 @@
 #include <vector>
 
 #include "long3r/memory/memory_gating.hpp"  // GatingNorms
-#include "long3r/model/model_config.hpp"
-#include "long3r/model/model_trace.hpp"
-#include "long3r/model/state_dict.hpp"
+#include "long3r/model/loading/state_dict.hpp"
+#include "long3r/model/network/model_config.hpp"
+#include "long3r/model/network/model_trace.hpp"
 
 namespace long3r {
 namespace model {

@@ -1,5 +1,5 @@
-// Trace capture; see include/long3r/model/model_trace.hpp.
-#include "long3r/model/model_trace.hpp"
+// Trace capture; see include/long3r/model/network/model_trace.hpp.
+#include "long3r/model/network/model_trace.hpp"
 
 #include <ATen/ATen.h>
 

@@ -1,4 +1,4 @@
-// Strict checkpoint -> module loading; see include/long3r/model/checkpoint.hpp.
+// Strict checkpoint -> module loading; see include/long3r/model/loading/checkpoint.hpp.
 //
 // Name mapping: a file name that starts with `strip_prefix` loses it; a name
 // that does not (with a non-empty prefix) is never matched. The result is
@@ -25,8 +25,8 @@
 #include <set>
 #include <unordered_map>
 
-#include "long3r/model/checkpoint.hpp"
-#include "long3r/model/safetensors.hpp"
+#include "long3r/model/loading/checkpoint.hpp"
+#include "long3r/model/loading/safetensors.hpp"
 
 namespace long3r {
 

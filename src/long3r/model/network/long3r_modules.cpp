@@ -1,5 +1,5 @@
 // LONG3R modules; see long3r_modules.hpp.
-#include "long3r/model/long3r_modules.hpp"
+#include "long3r/model/network/long3r_modules.hpp"
 
 #include <ATen/ATen.h>
 

@@ -1,5 +1,5 @@
-// torch::nn modules of the LONG3R network (private to the model library and
-// its tests; includes torch/nn).
+// torch::nn modules of the LONG3R network (private to long3r_network and its
+// tests; includes torch/nn).
 //
 // Long3rNet is Spann3R's module tree (dust3r.*, value_encoder.*, attn_head_1/2,
 // norm_q/k/v, ...) whose refined decoder branch `dust3r.dec_blocks` alternates
@@ -11,7 +11,7 @@
 
 #include <vector>
 
-#include "long3r/model/modules.hpp"
+#include "long3r/model/network/modules.hpp"
 
 namespace long3r {
 namespace model {

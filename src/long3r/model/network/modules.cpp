@@ -1,5 +1,5 @@
 // DUSt3R / Spann3R modules; see modules.hpp.
-#include "long3r/model/modules.hpp"
+#include "long3r/model/network/modules.hpp"
 
 #include <ATen/ATen.h>
 #include <c10/core/InferenceMode.h>
@@ -11,7 +11,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "long3r/model/autocast.hpp"
+#include "long3r/model/runtime/autocast.hpp"
 
 namespace long3r {
 namespace model {

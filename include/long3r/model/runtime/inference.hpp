@@ -11,7 +11,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "long3r/model/inference_config.hpp"
+#include "long3r/model/runtime/inference_config.hpp"
 
 namespace long3r {
 

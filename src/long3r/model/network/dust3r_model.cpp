@@ -1,12 +1,12 @@
-// DUSt3R pair inference; see include/long3r/model/dust3r_model.hpp.
-#include "long3r/model/dust3r_model.hpp"
+// DUSt3R pair inference; see include/long3r/model/network/dust3r_model.hpp.
+#include "long3r/model/network/dust3r_model.hpp"
 
 #include <ATen/ATen.h>
 #include <c10/core/InferenceMode.h>
 
 #include <stdexcept>
 
-#include "long3r/model/modules.hpp"
+#include "long3r/model/network/modules.hpp"
 
 namespace long3r {
 

@@ -1,5 +1,5 @@
-// Device and precision checks; see include/long3r/model/inference.hpp.
-#include "long3r/model/inference.hpp"
+// Device and precision checks; see include/long3r/model/runtime/inference.hpp.
+#include "long3r/model/runtime/inference.hpp"
 
 #include <ATen/Context.h>
 #include <ATen/Version.h>

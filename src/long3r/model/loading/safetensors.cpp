@@ -1,9 +1,9 @@
-// safetensors reading and atomic writing; see include/long3r/model/safetensors.hpp.
+// safetensors reading and atomic writing; see include/long3r/model/loading/safetensors.hpp.
 //
 // Tensor bytes are copied straight between the file and tensor storage, which
 // assumes a little-endian host (the format is little-endian); a big-endian
 // host is refused rather than producing byte-swapped values.
-#include "long3r/model/safetensors.hpp"
+#include "long3r/model/loading/safetensors.hpp"
 
 #include <ATen/ATen.h>
 #include <fcntl.h>

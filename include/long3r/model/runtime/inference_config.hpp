@@ -1,7 +1,7 @@
 // Where and in which precision a model runs (torch-free, so the nodelet's
 // parameters, the tools' flags and JSON all fill the same struct). The
 // libtorch side, which checks that this machine can serve the request and
-// converts a model, is include/long3r/model/inference.hpp.
+// converts a model, is include/long3r/model/runtime/inference.hpp.
 #pragma once
 
 #include <array>

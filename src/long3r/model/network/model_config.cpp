@@ -1,5 +1,5 @@
 // Reading, writing and validation of the model configuration; see
-// include/long3r/model/model_config.hpp.
+// include/long3r/model/network/model_config.hpp.
 //
 // Each section lists its fields once (the *_fields templates and the memory
 // structs' visit_fields); config::Reader reads and config::Writer writes
@@ -7,7 +7,7 @@
 // encodings of its own (codecs below): "LayerNorm(eps=...)" strings, "RoPE100",
 // depth/confidence mode tuples [mode, vmin, vmax] with "inf"/"-inf", and
 // settings that are only type-checked (training-only or descriptive).
-#include "long3r/model/model_config.hpp"
+#include "long3r/model/network/model_config.hpp"
 
 #include <cmath>
 #include <cstdlib>

@@ -1,12 +1,12 @@
-// Spann3R streaming inference; see include/long3r/model/spann3r_model.hpp.
-#include "long3r/model/spann3r_model.hpp"
+// Spann3R streaming inference; see include/long3r/model/network/spann3r_model.hpp.
+#include "long3r/model/network/spann3r_model.hpp"
 
 #include <ATen/ATen.h>
 #include <c10/core/InferenceMode.h>
 
 #include <stdexcept>
 
-#include "long3r/model/modules.hpp"
+#include "long3r/model/network/modules.hpp"
 
 namespace long3r {
 

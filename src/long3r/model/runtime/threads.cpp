@@ -1,4 +1,4 @@
-#include "long3r/model/threads.hpp"
+#include "long3r/model/runtime/threads.hpp"
 
 #include <ATen/Parallel.h>
 #include <dlfcn.h>

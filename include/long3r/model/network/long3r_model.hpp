@@ -27,9 +27,9 @@
 #include <vector>
 
 #include "long3r/memory/spatio_temporal_memory.hpp"
-#include "long3r/model/model_shell.hpp"
-#include "long3r/model/model_trace.hpp"
-#include "long3r/model/streaming.hpp"
+#include "long3r/model/network/model_shell.hpp"
+#include "long3r/model/network/model_trace.hpp"
+#include "long3r/model/network/streaming.hpp"
 
 namespace long3r {
 
