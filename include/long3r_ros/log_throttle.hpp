@@ -5,9 +5,13 @@
 // within the period. Keys here are the kind of problem ("encoding 'yuv444'",
 // "camera_info K[2] (cx) is nan"), so each kind is reported at once, and
 // again at most once per period with the count of repeats in between.
+//
+// atStamp() writes the stamp into such a message, the one way the node's
+// texts name a frame ("frame at t=%.3f skipped: ...").
 #pragma once
 
 #include <cstdint>
+#include <cstdio>
 #include <map>
 #include <mutex>
 #include <string>
@@ -46,5 +50,15 @@ class LogThrottle {
   std::mutex mutex_;
   std::map<std::string, Entry> entries_;
 };
+
+// `fmt` (a printf format with one %f-like conversion) with `stamp_s`, e.g.
+// atStamp("frame at t=%.3f skipped: ", 12.5) == "frame at t=12.500 skipped: ".
+inline std::string atStamp(const char* fmt, double stamp_s) {
+  const int n = std::snprintf(nullptr, 0, fmt, stamp_s);
+  if (n <= 0) return fmt;
+  std::string text(static_cast<std::size_t>(n), '\0');
+  std::snprintf(text.data(), text.size() + 1, fmt, stamp_s);
+  return text;
+}
 
 }  // namespace long3r_ros

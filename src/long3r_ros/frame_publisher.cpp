@@ -10,11 +10,11 @@
 
 #include <algorithm>
 #include <array>
-#include <cstdio>
 
 #include "long3r/pipeline/pose.hpp"
 #include "long3r_ros/Pointmap.h"
 #include "long3r_ros/conversions.hpp"
+#include "long3r_ros/log_throttle.hpp"
 
 namespace long3r_ros {
 
@@ -62,10 +62,9 @@ void FramePublisher::publishDepth(const long3r::FrameResult& r, const Context& c
   const bool cloud = frame_cloud_pub_.getNumSubscribers() > 0;
   if (!depth && !cloud) return;
   if (c.depth_held) {
-    char at[64];
-    std::snprintf(at, sizeof at, "%.3f", c.header.stamp.toSec());
-    warn_("depth held", std::string("~depth and ~frame_cloud of the frame at t=") + at +
-                            " held: " + c.depth_held_why);
+    warn_("depth held",
+          atStamp("~depth and ~frame_cloud of the frame at t=%.3f held: ", c.header.stamp.toSec()) +
+              c.depth_held_why);
     return;
   }
   const sensor_msgs::ImagePtr image = toDepthImage(r.points_C, r.conf, c.conf_threshold, c.header);

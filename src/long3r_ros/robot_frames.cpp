@@ -3,9 +3,10 @@
 #include <tf2/exceptions.h>
 #include <tf2_eigen/tf2_eigen.h>
 
-#include <cstdio>
 #include <iterator>
 #include <sstream>
+
+#include "long3r_ros/log_throttle.hpp"
 
 namespace long3r_ros {
 
@@ -35,10 +36,8 @@ Eigen::Isometry3d RobotFrames::lookup(const std::string& target, const std::stri
     return tf2::transformToEigen(
         tf_.lookupTransform(target, source, stamp, ros::Duration(config_.tf_timeout_s)));
   } catch (const tf2::TransformException& e) {
-    char when[64];
-    std::snprintf(when, sizeof(when), "%.3f", stamp.toSec());
-    throw TfUnavailable("no transform " + target + " <- " + source + " at t=" + when + " in TF (" +
-                        e.what() + ")");
+    throw TfUnavailable("no transform " + target + " <- " + source +
+                        atStamp(" at t=%.3f in TF (", stamp.toSec()) + e.what() + ")");
   }
 }
 

@@ -4,10 +4,10 @@
 #include <sensor_msgs/image_encodings.h>
 
 #include <cmath>
-#include <cstdio>
 
 #include "long3r/pipeline/live_session.hpp"
 #include "long3r_ros/conversions.hpp"
+#include "long3r_ros/log_throttle.hpp"
 
 namespace long3r_ros {
 
@@ -22,12 +22,6 @@ constexpr unsigned kOdomCacheSize = 2000;
 // How far from a frame's stamp its depth image and its odometry may be.
 constexpr double kDepthMaxDtS = 0.02;
 constexpr double kOdomCovarianceMaxDtS = 0.1;
-
-std::string stampText(const char* fmt, const ros::Time& stamp) {
-  char buf[128];
-  std::snprintf(buf, sizeof(buf), fmt, stamp.toSec());
-  return buf;
-}
 
 // The message of `cache` whose stamp is nearest to `stamp`, at most max_dt_s
 // away (null when there is none).
@@ -92,10 +86,9 @@ std::optional<long3r::CameraModel> StampedInputs::camera(const ros::Time& stamp)
 cv::Mat StampedInputs::depth(const ros::Time& stamp) {
   const sensor_msgs::ImageConstPtr depth = nearestInCache(depth_cache_, stamp, kDepthMaxDtS);
   if (!depth) {
-    throw Unavailable("depth missing",
-                      stampText("no depth image within 20 ms of the frame at t=%.3f "
-                                "(scale_source depth)",
-                                stamp));
+    throw Unavailable("depth missing", atStamp("no depth image within 20 ms of the frame at t=%.3f "
+                                               "(scale_source depth)",
+                                               stamp.toSec()));
   }
   namespace enc = sensor_msgs::image_encodings;
   if (depth->encoding != enc::TYPE_16UC1 && depth->encoding != enc::TYPE_32FC1) {
@@ -124,7 +117,7 @@ std::optional<Eigen::Matrix<double, 6, 6>> StampedInputs::odometryCovarianceInMa
     why = "the odometry on " + topic + ": " + why;
   }
   warn_("odometry covariance",
-        stampText("frame at t=%.3f placed by odometry: ", stamp) + why +
+        atStamp("frame at t=%.3f placed by odometry: ", stamp.toSec()) + why +
             "; ~odometry and ~pose_with_covariance carry the model's PnP covariance "
             "instead (none when PnP failed)");
   return std::nullopt;
