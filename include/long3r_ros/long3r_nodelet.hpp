@@ -20,56 +20,56 @@
 // `flush_after_s`), odd single messages are dropped with a warning naming the
 // problem, and only `~reset` or a condition named in a warning (time jumping
 // far back, a lasting size change, `lost_reset_frames`) starts a new stream.
+//
+// The nodelet wires its helpers together and holds no policy of its own:
+// ImageSubscriber (image input), StampedInputs (camera_info, depth, odometry
+// by stamp), StreamPlacement and RobotFrames (the TF tree), FramePublisher,
+// MapPublisher and TransformPublisher (outputs), SessionServices (services)
+// and NodeDiagnostics (counters, throttled warnings, /diagnostics).
 #pragma once
 
-#include <diagnostic_updater/diagnostic_updater.h>
-#include <diagnostic_updater/publisher.h>
-#include <image_transport/image_transport.h>
-#include <nav_msgs/Odometry.h>
 #include <nav_msgs/Path.h>
 #include <nodelet/nodelet.h>
 #include <ros/ros.h>
-#include <sensor_msgs/CameraInfo.h>
-#include <sensor_msgs/CompressedImage.h>
-#include <sensor_msgs/Image.h>
-#include <std_srvs/Trigger.h>
+#include <std_msgs/Header.h>
 #include <tf2_ros/buffer.h>
-#include <tf2_ros/transform_broadcaster.h>
 #include <tf2_ros/transform_listener.h>
 
 #include <atomic>
-#include <deque>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "long3r/pipeline/bounded_queue.hpp"
 #include "long3r/pipeline/live_session.hpp"
-#include "long3r_ros/LoadSession.h"
-#include "long3r_ros/SaveMap.h"
-#include "long3r_ros/SaveSession.h"
-#include "long3r_ros/SaveTrajectory.h"
 #include "long3r_ros/frame_publisher.hpp"
 #include "long3r_ros/image_input.hpp"
-#include "long3r_ros/log_throttle.hpp"
+#include "long3r_ros/image_subscriber.hpp"
 #include "long3r_ros/map_publisher.hpp"
 #include "long3r_ros/node_status.hpp"
 #include "long3r_ros/params.hpp"
 #include "long3r_ros/robot_frames.hpp"
+#include "long3r_ros/session_services.hpp"
 #include "long3r_ros/stamped_inputs.hpp"
-#include "long3r_ros/tf_rival_watch.hpp"
-#include "long3r_ros/window_stats.hpp"
+#include "long3r_ros/stream_placement.hpp"
+#include "long3r_ros/transform_publisher.hpp"
 
 namespace long3r_ros {
 
-class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient {
+class Long3rNodelet : public nodelet::Nodelet,
+                      private long3r::LiveSessionClient,
+                      private SessionServices::Node {
  public:
   Long3rNodelet() = default;
   ~Long3rNodelet() override;
 
  private:
+  using Warn = std::function<void(const std::string& kind, const std::string& message)>;
+
   void onInit() override;
   void loadModel();
   void advertise();
@@ -77,20 +77,11 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   void subscribe();
 
   // Callbacks: they only enqueue (or count a frame dropped while paused).
-  void imageCallback(const sensor_msgs::ImageConstPtr& msg);
-  void compressedCallback(const sensor_msgs::CompressedImageConstPtr& msg);
   void enqueue(InputFrame frame);
-  void tfTimerCallback(const ros::TimerEvent& event);
-
-  bool resetService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
-  bool pauseService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
-  bool resumeService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
-  bool saveMapService(SaveMap::Request& req, SaveMap::Response& res);
-  bool saveSessionService(SaveSession::Request& req, SaveSession::Response& res);
-  bool loadSessionService(LoadSession::Request& req, LoadSession::Response& res);
-  bool saveTrajectoryService(SaveTrajectory::Request& req, SaveTrajectory::Response& res);
   void mapTimerCallback(const ros::WallTimerEvent& event);
-  void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
+  void fillStatus(NodeStatus& status);  // the node's part of the diagnostics
+  // The helpers' warnings, throttled per kind (NodeDiagnostics::warn).
+  Warn warner();
 
   // Worker thread; session_mutex_ is held around every call into the session,
   // and so around the LiveSessionClient calls it makes back.
@@ -110,65 +101,57 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   void restore_session_state(const long3r::StateDict& state) override;
   void on_event(const long3r::LiveEvent& event) override;
 
+  // SessionServices::Node: the services' way into the session.
+  void readSession(const SessionServices::Reader& f) override;
+  void changeSession(const SessionServices::Changer& f) override;
+  void sessionFileChanged(const std::string& what) override;
+  void clearQueue() override;
+  bool setPaused(bool paused) override;
+  std::uint64_t pausedDrops() const override;
+  // The map in map, the ended streams' included (LiveSession::ended_maps():
+  // without odom_frame each stream's map frame starts at its own first
+  // frame, so those are not registered to the current one). Locks itself.
+  long3r::MapSnapshot mapSnapshot() override;
+
   void publishOutputs(const long3r::FrameResult& r, const std_msgs::Header& header);
   nav_msgs::Path pathMessage();  // session_mutex_ held
   void shutdown();
 
-  // A warning per kind of problem, throttled per kind (LogThrottle).
-  void warnThrottled(const std::string& kind, const std::string& message);
-
   NodeParams params_;
+  // Counters, throttled warnings and /diagnostics; everything else reports
+  // through it, so it goes last.
+  std::unique_ptr<NodeDiagnostics> diagnostics_;
 
-  std::unique_ptr<image_transport::ImageTransport> it_;
-  image_transport::Subscriber image_sub_;
-  ros::Subscriber compressed_sub_;
+  std::unique_ptr<ImageSubscriber> images_;
   std::unique_ptr<StampedInputs> stamped_;  // camera_info, depth, odometry by stamp
   std::unique_ptr<FramePublisher> frame_pub_;
   std::unique_ptr<MapPublisher> map_pub_;
   ros::Publisher path_pub_;
-  ros::ServiceServer reset_srv_, pause_srv_, resume_srv_, save_map_srv_, save_trajectory_srv_;
-  ros::ServiceServer save_session_srv_, load_session_srv_;
+  std::unique_ptr<SessionServices> services_;
   ros::WallTimer map_timer_;
-  ros::Timer tf_timer_;  // republishes map -> odom (odometry mode), as SLAM nodes do
-  // Another node publishing our transform: ours stops while it does.
-  std::unique_ptr<TfRivalWatch> tf_rival_;
-  bool rivalPublishing() const;
-  tf2_ros::TransformBroadcaster tf_broadcaster_;
+  std::unique_ptr<TransformPublisher> tf_pub_;  // the one transform into the robot's TF tree
   tf2_ros::Buffer tf_buffer_;
   std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
-  std::unique_ptr<diagnostic_updater::Updater> diagnostics_;
-  // Output rate and stamp delay of ~pointmap over a sliding window (library tasks).
-  double min_rate_hz_ = 0.0, max_rate_hz_ = 0.0;
-  std::unique_ptr<diagnostic_updater::TopicDiagnostic> output_diagnostic_;
 
   // The session and what is tied to its stream, guarded together: the worker
   // pushes frames, the services reset and save.
   std::mutex session_mutex_;
   std::unique_ptr<long3r::LiveSession> session_;
   std::unique_ptr<RobotFrames> frames_;
-  // The map in map, the ended streams' included (LiveSession::ended_maps():
-  // without odom_frame each stream's map frame starts at its own first
-  // frame, so those are not registered to the current one). Locks itself.
-  long3r::MapSnapshot mapSnapshot();
+  std::unique_ptr<StreamPlacement> placement_;  // frames_ as the session asks for them
 
   std::unique_ptr<long3r::BoundedQueue<InputFrame>> queue_;
   std::thread worker_;
   std::atomic<bool> running_{false};
   std::atomic<bool> paused_{false};
 
-  // Statistics for diagnostics (written by callbacks and worker).
-  WindowStats window_;
-  LogThrottle throttle_{5.0};
-  std::atomic<std::uint64_t> frames_received_{0}, frames_processed_{0}, frames_failed_{0};
-  std::atomic<std::uint64_t> frames_dropped_paused_{0}, frames_dropped_input_{0};
-  std::atomic<double> last_input_wall_s_{0.0};  // wall clock of the newest image; 0 = none yet
   // What the timers and diagnostics read, one snapshot under one lock, so
   // that they never wait for session_mutex_ (held for a whole model step).
+  // Taken inside session_mutex_, never the other way round.
   struct State {
     long3r::LiveStatus session;
     std::string frames = "not started";
     Eigen::Isometry3d T_map_W = Eigen::Isometry3d::Identity();
-    std::optional<geometry_msgs::TransformStamped> map_to_odom;
     std::string session_file = "none";  // the last session saved or loaded, for diagnostics
     // Camera positions of the path in map (for ~grid).
     std::vector<Eigen::Vector3d> cameras_map;
@@ -176,7 +159,6 @@ class Long3rNodelet : public nodelet::Nodelet, private long3r::LiveSessionClient
   };
   std::mutex state_mutex_;
   State state_;
-  ros::WallTime started_;
 };
 
 }  // namespace long3r_ros

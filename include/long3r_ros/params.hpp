@@ -17,8 +17,8 @@
 #include <string>
 #include <vector>
 
-#include "long3r/model/inference_config.hpp"
-#include "long3r/model/threads.hpp"
+#include "long3r/model/runtime/inference_config.hpp"
+#include "long3r/model/runtime/threads.hpp"
 #include "long3r/pipeline/live_session.hpp"
 #include "long3r/pipeline/metric_scale.hpp"
 #include "long3r/pipeline/occupancy_grid.hpp"

@@ -103,6 +103,7 @@ class RobotFrames {
   // (the first frame relocalised in a loaded session). Throws TfUnavailable.
   void anchorOdometry(const Eigen::Isometry3d& T_W_C, const ros::Time& stamp);
 
+  const FramesConfig& config() const { return config_; }
   Mode mode() const { return mode_; }
   const std::string& cameraFrame() const { return camera_frame_; }
   // The frame ~pose, ~path and ~odometry describe: the base if set, else the camera.

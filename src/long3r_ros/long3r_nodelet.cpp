@@ -1,20 +1,17 @@
 #include "long3r_ros/long3r_nodelet.hpp"
 
 #include <geometry_msgs/PoseStamped.h>
-#include <geometry_msgs/TransformStamped.h>
 #include <ros/package.h>
 #include <tf2_eigen/tf2_eigen.h>
 #include <pluginlib/class_list_macros.hpp>
 
-#include <algorithm>
+#include <any>
 #include <chrono>
 #include <cstdio>
-#include <limits>
 
-#include "long3r/dataset/tum_dataset.hpp"
-#include "long3r/model/inference.hpp"
-#include "long3r/model/safetensors.hpp"
-#include "long3r_ros/conversions.hpp"
+#include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/runtime/inference.hpp"
+#include "long3r_ros/log_throttle.hpp"
 
 namespace long3r_ros {
 
@@ -33,19 +30,10 @@ void logFatal(const std::string& name, const std::string& what) {
   std::fflush(stderr);
 }
 
-std::string format(const char* fmt, double a, double b = 0.0) {
-  char buf[256];
-  std::snprintf(buf, sizeof(buf), fmt, a, b);
-  return buf;
+// The image header each frame carries through the session (LiveFrame::tag).
+const std_msgs::Header& headerOf(const std::any& tag) {
+  return std::any_cast<const std_msgs::Header&>(tag);
 }
-
-double wallNow() { return ros::WallTime::now().toSec(); }
-
-// roscpp's own queue for the image topic. The callback only enqueues, but its
-// thread can be held up (a loaded machine, the manager's other nodelets);
-// frames that overflow here are lost without a trace, while the node's own
-// queue (queue_size) drops them counted. So this one is generous.
-constexpr std::uint32_t kSubscriberQueue = 30;
 
 }  // namespace
 
@@ -66,22 +54,28 @@ void Long3rNodelet::onInit() {
     NODELET_WARN("parameter %s is not one of the node's (README, Parameters): ignored",
                  name.c_str());
   }
-  if (params_.node.pose_source == PoseSource::kOdometry &&
-      params_.session.scale.source == long3r::ScaleSource::kNone) {
+  const bool pose_from_odometry = params_.node.pose_source == PoseSource::kOdometry;
+  if (pose_from_odometry && params_.session.scale.source == long3r::ScaleSource::kNone) {
     NODELET_WARN(
         "pose_source odometry places frames in metres but scale_source is none: frames "
         "are not mapped until a metric scale is set (scale_source odometry, depth or "
         "fixed)");
   }
   NODELET_INFO_STREAM("configuration:\n" << describe(params_));
+  diagnostics_ = std::make_unique<NodeDiagnostics>(
+      NodeDiagnostics::Config{params_.node.no_input_warn_s, params_.node.max_latency_s,
+                              params_.session.scale.source},
+      getName());
   tf_listener_ = std::make_unique<tf2_ros::TransformListener>(tf_buffer_, getNodeHandle());
   frames_ = std::make_unique<RobotFrames>(params_.frames, tf_buffer_);
+  placement_ = std::make_unique<StreamPlacement>(*frames_, pose_from_odometry, getName(), warner());
+  // Before the services: ~reset and ~load_session clear it.
+  queue_ = std::make_unique<long3r::BoundedQueue<InputFrame>>(
+      static_cast<std::size_t>(params_.node.queue_size));
   loadModel();
   advertise();
   loadStartSession();
-  queue_ = std::make_unique<long3r::BoundedQueue<InputFrame>>(
-      static_cast<std::size_t>(params_.node.queue_size));
-  started_ = ros::WallTime::now();
+  diagnostics_->start();
   running_ = true;
   worker_ = std::thread(&Long3rNodelet::workerLoop, this);
   subscribe();
@@ -127,11 +121,10 @@ void Long3rNodelet::loadModel() {
 void Long3rNodelet::loadStartSession() {
   if (params_.node.session_path.empty()) return;
   try {
-    std::lock_guard<std::mutex> lock(session_mutex_);
-    session_->load(params_.node.session_path);
-    copyStatus();
-    std::lock_guard<std::mutex> state_lock(state_mutex_);
-    state_.session_file = "loaded from " + params_.node.session_path;
+    changeSession([this](long3r::LiveSession& session) {
+      session.load(params_.node.session_path);
+      sessionFileChanged("loaded from " + params_.node.session_path);
+    });
   } catch (const std::exception& e) {
     const std::string what =
         std::string("cannot continue the session (~session_path): ") + e.what();
@@ -143,60 +136,29 @@ void Long3rNodelet::loadStartSession() {
 void Long3rNodelet::advertise() {
   ros::NodeHandle& nh = getNodeHandle();
   ros::NodeHandle& pnh = getPrivateNodeHandle();
-  frame_pub_ = std::make_unique<FramePublisher>(
-      pnh, [this](const std::string& kind, const std::string& message) {
-        warnThrottled(kind, message);
-      });
+  frame_pub_ = std::make_unique<FramePublisher>(pnh, warner());
   map_pub_ = std::make_unique<MapPublisher>(
       pnh,
       MapPublisher::Config{params_.frames.map_frame, params_.node.map_display_voxel_m,
                            params_.node.map_display_outlier_neighbours,
                            params_.node.map_display_outlier_stddev,
                            !params_.frames.base_frame.empty(), params_.grid},
-      [this](const std::string& kind, const std::string& message) {
-        warnThrottled(kind, message);
-      });
+      warner());
   path_pub_ = pnh.advertise<nav_msgs::Path>("path", 1, /*latch=*/true);  // latched, newest only
-  reset_srv_ = pnh.advertiseService("reset", &Long3rNodelet::resetService, this);
-  pause_srv_ = pnh.advertiseService("pause", &Long3rNodelet::pauseService, this);
-  resume_srv_ = pnh.advertiseService("resume", &Long3rNodelet::resumeService, this);
-  save_map_srv_ = pnh.advertiseService("save_map", &Long3rNodelet::saveMapService, this);
-  save_trajectory_srv_ =
-      pnh.advertiseService("save_trajectory", &Long3rNodelet::saveTrajectoryService, this);
-  save_session_srv_ =
-      pnh.advertiseService("save_session", &Long3rNodelet::saveSessionService, this);
-  load_session_srv_ =
-      pnh.advertiseService("load_session", &Long3rNodelet::loadSessionService, this);
+  SessionServices::Node& node = *this;
+  services_ = std::make_unique<SessionServices>(pnh, params_.frames.map_frame, getName(), node);
   map_timer_ = nh.createWallTimer(ros::WallDuration(params_.node.map_publish_period_s),
                                   &Long3rNodelet::mapTimerCallback, this);
-  if (params_.node.publish_tf &&
-      !(params_.frames.odom_frame.empty() && params_.frames.base_frame.empty())) {
-    // The transform we publish: map -> odom, or map -> base without odometry.
-    tf_rival_ = std::make_unique<TfRivalWatch>(
-        nh, params_.frames.map_frame,
-        params_.frames.odom_frame.empty() ? params_.frames.base_frame : params_.frames.odom_frame,
-        getName());
-  }
-  if (params_.node.publish_tf && !params_.frames.odom_frame.empty() &&
-      params_.node.tf_publish_rate_hz > 0.0) {
-    tf_timer_ = nh.createTimer(ros::Duration(1.0 / params_.node.tf_publish_rate_hz),
-                               &Long3rNodelet::tfTimerCallback, this);
-  }
-
-  diagnostics_ = std::make_unique<diagnostic_updater::Updater>(nh, pnh, getName());
-  diagnostics_->setHardwareID("long3r");
-  diagnostics_->add("reconstruction", this, &Long3rNodelet::diagnose);
-  min_rate_hz_ = 0.0;
-  max_rate_hz_ = std::numeric_limits<double>::infinity();
-  output_diagnostic_ = std::make_unique<diagnostic_updater::TopicDiagnostic>(
-      "pointmap", *diagnostics_,
-      diagnostic_updater::FrequencyStatusParam(&min_rate_hz_, &max_rate_hz_, 0.1, 5),
-      diagnostic_updater::TimeStampStatusParam(-1.0, params_.node.max_latency_s));
+  tf_pub_ = std::make_unique<TransformPublisher>(
+      nh, params_.frames,
+      TransformPublisher::Config{params_.node.publish_tf, params_.node.tf_publish_rate_hz,
+                                 params_.node.tf_delay_s},
+      getName(), warner());
+  diagnostics_->advertise(nh, pnh, [this](NodeStatus& status) { fillStatus(status); });
 }
 
 void Long3rNodelet::subscribe() {
   ros::NodeHandle& nh = getNodeHandle();
-  ros::NodeHandle& pnh = getPrivateNodeHandle();
   StampedInputs::Config stamped;
   stamped.camera_info = params_.node.use_camera_info;
   stamped.depth = params_.session.scale.source == long3r::ScaleSource::kDepth;
@@ -206,10 +168,7 @@ void Long3rNodelet::subscribe() {
   stamped.reach = static_cast<unsigned>(params_.node.queue_size) + StampedInputs::kReachMargin;
   stamped.odom_frame = params_.frames.odom_frame;
   stamped.base_frame = params_.frames.base_frame;
-  stamped_ = std::make_unique<StampedInputs>(
-      nh, stamped, [this](const std::string& kind, const std::string& message) {
-        warnThrottled(kind, message);
-      });
+  stamped_ = std::make_unique<StampedInputs>(nh, stamped, warner());
   if (stamped.depth) {
     NODELET_INFO("metric scale from the depth images on %s", stamped_->depthTopic().c_str());
   }
@@ -217,78 +176,71 @@ void Long3rNodelet::subscribe() {
     NODELET_INFO("covariance of the odometry-placed poses from %s (nav_msgs/Odometry)",
                  stamped_->odomTopic().c_str());
   }
-  it_ = std::make_unique<image_transport::ImageTransport>(nh);
-  const std::vector<std::string> loadable = it_->getLoadableTransports();
-  const bool installed =
-      std::find(loadable.begin(), loadable.end(),
-                "image_transport/" + params_.node.image_transport) != loadable.end();
-  if (!installed && params_.node.image_transport == "compressed") {
-    // Debian packages no compressed plugin: take the messages it would decode.
-    const std::string topic = nh.resolveName("image") + "/compressed";
-    compressed_sub_ =
-        nh.subscribe(topic, kSubscriberQueue, &Long3rNodelet::compressedCallback, this);
-    NODELET_INFO(
-        "subscribed to %s (sensor_msgs/CompressedImage, decoded by the node: the "
-        "compressed image_transport plugin is not installed)",
-        compressed_sub_.getTopic().c_str());
-    return;
+  try {
+    images_ = std::make_unique<ImageSubscriber>(
+        nh, getPrivateNodeHandle(), params_.node.image_transport, getName(),
+        [this](InputFrame frame) { enqueue(std::move(frame)); });
+  } catch (const TransportMissing& e) {
+    logFatal(getName(), e.what());
+    throw std::runtime_error(e.what());
   }
-  if (!installed) {
-    std::string names;
-    for (const std::string& l : loadable) names += (names.empty() ? "" : ", ") + l;
-    const std::string what = "image_transport '" + params_.node.image_transport +
-                             "' is not installed (installed: " + names + ")";
-    logFatal(getName(), what);
-    throw std::runtime_error(what);
-  }
-  image_sub_ = it_->subscribe(
-      "image", kSubscriberQueue, &Long3rNodelet::imageCallback, this,
-      image_transport::TransportHints(params_.node.image_transport, ros::TransportHints(), pnh));
-  NODELET_INFO("subscribed to %s (transport %s)", image_sub_.getTopic().c_str(),
-               params_.node.image_transport.c_str());
+}
+
+Long3rNodelet::Warn Long3rNodelet::warner() {
+  return [this](const std::string& kind, const std::string& message) {
+    diagnostics_->warn(kind, message);
+  };
 }
 
 // ---------------------------------------------------------------- callbacks
 
-void Long3rNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
-  enqueue(InputFrame{msg, nullptr, ros::Time::now()});
-}
-
-void Long3rNodelet::compressedCallback(const sensor_msgs::CompressedImageConstPtr& msg) {
-  enqueue(InputFrame{nullptr, msg, ros::Time::now()});
-}
-
 void Long3rNodelet::enqueue(InputFrame frame) {
-  ++frames_received_;
-  window_.received();
-  last_input_wall_s_ = wallNow();
+  diagnostics_->received();
   if (paused_) {
-    ++frames_dropped_paused_;
-    window_.dropped();
+    diagnostics_->droppedPaused();
     return;
   }
   if (queue_->push(std::move(frame))) {
-    window_.dropped();
-    warnThrottled("queue", "input queue full (queue_size " + std::to_string(queue_->capacity()) +
-                               "): the oldest frame was dropped, " +
-                               std::to_string(queue_->dropped()) + " so far");
+    diagnostics_->droppedQueue();
+    diagnostics_->warn("queue", "input queue full (queue_size " +
+                                    std::to_string(queue_->capacity()) +
+                                    "): the oldest frame was dropped, " +
+                                    std::to_string(queue_->dropped()) + " so far");
   }
 }
 
-bool Long3rNodelet::rivalPublishing() const { return tf_rival_ && tf_rival_->rivalPublishing(); }
+void Long3rNodelet::mapTimerCallback(const ros::WallTimerEvent&) {
+  diagnostics_->update();
+  if (!session_) return;
+  // The maps lock themselves: no wait for the model step.
+  const std::uint64_t revision = session_->map_revision();
+  if (map_pub_->wants(revision)) {
+    std::vector<Eigen::Vector3d> cameras;
+    bool metric = false;
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      cameras = state_.cameras_map;
+      metric = state_.session.scale_metric;
+    }
+    map_pub_->publish(mapSnapshot(), cameras, metric, revision);
+  }
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  state_.grid = map_pub_->gridStatus();
+}
 
-void Long3rNodelet::tfTimerCallback(const ros::TimerEvent&) {
-  std::optional<geometry_msgs::TransformStamped> t;
+void Long3rNodelet::fillStatus(NodeStatus& n) {
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
-    t = state_.map_to_odom;
+    n.session = state_.session;
+    n.frames = state_.frames;
+    n.session_file = state_.session_file;
+    n.grid = state_.grid;
   }
-  if (!t || rivalPublishing()) return;
-  // map -> odom is a slowly changing correction: kept valid at the current
-  // time (and tf_delay_s ahead), so that map -> base resolves at the
-  // odometry's latest stamps.
-  t->header.stamp = ros::Time::now() + ros::Duration(params_.node.tf_delay_s);
-  tf_broadcaster_.sendTransform(*t);
+  n.tf_rival = tf_pub_->rival();
+  n.paused = paused_;
+  n.map_points = session_ ? session_->reconstruction().map().size() : 0;
+  n.ended_map_points = session_ ? session_->ended_maps().size() : 0;
+  n.dropped_queue = queue_ ? queue_->dropped() : 0;
 }
 
 // ---------------------------------------------------------------- worker
@@ -310,10 +262,10 @@ void Long3rNodelet::workerLoop() {
       handleFrame(*frame);
     } catch (const std::exception& e) {
       // Bad input or a failure in one frame must never take the node down.
-      ++frames_failed_;
-      window_.failed();
-      warnThrottled(std::string("failed: ") + e.what(),
-                    format("frame at t=%.3f failed: ", frame->header().stamp.toSec()) + e.what());
+      diagnostics_->failed();
+      diagnostics_->warn(
+          std::string("failed: ") + e.what(),
+          atStamp("frame at t=%.3f failed: ", frame->header().stamp.toSec()) + e.what());
     }
   }
 }
@@ -324,9 +276,9 @@ void Long3rNodelet::handleFrame(const InputFrame& frame) {
   try {
     decoded = decodeInput(frame, static_cast<std::uint64_t>(params_.node.max_image_pixels));
   } catch (const InputError& e) {
-    ++frames_dropped_input_;
-    window_.failed();
-    warnThrottled(e.kind(), format("frame at t=%.3f skipped: ", header.stamp.toSec()) + e.what());
+    diagnostics_->badInput();
+    diagnostics_->warn(e.kind(),
+                       atStamp("frame at t=%.3f skipped: ", header.stamp.toSec()) + e.what());
     return;
   }
   long3r::LiveFrame f;
@@ -351,8 +303,7 @@ void Long3rNodelet::flushPending() {
   try {
     session_->flush();
   } catch (const std::exception& e) {
-    ++frames_failed_;
-    window_.failed();
+    diagnostics_->failed();
     NODELET_ERROR("publishing the pending frame failed: %s", e.what());
   }
   copyStatus();
@@ -373,69 +324,24 @@ void Long3rNodelet::copyStatus() {
 
 // ---------------------------------------------------------------- session client
 
-// Where the stream sits in the robot's TF tree, fixed by its first frame; with
-// pose_source odometry, the frame's pose from the odometry.
 std::optional<Eigen::Isometry3d> Long3rNodelet::place(const long3r::LiveFrame& frame) {
-  const auto& header = std::any_cast<const std_msgs::Header&>(frame.tag);
-  try {
-    if (!frames_->started()) {
-      frames_->startStream(header.frame_id, header.stamp);
-      NODELET_INFO("frames: %s", frames_->describe().c_str());
-    } else if (frames_->followRoot()) {
-      NODELET_WARN("frames: the camera frame gained a parent in TF: %s",
-                   frames_->describe().c_str());
-    }
-  } catch (const TfUnavailable& e) {
-    throw Unavailable("tf start", format("frame at t=%.3f skipped: ", header.stamp.toSec()) +
-                                      e.what() + "; the stream starts once TF has it");
-  }
-  try {
-    frames_->updateExtrinsics(header.stamp);  // a camera that moves on the base
-  } catch (const TfUnavailable& e) {
-    warnThrottled("tf extrinsics",
-                  format("frame at t=%.3f: the camera's mounting: ", header.stamp.toSec()) +
-                      e.what() + "; the last one known is used");
-  }
-  if (params_.node.pose_source != PoseSource::kOdometry) return std::nullopt;
-  if (!frames_->odometryAnchored()) {
-    warnThrottled("session odometry",
-                  format("frame at t=%.3f placed by the model: in the loaded session, map -> "
-                         "odom follows from the first frame the model places (pose_source "
-                         "odometry resumes then)",
-                         header.stamp.toSec()));
-    return std::nullopt;
-  }
-  try {
-    return frames_->cameraFromOdometry(header.stamp);
-  } catch (const TfUnavailable& e) {
-    throw Unavailable("tf odometry", format("frame at t=%.3f skipped (pose_source odometry): ",
-                                            header.stamp.toSec()) +
-                                         e.what());
-  }
+  return placement_->place(headerOf(frame.tag));
 }
 
 Eigen::Vector3d Long3rNodelet::odometry_camera_position_m(const long3r::LiveResult& result) {
-  try {
-    const auto& header = std::any_cast<const std_msgs::Header&>(result.tag);
-    return frames_->cameraInOdom(header.stamp).translation();
-  } catch (const TfUnavailable& e) {
-    throw Unavailable("tf scale", std::string("odometry scale: ") + e.what());
-  }
+  return placement_->cameraPositionInOdom(headerOf(result.tag).stamp);
 }
 
 cv::Mat Long3rNodelet::depth(const long3r::LiveResult& result) {
-  return stamped_->depth(std::any_cast<const std_msgs::Header&>(result.tag).stamp);
+  return stamped_->depth(headerOf(result.tag).stamp);
 }
 
 void Long3rNodelet::on_event(const long3r::LiveEvent& e) {
-  if (e.frame_dropped) {
-    ++frames_dropped_input_;
-    window_.dropped();
-  }
+  if (e.frame_dropped) diagnostics_->droppedInput();
   if (e.level == long3r::LiveEvent::Level::kInfo) {
     NODELET_INFO("%s", e.message.c_str());
   } else if (e.throttle) {
-    warnThrottled(e.kind, e.message);
+    diagnostics_->warn(e.kind, e.message);
   } else {
     NODELET_WARN("%s", e.message.c_str());
   }
@@ -447,15 +353,6 @@ std::optional<Eigen::Isometry3d> Long3rNodelet::T_map_W() {
   return frames_->T_map_W();
 }
 
-long3r::MapSnapshot Long3rNodelet::mapSnapshot() {
-  Eigen::Isometry3d T_map_W;
-  {
-    std::lock_guard<std::mutex> lock(state_mutex_);
-    T_map_W = state_.T_map_W;
-  }
-  return session_->map_snapshot(T_map_W);
-}
-
 void Long3rNodelet::on_new_stream(const std::string&) {
   if (params_.frames.odom_frame.empty() && !session_->ended_maps().empty()) {
     NODELET_INFO(
@@ -464,39 +361,17 @@ void Long3rNodelet::on_new_stream(const std::string&) {
         session_->ended_maps().size());
   }
   frames_->reset();
-  {
-    std::lock_guard<std::mutex> state_lock(state_mutex_);
-    state_.map_to_odom.reset();
-  }
+  tf_pub_->forget();
   frame_pub_->restartTwist();
   path_pub_.publish(pathMessage());
 }
 
-long3r::StateDict Long3rNodelet::session_state() {
-  long3r::StateDict state;
-  if (frames_->anchored()) state["T_map_W"] = long3r::pose_to_tensor(frames_->T_map_W());
-  if (frames_->started() && frames_->mode() == RobotFrames::Mode::kMapToOdom &&
-      frames_->odometryAnchored()) {
-    state["T_map_odom"] = long3r::pose_to_tensor(frames_->T_map_odom());
-  }
-  return state;
-}
+long3r::StateDict Long3rNodelet::session_state() { return placement_->sessionState(); }
 
 // After a load: the session's map frame, so that its map and path stay where
 // they were; the robot's odometry is tied to it by the first placed frame.
 void Long3rNodelet::restore_session_state(const long3r::StateDict& state) {
-  auto pose = [&state](const char* key) -> std::optional<Eigen::Isometry3d> {
-    const auto it = state.find(key);
-    return it == state.end() ? std::nullopt : long3r::pose_from_tensor(it->second);
-  };
-  if (const std::optional<Eigen::Isometry3d> T_map_W = pose("T_map_W")) {
-    frames_->continueSession(*T_map_W, pose("T_map_odom"));
-  } else {
-    NODELET_WARN(
-        "the loaded session has no map frame of its own (saved by long3r_reconstruct?): "
-        "%s is fixed by the next frame, as for a new stream",
-        params_.frames.map_frame.c_str());
-  }
+  placement_->restoreSessionState(state);
   copyStatus();
   path_pub_.publish(pathMessage());
 }
@@ -515,27 +390,50 @@ nav_msgs::Path Long3rNodelet::pathMessage() {
   return path;
 }
 
+// ---------------------------------------------------------------- services' access
+
+void Long3rNodelet::readSession(const SessionServices::Reader& f) {
+  std::lock_guard<std::mutex> lock(session_mutex_);
+  f(*session_, *frames_);
+}
+
+void Long3rNodelet::changeSession(const SessionServices::Changer& f) {
+  std::lock_guard<std::mutex> lock(session_mutex_);
+  f(*session_);
+  copyStatus();
+}
+
+void Long3rNodelet::sessionFileChanged(const std::string& what) {
+  std::lock_guard<std::mutex> lock(state_mutex_);
+  state_.session_file = what;
+}
+
+void Long3rNodelet::clearQueue() { queue_->clear(); }
+
+bool Long3rNodelet::setPaused(bool paused) { return paused_.exchange(paused); }
+
+std::uint64_t Long3rNodelet::pausedDrops() const { return diagnostics_->pausedDrops(); }
+
+long3r::MapSnapshot Long3rNodelet::mapSnapshot() {
+  Eigen::Isometry3d T_map_W;
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    T_map_W = state_.T_map_W;
+  }
+  return session_->map_snapshot(T_map_W);
+}
+
 // ---------------------------------------------------------------- outputs
 
 void Long3rNodelet::on_result(long3r::LiveResult& r) {
   // A frame that finishes while the node shuts down has no one to go to, and
   // ROS's publishers may already be torn down.
   if (!running_ || !ros::ok()) return;
-  std_msgs::Header header = std::any_cast<const std_msgs::Header&>(r.tag);
+  std_msgs::Header header = headerOf(r.tag);
   if (!params_.frames.camera_frame.empty()) header.frame_id = params_.frames.camera_frame;
-  ++frames_processed_;
-  window_.processed((ros::Time::now() - header.stamp).toSec());
-  output_diagnostic_->tick(header.stamp);
+  diagnostics_->processed(header.stamp);
   if (r.scale_changed) frame_pub_->restartTwist();  // the previous pose was in the old scale
-  if (r.frame.pose.ok() && !frames_->odometryAnchored()) {
-    try {
-      frames_->anchorOdometry(r.frame.pose.T_W_C, header.stamp);
-      NODELET_INFO("relocalised in the loaded session at t=%.3f: map -> %s follows from it",
-                   header.stamp.toSec(), params_.frames.odom_frame.c_str());
-    } catch (const TfUnavailable& e) {
-      warnThrottled("tf session", std::string("map -> odom not tied yet: ") + e.what());
-    }
-  }
+  if (r.frame.pose.ok()) placement_->anchorOdometry(r.frame.pose.T_W_C, header.stamp);
   publishOutputs(r.frame, header);
 }
 
@@ -565,199 +463,11 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
   }
   frame_pub_->publish(r, c);
   if (!r.posed()) return;
-
   path_pub_.publish(pathMessage());
-
-  if (params_.node.publish_tf) {
-    try {
-      if (const auto t = frames_->transformFor(r.pose.T_W_C, header.stamp)) {
-        if (!rivalPublishing()) tf_broadcaster_.sendTransform(*t);
-        if (frames_->mode() == RobotFrames::Mode::kMapToOdom) {
-          std::lock_guard<std::mutex> lock(state_mutex_);
-          state_.map_to_odom = *t;
-        }
-      } else {
-        warnThrottled("tf conflict", "no TF published: " + frames_->conflict());
-      }
-    } catch (const TfUnavailable& e) {
-      warnThrottled("tf publish",
-                    format("no TF for the frame at t=%.3f: ", header.stamp.toSec()) + e.what());
-    }
-  }
+  tf_pub_->publish(*frames_, r.pose.T_W_C, header.stamp);
 }
 
-void Long3rNodelet::mapTimerCallback(const ros::WallTimerEvent&) {
-  if (diagnostics_) diagnostics_->update();
-  if (!session_) return;
-  // The maps lock themselves: no wait for the model step.
-  const std::uint64_t revision = session_->map_revision();
-  if (map_pub_->wants(revision)) {
-    std::vector<Eigen::Vector3d> cameras;
-    bool metric = false;
-    {
-      std::lock_guard<std::mutex> lock(state_mutex_);
-      cameras = state_.cameras_map;
-      metric = state_.session.scale_metric;
-    }
-    map_pub_->publish(mapSnapshot(), cameras, metric, revision);
-  }
-  std::lock_guard<std::mutex> lock(state_mutex_);
-  state_.grid = map_pub_->gridStatus();
-}
-
-// ---------------------------------------------------------------- services
-
-bool Long3rNodelet::resetService(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
-  {
-    std::lock_guard<std::mutex> lock(session_mutex_);
-    session_->reset("reset requested");
-    copyStatus();
-  }
-  queue_->clear();
-  res.success = true;
-  res.message = "memory, map and path cleared";
-  return true;
-}
-
-bool Long3rNodelet::pauseService(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
-  const bool was = paused_.exchange(true);
-  res.success = true;
-  res.message = was ? "already paused"
-                    : "paused: incoming frames are dropped and counted until ~resume; memory, "
-                      "map and path are kept";
-  if (!was) NODELET_INFO("%s", res.message.c_str());
-  return true;
-}
-
-bool Long3rNodelet::resumeService(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
-  const bool was = paused_.exchange(false);
-  res.success = true;
-  res.message = was ? "resumed; " + std::to_string(frames_dropped_paused_.load()) +
-                          " frame(s) dropped while paused so far"
-                    : "not paused";
-  if (was) NODELET_INFO("%s", res.message.c_str());
-  return true;
-}
-
-bool Long3rNodelet::saveMapService(SaveMap::Request& req, SaveMap::Response& res) {
-  try {
-    const long3r::MapSnapshot snap = mapSnapshot();                  // as ~map shows it
-    long3r::save_colored_cloud(req.path, snap.points, snap.colors);  // atomic
-    res.success = true;
-    res.message = "wrote " + std::to_string(snap.points.size()) + " points (" +
-                  params_.frames.map_frame + ") to " + req.path;
-  } catch (const std::exception& e) {
-    res.success = false;
-    res.message = e.what();
-  }
-  return true;
-}
-
-bool Long3rNodelet::saveSessionService(SaveSession::Request& req, SaveSession::Response& res) {
-  std::lock_guard<std::mutex> lock(session_mutex_);
-  try {
-    session_->save(req.path);  // atomic; publishes the pending frame first
-    res.success = true;
-    res.message = "saved " + std::to_string(session_->reconstruction().frames_pushed()) +
-                  " frames, " + std::to_string(session_->reconstruction().map().size()) +
-                  " map points to " + req.path;
-    std::lock_guard<std::mutex> state_lock(state_mutex_);
-    state_.session_file = "saved to " + req.path;
-  } catch (const std::exception& e) {
-    res.success = false;
-    res.message = e.what();
-    NODELET_ERROR("~save_session: %s", e.what());
-  }
-  copyStatus();
-  return true;
-}
-
-bool Long3rNodelet::loadSessionService(LoadSession::Request& req, LoadSession::Response& res) {
-  {
-    std::lock_guard<std::mutex> lock(session_mutex_);
-    try {
-      session_->load(req.path);  // all or nothing
-      res.success = true;
-      res.message = "loaded " + std::to_string(session_->reconstruction().frames_pushed()) +
-                    " frames, " + std::to_string(session_->reconstruction().map().size()) +
-                    " map points from " + req.path + "; the next frames continue it";
-      std::lock_guard<std::mutex> state_lock(state_mutex_);
-      state_.session_file = "loaded from " + req.path;
-    } catch (const std::exception& e) {
-      res.success = false;
-      res.message = e.what() + std::string("; the running session is kept");
-      NODELET_ERROR("~load_session: %s", res.message.c_str());
-    }
-    copyStatus();
-  }
-  if (res.success) queue_->clear();  // frames queued for the old stream
-  return true;
-}
-
-bool Long3rNodelet::saveTrajectoryService(SaveTrajectory::Request& req,
-                                          SaveTrajectory::Response& res) {
-  long3r::PoseTrajectory trajectory;
-  std::string what;
-  {
-    std::lock_guard<std::mutex> lock(session_mutex_);
-    for (const auto& [stamp, T_W_C] : session_->reconstruction().trajectory()) {
-      trajectory.stamps.push_back(stamp);
-      trajectory.poses.push_back(frames_->bodyInMap(T_W_C, ros::Time(stamp)));
-    }
-    what = "poses of " + frames_->bodyFrame() + " in " + params_.frames.map_frame;
-  }
-  try {
-    long3r::write_tum_trajectory(req.path, trajectory, "long3r_ros ~path: " + what);  // atomic
-    res.success = true;
-    res.message = "wrote " + std::to_string(trajectory.size()) + " " + what + " to " + req.path;
-  } catch (const std::exception& e) {
-    res.success = false;
-    res.message = e.what();
-  }
-  return true;
-}
-
-// ---------------------------------------------------------------- diagnostics
-
-void Long3rNodelet::warnThrottled(const std::string& kind, const std::string& message) {
-  std::uint64_t repeats = 0;
-  if (!throttle_.ready(kind, wallNow(), &repeats)) return;
-  if (repeats > 0) {
-    NODELET_WARN("%s (and %lu more like it since the last report)", message.c_str(),
-                 static_cast<unsigned long>(repeats));
-  } else {
-    NODELET_WARN("%s", message.c_str());
-  }
-}
-
-void Long3rNodelet::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) {
-  NodeStatus n;
-  {
-    std::lock_guard<std::mutex> lock(state_mutex_);
-    n.session = state_.session;
-    n.frames = state_.frames;
-    n.session_file = state_.session_file;
-    n.grid = state_.grid;
-  }
-  if (tf_rival_) n.tf_rival = tf_rival_->describe();
-  n.window = window_.window();
-  window_.rotate();
-  const double last_input = last_input_wall_s_;
-  n.input_seen = last_input > 0.0;
-  n.quiet_s = wallNow() - (n.input_seen ? last_input : started_.toSec());
-  n.no_input_warn_s = params_.node.no_input_warn_s;
-  n.paused = paused_;
-  n.scale_source = params_.session.scale.source;
-  n.map_points = session_ ? session_->reconstruction().map().size() : 0;
-  n.ended_map_points = session_ ? session_->ended_maps().size() : 0;
-  n.received = frames_received_;
-  n.processed = frames_processed_;
-  n.failed = frames_failed_;
-  n.dropped_input = frames_dropped_input_;
-  n.dropped_queue = queue_ ? queue_->dropped() : 0;
-  n.dropped_paused = frames_dropped_paused_;
-  fillDiagnostics(n, stat);
-}
+// ---------------------------------------------------------------- shutdown
 
 void Long3rNodelet::shutdown() {
   if (!running_.exchange(false)) return;
@@ -765,23 +475,14 @@ void Long3rNodelet::shutdown() {
   // (and waited for: roscpp blocks until a running callback returns) before
   // the worker stops and members start to be destroyed; a service or timer
   // callback running into a half-destroyed nodelet is undefined behaviour.
-  image_sub_.shutdown();
-  compressed_sub_.shutdown();
+  if (images_) images_->shutdown();
   if (stamped_) stamped_->shutdown();
-  if (tf_rival_) tf_rival_->shutdown();
-  tf_timer_.stop();
-  reset_srv_.shutdown();
-  pause_srv_.shutdown();
-  resume_srv_.shutdown();
-  save_map_srv_.shutdown();
-  save_session_srv_.shutdown();
-  load_session_srv_.shutdown();
-  save_trajectory_srv_.shutdown();
+  if (tf_pub_) tf_pub_->shutdown();
+  if (services_) services_->shutdown();
   map_timer_.stop();
   if (queue_) queue_->close();
   if (worker_.joinable()) worker_.join();
-  diagnostics_.reset();
-  output_diagnostic_.reset();
+  if (diagnostics_) diagnostics_->shutdown();
 }
 
 }  // namespace long3r_ros

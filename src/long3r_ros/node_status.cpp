@@ -2,7 +2,15 @@
 
 #include <diagnostic_msgs/DiagnosticStatus.h>
 
+#include <limits>
+
 namespace long3r_ros {
+
+namespace {
+
+double wallNow() { return ros::WallTime::now().toSec(); }
+
+}  // namespace
 
 void fillDiagnostics(const NodeStatus& n, diagnostic_updater::DiagnosticStatusWrapper& stat) {
   using S = diagnostic_msgs::DiagnosticStatus;
@@ -71,6 +79,96 @@ void fillDiagnostics(const NodeStatus& n, diagnostic_updater::DiagnosticStatusWr
   stat.add("frames dropped: bad input (total)", n.dropped_input);
   stat.add("frames dropped: queue full (total)", n.dropped_queue);
   stat.add("frames dropped: paused (total)", n.dropped_paused);
+}
+
+NodeDiagnostics::NodeDiagnostics(const Config& config, std::string log_name)
+    : config_(config), log_name_(std::move(log_name)) {}
+
+void NodeDiagnostics::advertise(ros::NodeHandle& nh, ros::NodeHandle& pnh, Fill fill) {
+  fill_ = std::move(fill);
+  updater_ = std::make_unique<diagnostic_updater::Updater>(nh, pnh, log_name_);
+  updater_->setHardwareID("long3r");
+  updater_->add("reconstruction", this, &NodeDiagnostics::diagnose);
+  min_rate_hz_ = 0.0;
+  max_rate_hz_ = std::numeric_limits<double>::infinity();
+  output_diagnostic_ = std::make_unique<diagnostic_updater::TopicDiagnostic>(
+      "pointmap", *updater_,
+      diagnostic_updater::FrequencyStatusParam(&min_rate_hz_, &max_rate_hz_, 0.1, 5),
+      diagnostic_updater::TimeStampStatusParam(-1.0, config_.max_latency_s));
+}
+
+void NodeDiagnostics::start() { started_wall_s_ = wallNow(); }
+
+void NodeDiagnostics::update() {
+  if (updater_) updater_->update();
+}
+
+void NodeDiagnostics::shutdown() {
+  updater_.reset();
+  output_diagnostic_.reset();
+}
+
+void NodeDiagnostics::warn(const std::string& kind, const std::string& message) {
+  std::uint64_t repeats = 0;
+  if (!throttle_.ready(kind, wallNow(), &repeats)) return;
+  if (repeats > 0) {
+    ROS_WARN_NAMED(log_name_, "%s (and %lu more like it since the last report)", message.c_str(),
+                   static_cast<unsigned long>(repeats));
+  } else {
+    ROS_WARN_NAMED(log_name_, "%s", message.c_str());
+  }
+}
+
+void NodeDiagnostics::received() {
+  ++received_;
+  window_.received();
+  last_input_wall_s_ = wallNow();
+}
+
+void NodeDiagnostics::droppedPaused() {
+  ++dropped_paused_;
+  window_.dropped();
+}
+
+void NodeDiagnostics::droppedQueue() { window_.dropped(); }
+
+void NodeDiagnostics::badInput() {
+  ++dropped_input_;
+  window_.failed();
+}
+
+void NodeDiagnostics::droppedInput() {
+  ++dropped_input_;
+  window_.dropped();
+}
+
+void NodeDiagnostics::failed() {
+  ++failed_;
+  window_.failed();
+}
+
+void NodeDiagnostics::processed(const ros::Time& stamp) {
+  ++processed_;
+  window_.processed((ros::Time::now() - stamp).toSec());
+  if (output_diagnostic_) output_diagnostic_->tick(stamp);
+}
+
+void NodeDiagnostics::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) {
+  NodeStatus n;
+  if (fill_) fill_(n);
+  n.window = window_.window();
+  window_.rotate();
+  const double last_input = last_input_wall_s_;
+  n.input_seen = last_input > 0.0;
+  n.quiet_s = wallNow() - (n.input_seen ? last_input : started_wall_s_.load());
+  n.no_input_warn_s = config_.no_input_warn_s;
+  n.scale_source = config_.scale_source;
+  n.received = received_;
+  n.processed = processed_;
+  n.failed = failed_;
+  n.dropped_input = dropped_input_;
+  n.dropped_paused = dropped_paused_;
+  fillDiagnostics(n, stat);
 }
 
 }  // namespace long3r_ros

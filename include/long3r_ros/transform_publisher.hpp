@@ -1,0 +1,65 @@
+// TransformPublisher: the one transform the node publishes into the robot's
+// TF tree (RobotFrames::transformFor: map -> odom, map -> base, or map -> the
+// camera frame or the root of its tree), sent with each posed frame by the
+// worker thread. map -> odom, a slowly changing correction, is also
+// republished by a timer (tf_publish_rate_hz, on roscpp's callback thread) at
+// the current time, as SLAM nodes do. Ours gives way while another node
+// publishes the same transform (TfRivalWatch). Thread-safe: the last
+// map -> odom is kept under its own lock, taken last.
+#pragma once
+
+#include <geometry_msgs/TransformStamped.h>
+#include <ros/ros.h>
+#include <tf2_ros/transform_broadcaster.h>
+
+#include <Eigen/Geometry>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+
+#include "long3r_ros/robot_frames.hpp"
+#include "long3r_ros/tf_rival_watch.hpp"
+
+namespace long3r_ros {
+
+class TransformPublisher {
+ public:
+  using Warn = std::function<void(const std::string& kind, const std::string& message)>;
+
+  struct Config {
+    bool publish_tf = true;  // false: nothing is published, nothing watched
+    double rate_hz = 0.0;    // map -> odom republished this often; 0 = with frames only
+    double delay_s = 0.0;    // the republished map -> odom forward-dated by this
+  };
+
+  // Watches for a rival and starts the timer on nh; `log_name`: the nodelet's logger.
+  TransformPublisher(ros::NodeHandle& nh, const FramesConfig& frames, const Config& config,
+                     const std::string& log_name, Warn warn);
+  void shutdown();  // no callback runs after it returns
+
+  // The transform for a camera pose in W at `stamp`; a throttled warning
+  // when there is none to publish (a frame would get a second parent, or TF
+  // misses a transform at that stamp).
+  void publish(const RobotFrames& frames, const Eigen::Isometry3d& T_W_C, const ros::Time& stamp);
+  // A new stream: map -> odom is not republished until its first posed frame.
+  void forget();
+  // For the diagnostics: who else publishes our transform; "" when no one.
+  std::string rival() const;
+
+ private:
+  bool rivalPublishing() const;
+  void timerCallback(const ros::TimerEvent& event);
+
+  const Config config_;
+  Warn warn_;
+  tf2_ros::TransformBroadcaster broadcaster_;
+  // Another node publishing our transform: ours stops while it does.
+  std::unique_ptr<TfRivalWatch> rival_;
+  ros::Timer timer_;
+  mutable std::mutex mutex_;
+  std::optional<geometry_msgs::TransformStamped> map_to_odom_;
+};
+
+}  // namespace long3r_ros
