@@ -34,17 +34,6 @@ std::string no_gpu_reason() {
     if (!why.empty()) GTEST_SKIP() << "needs a CUDA GPU: " << why; \
   } while (0)
 
-at::Tensor frame(int64_t t, int64_t h, int64_t w) {
-  const at::Tensor y = at::linspace(0, 1, h).view({1, 1, h, 1});
-  const at::Tensor x = at::linspace(0, 1, w).view({1, 1, 1, w});
-  const double s = 0.15 * static_cast<double>(t);
-  std::vector<at::Tensor> ch;
-  for (int c = 0; c < 3; ++c) {
-    ch.push_back(at::sin(6.0 * (x + s) + 2.0 * c) * at::cos(5.0 * (y - 0.5 * s) + c));
-  }
-  return at::cat(ch, 1).clamp(-1, 1);
-}
-
 // float32 matmuls and convolutions in full float32 (no TF32) for the scope.
 class NoTf32 {
  public:
@@ -100,7 +89,7 @@ TEST(Cuda, Long3rStreamRunsOnTheDeviceInEveryPrecision) {
     }
     int outputs = 0;
     for (int64_t t = 0; t < 5; ++t) {
-      if (auto o = model.push(frame(t, 64, 64))) {
+      if (auto o = model.push(long3r::test::grid_wave_frame(t, 64, 64))) {
         ++outputs;
         EXPECT_EQ(o->pts3d.scalar_type(), at::kFloat);
         EXPECT_TRUE(o->pts3d.is_cuda());

@@ -43,24 +43,14 @@ bool contains(const std::string& text, const std::string& part) {
   return text.find(part) != std::string::npos;
 }
 
-// A smooth moving pattern in [-1, 1], different per frame.
-at::Tensor frame(int64_t t, int64_t h, int64_t w) {
-  const at::Tensor y = at::linspace(0, 1, h).view({1, 1, h, 1});
-  const at::Tensor x = at::linspace(0, 1, w).view({1, 1, 1, w});
-  const double s = 0.15 * static_cast<double>(t);
-  std::vector<at::Tensor> ch;
-  for (int c = 0; c < 3; ++c) {
-    ch.push_back(at::sin(6.0 * (x + s) + 2.0 * c) * at::cos(5.0 * (y - 0.5 * s) + c));
-  }
-  return at::cat(ch, 1).clamp(-1, 1);
-}
+using long3r::test::grid_wave_frame;
 
 std::vector<long3r::StreamOutput> stream(long3r::StreamingModel& model, int64_t n, int64_t h,
                                          int64_t w) {
   model.reset();
   std::vector<long3r::StreamOutput> outs;
   for (int64_t t = 0; t < n; ++t) {
-    if (auto o = model.push(frame(t, h, w))) outs.push_back(*o);
+    if (auto o = model.push(grid_wave_frame(t, h, w))) outs.push_back(*o);
   }
   outs.push_back(*model.flush());
   return outs;
@@ -238,8 +228,8 @@ TEST(Bfloat16, Spann3rStreamStaysCloseToFloat32) {
   std::printf("Spann3R (golden weights) 8 frames 64x96: max relative deviation %.3e\n", dev);
   EXPECT_LT(dev, 0.06);  // measured 4.12e-2
   // The memory holds the model's precision (flush ended the stream: two more frames).
-  bf16->push(frame(0, 64, 96));
-  bf16->push(frame(1, 64, 96));
+  bf16->push(grid_wave_frame(0, 64, 96));
+  bf16->push(grid_wave_frame(1, 64, 96));
   EXPECT_EQ(bf16->memory().keys().scalar_type(), at::kBFloat16);
   expect_convolutions_float32(bf16->module());
 }
@@ -253,8 +243,8 @@ TEST(Bfloat16, Long3rStreamStaysCloseToFloat32) {
   std::printf("LONG3R (long3r_tiny, random weights) 8 frames 64x64: max relative deviation %.3e\n",
               dev);
   EXPECT_LT(dev, 2e-3);  // measured 1.17e-3
-  bf16.push(frame(0, 64, 64));
-  bf16.push(frame(1, 64, 64));
+  bf16.push(grid_wave_frame(0, 64, 64));
+  bf16.push(grid_wave_frame(1, 64, 64));
   EXPECT_EQ(bf16.memory().keys().scalar_type(), at::kBFloat16);
   expect_convolutions_float32(bf16.module());
 }

@@ -25,18 +25,12 @@ namespace {
 
 namespace m = long3r::model;
 
-// A smoothly varying synthetic frame: shifted sinusoids, [B, 3, H, W] in
-// [-1, 1]; `phase` distinguishes streams.
+// The input frames: test::pixel_wave_frame (its default wave), 64 x 64 unless
+// told; `phase` distinguishes streams.
 at::Tensor frame(int64_t t, int64_t H = 64, int64_t W = 64, double phase = 0.0) {
-  const auto f = at::TensorOptions().dtype(at::kFloat);
-  const at::Tensor y = at::arange(H, f).view({1, H, 1});
-  const at::Tensor x = at::arange(W, f).view({1, 1, W});
-  const at::Tensor c = at::arange(3, f).view({3, 1, 1});
-  const double s = 0.15 * static_cast<double>(t) + phase;
-  return at::sin(x * 0.11 + y * 0.07 + c * 1.3 + s)
-      .mul(0.6)
-      .add(at::cos(y * 0.05 - s) * 0.3)
-      .unsqueeze(0);
+  long3r::test::PixelWave wave;
+  wave.phase = phase;
+  return long3r::test::pixel_wave_frame(t, H, W, wave);
 }
 
 constexpr auto tiny = long3r::test::tiny_long3r_config;

@@ -23,16 +23,17 @@ namespace {
 
 const std::string kGolden = std::string(LONG3R_GOLDEN_DIR) + "/";
 
+// The input frames: test::pixel_wave_frame with this file's wave.
 at::Tensor frame(int64_t t, int64_t H, int64_t W) {
-  const auto f = at::TensorOptions().dtype(at::kFloat);
-  const at::Tensor y = at::arange(H, f).view({1, H, 1});
-  const at::Tensor x = at::arange(W, f).view({1, 1, W});
-  const at::Tensor c = at::arange(3, f).view({3, 1, 1});
-  const double s = 0.23 * static_cast<double>(t);
-  return at::sin(x * 0.13 + y * 0.05 + c * 1.1 + s)
-      .mul(0.7)
-      .add(at::cos(y * 0.09 - s) * 0.2)
-      .unsqueeze(0);
+  test::PixelWave wave;
+  wave.step = 0.23;
+  wave.x_rate = 0.13;
+  wave.y_rate = 0.05;
+  wave.channel_rate = 1.1;
+  wave.amplitude = 0.7;
+  wave.cos_y_rate = 0.09;
+  wave.cos_amplitude = 0.2;
+  return test::pixel_wave_frame(t, H, W, wave);
 }
 
 std::string tiny_long3r_file() {

@@ -13,6 +13,7 @@
 #include <iterator>
 #include <limits>
 #include <map>
+#include <vector>
 
 #include "long3r/model/loading/checkpoint.hpp"
 
@@ -78,6 +79,29 @@ Dust3rConfig tiny_dust3r_config() {
 }
 
 ModelConfig tiny_long3r_config() { return named_model_config("long3r_tiny"); }
+
+at::Tensor grid_wave_frame(int64_t t, int64_t h, int64_t w) {
+  const at::Tensor y = at::linspace(0, 1, h).view({1, 1, h, 1});
+  const at::Tensor x = at::linspace(0, 1, w).view({1, 1, 1, w});
+  const double s = 0.15 * static_cast<double>(t);
+  std::vector<at::Tensor> ch;
+  for (int c = 0; c < 3; ++c) {
+    ch.push_back(at::sin(6.0 * (x + s) + 2.0 * c) * at::cos(5.0 * (y - 0.5 * s) + c));
+  }
+  return at::cat(ch, 1).clamp(-1, 1);
+}
+
+at::Tensor pixel_wave_frame(int64_t t, int64_t h, int64_t w, const PixelWave& wave) {
+  const auto f = at::TensorOptions().dtype(at::kFloat);
+  const at::Tensor y = at::arange(h, f).view({1, h, 1});
+  const at::Tensor x = at::arange(w, f).view({1, 1, w});
+  const at::Tensor c = at::arange(3, f).view({3, 1, 1});
+  const double s = wave.step * static_cast<double>(t) + wave.phase;
+  return at::sin(x * wave.x_rate + y * wave.y_rate + c * wave.channel_rate + s)
+      .mul(wave.amplitude)
+      .add(at::cos(y * wave.cos_y_rate - s) * wave.cos_amplitude)
+      .unsqueeze(0);
+}
 
 void copy_parameters(torch::nn::Module& from, torch::nn::Module& to) {
   std::map<std::string, at::Tensor> t;

@@ -1,11 +1,13 @@
 // Fixtures shared by the unit tests of both gtest binaries: scratch folders,
-// whole-file reads and writes, command lines (Argv), the tiny model configurations and tensor
-// comparisons. libtorch and the standard library only (long3r_model_tests
-// links it without OpenCV); the OpenCV side is in cv_test_support.hpp.
+// whole-file reads and writes, command lines (Argv), the tiny model
+// configurations, synthetic input frames and tensor comparisons. libtorch and
+// the standard library only (long3r_model_tests links it without OpenCV); the
+// OpenCV side is in cv_test_support.hpp.
 #pragma once
 
 #include <ATen/core/Tensor.h>
 
+#include <cstdint>
 #include <string>
 #include <utility>
 #include <vector>
@@ -45,6 +47,30 @@ class FileSizeLimit {
 Dust3rConfig tiny_dust3r_config();
 // The named configuration "long3r_tiny" (64 x 64 inputs).
 ModelConfig tiny_long3r_config();
+
+// Synthetic model inputs: a smooth pattern, [1, 3, h, w] float32, that moves
+// with the frame number t (the same t gives the same tensor, bit for bit).
+//
+// Over the unit square (at::linspace(0, 1, .) across each axis), with s = 0.15 t:
+//   clamp(sin(6 (x + s) + 2 c) * cos(5 (y - s / 2) + c), -1, 1)  for channel c.
+at::Tensor grid_wave_frame(int64_t t, int64_t h, int64_t w);
+
+// Over pixel indices (at::arange: x, y in pixels, c the channel), with
+// s = step t + phase:
+//   amplitude * sin(x_rate x + y_rate y + channel_rate c + s)
+//     + cos_amplitude * cos(cos_y_rate y - s).
+// The defaults are the LONG3R model tests' wave; `phase` tells streams apart.
+struct PixelWave {
+  double step = 0.15;
+  double x_rate = 0.11;
+  double y_rate = 0.07;
+  double channel_rate = 1.3;
+  double amplitude = 0.6;
+  double cos_y_rate = 0.05;
+  double cos_amplitude = 0.3;
+  double phase = 0.0;
+};
+at::Tensor pixel_wave_frame(int64_t t, int64_t h, int64_t w, const PixelWave& wave = {});
 
 // Copies every parameter of `from` into `to` (same architecture), strictly.
 void copy_parameters(torch::nn::Module& from, torch::nn::Module& to);
