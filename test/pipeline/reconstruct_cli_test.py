@@ -5,19 +5,10 @@ import argparse
 import csv
 import os
 import shutil
-import subprocess
 import sys
 
-
-def run(cmd):
-    p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    return p.returncode, p.stdout + p.stderr
-
-
-def check(cond, what):
-    if not cond:
-        print("FAIL:", what)
-        sys.exit(1)
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from cli_test import check, fresh_dir, run  # noqa: E402
 
 
 def main():
@@ -27,8 +18,7 @@ def main():
     ap.add_argument("--reconstruct", required=True)
     ap.add_argument("--workdir", required=True)
     a = ap.parse_args()
-    shutil.rmtree(a.workdir, ignore_errors=True)
-    os.makedirs(a.workdir)
+    fresh_dir(a.workdir)
     seq = os.path.join(a.workdir, "seq")
     model = os.path.join(a.workdir, "tiny.safetensors")
     out = os.path.join(a.workdir, "out")

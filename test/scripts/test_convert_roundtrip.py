@@ -11,10 +11,8 @@ Exit 77 (skipped) when PyTorch is not importable.
 """
 import argparse
 import collections
-import importlib.util
 import json
 import os
-import subprocess
 import sys
 import tempfile
 
@@ -24,21 +22,12 @@ except ImportError:
     print("PyTorch is not available to %s; skipping" % sys.executable)
     sys.exit(77)
 
-FAILURES = []
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from cli_test import Tally, load_script, run_process  # noqa: E402
 
-
-def check(cond, what):
-    print("%s: %s" % ("ok  " if cond else "FAIL", what))
-    if not cond:
-        FAILURES.append(what)
-    return cond
-
-
-def load_module(path):
-    spec = importlib.util.spec_from_file_location("convert_checkpoint", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+# Every check runs; "ok  : <what>" or "FAIL: <what>", the failures summed up at the end.
+CHECKS = Tally(ok="ok  : ", failed="FAIL: ")
+check = CHECKS.check
 
 
 def bits(t):
@@ -52,15 +41,6 @@ def same_tensors(a, b, what):
         return False
     bad = [k for k in a if bits(a[k]) != bits(b[k])]
     return check(not bad, "%s: all %d tensors bit-identical %s" % (what, len(a), bad[:3]))
-
-
-def run(cmd, expect_rc=0):
-    p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                       universal_newlines=True)
-    if p.returncode != expect_rc:
-        print("command %s exited %d (expected %d)\nstdout: %s\nstderr: %s"
-              % (cmd, p.returncode, expect_rc, p.stdout[-2000:], p.stderr[-2000:]))
-    return p
 
 
 def without_notes(x):
@@ -108,14 +88,14 @@ def main():
     ap.add_argument("--linear-golden", help="folder of the linear-head golden case "
                     "(test/data/golden/dust3r_linear_sq64)")
     opts = ap.parse_args()
-    conv = load_module(opts.script)
+    conv = load_script(opts.script, "convert_checkpoint")
     py = sys.executable
 
     def convert(*args, expect_rc=0):
-        return run([py, opts.script] + list(args), expect_rc)
+        return run_process([py, opts.script] + list(args), expect_rc=expect_rc)
 
     def cpp_reads(path, count):
-        p = run([opts.info, "--no-tensors", path])
+        p = run_process([opts.info, "--no-tensors", path], expect_rc=0)
         return check(p.returncode == 0 and ("%d tensors" % count) in p.stdout,
                      "C++ loader reads %s (%d tensors)" % (os.path.basename(path), count))
 
@@ -269,11 +249,11 @@ def main():
         with open(tmpf("corrupt.safetensors"), "wb") as f:
             with open(gd_path, "rb") as g:
                 f.write(g.read()[:5000])
-        p = run([opts.info, tmpf("corrupt.safetensors")], expect_rc=1)
+        p = run_process([opts.info, tmpf("corrupt.safetensors")], expect_rc=1)
         check(p.returncode == 1 and "truncated" in p.stderr, "C++ loader rejects a truncated file")
 
-    if FAILURES:
-        print("%d check(s) failed:\n  %s" % (len(FAILURES), "\n  ".join(FAILURES)))
+    if CHECKS.failures:
+        print("%d check(s) failed:\n  %s" % (len(CHECKS.failures), "\n  ".join(CHECKS.failures)))
         return 1
     print("all checks passed")
     return 0

@@ -8,19 +8,14 @@ import argparse
 import json
 import math
 import os
-import shutil
-import subprocess
 import sys
 
-
-def check(cond, msg):
-    if not cond:
-        print("FAIL: " + msg)
-        sys.exit(1)
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from cli_test import check, fresh_dir, run  # noqa: E402
 
 
 def run_eval(tool, out, *extra):
-    subprocess.run([tool, "--out", out, *extra], check=True, stdout=subprocess.DEVNULL)
+    run([tool, "--out", out, *extra], check=True)
     with open(os.path.join(out, "metrics.json")) as f:
         return json.load(f)
 
@@ -31,11 +26,10 @@ def main():
     ap.add_argument("--eval", required=True)
     ap.add_argument("--workdir", required=True)
     a = ap.parse_args()
-    shutil.rmtree(a.workdir, ignore_errors=True)
-    os.makedirs(a.workdir)
+    fresh_dir(a.workdir)
     seq = os.path.join(a.workdir, "seq")
-    subprocess.run([a.synth, "--out", seq, "--frames", "30", "--width", "64", "--height", "48",
-                    "--trajectory", "orbit", "--speed", "0.05", "--quiet"], check=True)
+    run([a.synth, "--out", seq, "--frames", "30", "--width", "64", "--height", "48",
+         "--trajectory", "orbit", "--speed", "0.05", "--quiet"], check=True)
     gt = os.path.join(seq, "groundtruth.txt")
 
     # 1. GT against itself, map = the GT cloud (written by a first run).

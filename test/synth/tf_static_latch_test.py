@@ -6,9 +6,7 @@ reach it: that is what the header is for. Runs its own rosmaster on a free port
 (registered in synth.cmake where rospy and tf2_ros import)."""
 
 import argparse
-import importlib.util
 import os
-import shutil
 import signal
 import socket
 import subprocess
@@ -17,6 +15,9 @@ import time
 
 import numpy as np
 import rosbag
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from cli_test import fail, free_port, fresh_dir, load_script, run  # noqa: E402
 
 LISTENER = r"""
 import sys, rospy, tf2_ros
@@ -31,17 +32,6 @@ except Exception as e:
 tr, q = t.transform.translation, t.transform.rotation
 print("RESULT", tr.x, tr.y, tr.z, q.x, q.y, q.z, q.w)
 """
-
-
-def fail(msg):
-    print("FAIL: " + msg)
-    sys.exit(1)
-
-
-def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def start(cmd, env, log):
@@ -67,11 +57,10 @@ def late_lookup(bag, env, work, name, timeout):
             time.sleep(4.0)  # start-up plus the 0.2 s bag, with margin: /tf_static is long published
             if play.poll() is not None:
                 fail("rosbag play exited early (%s)" % play.returncode)
-            res = subprocess.run([sys.executable, "-c", LISTENER, str(timeout)], env=env, capture_output=True,
-                                 text=True, timeout=timeout + 30)
+            rc, out = run([sys.executable, "-c", LISTENER, str(timeout)], env=env, timeout=timeout + 30)
         finally:
             stop(play)
-    return res.stdout + res.stderr, res.returncode
+    return out, rc
 
 
 def main():
@@ -80,18 +69,13 @@ def main():
     ap.add_argument("--script", required=True)
     ap.add_argument("--workdir", required=True)
     args = ap.parse_args()
-    spec = importlib.util.spec_from_file_location("tum_to_bag", args.script)
-    t2b = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(t2b)
+    t2b = load_script(args.script, "tum_to_bag")
 
-    work = os.path.abspath(args.workdir)
-    shutil.rmtree(work, ignore_errors=True)
-    os.makedirs(work)
+    work = fresh_dir(os.path.abspath(args.workdir))
     seq, bag = os.path.join(work, "seq"), os.path.join(work, "robot.bag")
-    subprocess.run([args.synth, "--out", seq, "--frames", "6", "--width", "32", "--height", "24", "--seed", "2",
-                    "--trajectory", "robot", "--quiet"], check=True, stdout=subprocess.DEVNULL)
-    subprocess.run([sys.executable, args.script, seq, bag, "--robot", "--time-offset", "1000"], check=True,
-                   stdout=subprocess.DEVNULL)
+    run([args.synth, "--out", seq, "--frames", "6", "--width", "32", "--height", "24", "--seed", "2",
+         "--trajectory", "robot", "--quiet"], check=True)
+    run([sys.executable, args.script, seq, bag, "--robot", "--time-offset", "1000"], check=True)
     # The control: every message as it is, the connection header rosbag's default.
     unlatched = os.path.join(work, "unlatched.bag")
     with rosbag.Bag(bag) as src, rosbag.Bag(unlatched, "w") as dst:

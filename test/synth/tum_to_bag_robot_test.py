@@ -6,29 +6,19 @@ ground truth apart), the odometry error model, the camera info with distortion,
 and --compressed images (registered in synth.cmake)."""
 
 import argparse
-import importlib.util
 import io
 import math
 import os
-import shutil
-import subprocess
 import sys
 
 import numpy as np
 import rosbag
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from cli_test import check, fresh_dir, load_script, run  # noqa: E402
+
 FRAMES = 40
 LENS = ["-0.25", "0.08", "0.001", "-0.0005", "-0.01"]
-
-
-def fail(msg):
-    print("FAIL: " + msg)
-    sys.exit(1)
-
-
-def check(cond, msg):
-    if not cond:
-        fail(msg)
 
 
 def tf_matrix(tr):
@@ -47,8 +37,7 @@ def read_bag(path):
 
 
 def convert(seq, bag, *extra):
-    subprocess.run([sys.executable, ARGS.script, seq, bag] + list(extra), check=True,
-                   stdout=subprocess.DEVNULL)
+    run([sys.executable, ARGS.script, seq, bag] + list(extra), check=True)
     return read_bag(bag)
 
 
@@ -184,8 +173,7 @@ def test_odometry(seq, work, msgs):
               for msg, _, _ in msgs[topic] for tr in msg.transforms}
     check(frames == {("wheels", "robot"), ("robot", "cam"), ("cam", "cam_optical")}, "renamed %s" % frames)
     check(msgs["/camera/image_raw"][0][0].header.frame_id == "cam_optical", "renamed optical frame")
-    rc = subprocess.run([sys.executable, ARGS.script, seq, os.path.join(work, "slow.bag"), "--robot", "--odom-rate",
-                         "10"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode
+    rc, _ = run([sys.executable, ARGS.script, seq, os.path.join(work, "slow.bag"), "--robot", "--odom-rate", "10"])
     check(rc != 0, "an odometry rate below the camera's is refused")
 
 
@@ -244,19 +232,15 @@ def main():
     ap.add_argument("--script", required=True)
     ap.add_argument("--workdir", required=True)
     ARGS = ap.parse_args()
-    spec = importlib.util.spec_from_file_location("tum_to_bag", ARGS.script)
-    T2B = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(T2B)
+    T2B = load_script(ARGS.script, "tum_to_bag")
 
-    work = ARGS.workdir
-    shutil.rmtree(work, ignore_errors=True)
-    os.makedirs(work)
+    work = fresh_dir(ARGS.workdir)
     seq, mono = os.path.join(work, "robot"), os.path.join(work, "mono")
     common = ["--frames", str(FRAMES), "--width", "64", "--height", "48", "--quiet"]
-    subprocess.run([ARGS.synth, "--out", seq, "--seed", "3", "--trajectory", "robot", "--distortion"] + LENS + common,
-                   check=True, stdout=subprocess.DEVNULL)
-    subprocess.run([ARGS.synth, "--out", mono, "--seed", "4", "--mono", "--read-noise", "1", "--frames", "3",
-                    "--width", "64", "--height", "48", "--quiet"], check=True, stdout=subprocess.DEVNULL)
+    run([ARGS.synth, "--out", seq, "--seed", "3", "--trajectory", "robot", "--distortion"] + LENS + common,
+        check=True)
+    run([ARGS.synth, "--out", mono, "--seed", "4", "--mono", "--read-noise", "1", "--frames", "3",
+         "--width", "64", "--height", "48", "--quiet"], check=True)
     msgs = test_tree_and_camera(seq, work)
     test_odometry(seq, work, msgs)
     test_compressed(seq, mono, work)

@@ -3,26 +3,16 @@
 converts it, and python rosbag reads it back (registered in synth.cmake)."""
 
 import argparse
-import importlib.util
 import os
-import shutil
 import struct
-import subprocess
 import sys
 import zlib
 
 import numpy as np
 import rosbag
 
-
-def fail(msg):
-    print("FAIL: " + msg)
-    sys.exit(1)
-
-
-def check(cond, msg):
-    if not cond:
-        fail(msg)
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from cli_test import check, fail, fresh_dir, load_script, run  # noqa: E402
 
 
 def encode_png(arr, filters):
@@ -71,9 +61,7 @@ def main():
     ap.add_argument("--workdir", required=True)
     args = ap.parse_args()
 
-    spec = importlib.util.spec_from_file_location("tum_to_bag", args.script)
-    t2b = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(t2b)
+    t2b = load_script(args.script, "tum_to_bag")
 
     # The built-in PNG decoder against every filter type, 8-bit RGB and 16-bit grey.
     rng = np.random.default_rng(0)
@@ -82,13 +70,12 @@ def main():
     check(np.array_equal(t2b.decode_png_builtin(encode_png(rgb, [0, 1, 2, 3, 4])), rgb), "PNG rgb decode")
     check(np.array_equal(t2b.decode_png_builtin(encode_png(grey16, [4, 3, 2, 1, 0])), grey16), "PNG 16-bit decode")
 
-    shutil.rmtree(args.workdir, ignore_errors=True)
-    os.makedirs(args.workdir)
+    fresh_dir(args.workdir)
     seq = os.path.join(args.workdir, "seq")
     bag_path = os.path.join(args.workdir, "seq.bag")
-    subprocess.run([args.synth, "--out", seq, "--frames", "5", "--width", "64", "--height", "48",
-                    "--seed", "3", "--quiet"], check=True)
-    subprocess.run([sys.executable, args.script, seq, bag_path, "--depth-topic", "/camera/depth"], check=True)
+    run([args.synth, "--out", seq, "--frames", "5", "--width", "64", "--height", "48",
+         "--seed", "3", "--quiet"], check=True)
+    run([sys.executable, args.script, seq, bag_path, "--depth-topic", "/camera/depth"], check=True)
 
     rgb_list = t2b.read_list(os.path.join(seq, "rgb.txt"))
     gt = t2b.read_trajectory(os.path.join(seq, "groundtruth.txt"))

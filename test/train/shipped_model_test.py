@@ -8,9 +8,11 @@ Acc is small, and the test holds it to what it measured, no more and no less."""
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'support'))
+from cli_test import Tally, fail, run  # noqa: E402
 
 # Measured (30 frames x 2 held-out sequences, stride 2, every fourth pixel):
 # model / baseline = ATE 0.266 / 0.289 m (0.92; 0.260 with OpenBLAS at 2
@@ -26,11 +28,10 @@ def run_eval(exe, source, workdir, name, frames, sequences):
     cmd = [exe] + source + ['--frames', str(frames), '--sequences', str(sequences),
                             '--stride', '2', '--no-normals', '--pixel-step', '4',
                             '--threads', '2', '--json', out]
-    p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    print(p.stdout)
-    if p.returncode != 0:
-        print('FAIL: %s exited %d' % (' '.join(cmd), p.returncode))
-        sys.exit(1)
+    rc, log = run(cmd, merge_output=True)
+    print(log)
+    if rc != 0:
+        fail('%s exited %d' % (' '.join(cmd), rc))
     with open(out) as f:
         return json.load(f)['mean']
 
@@ -43,19 +44,13 @@ def main():
     ap.add_argument('--sequences', type=int, default=2)
     a = ap.parse_args()
     if not os.path.exists(a.model):
-        print('FAIL: the shipped model %s is missing' % a.model)
-        sys.exit(1)
+        fail('the shipped model %s is missing' % a.model)
     with tempfile.TemporaryDirectory() as tmp:
         model = run_eval(a.eval, ['--model', a.model], tmp, 'model', a.frames, a.sequences)
         base = run_eval(a.eval, ['--baseline', 'constant-depth'], tmp, 'baseline', a.frames,
                         a.sequences)
-    ok = True
-
-    def check(cond, what):
-        nonlocal ok
-        print(('ok   ' if cond else 'FAIL ') + what)
-        ok = ok and cond
-
+    tally = Tally()  # 'ok   ' / 'FAIL ' and what
+    check = tally.check
     check(model['posed'] == a.frames, 'every frame posed (%s of %d)' % (model['posed'], a.frames))
     check(model['ate_rmse_m'] is not None and
           model['ate_rmse_m'] < MAX_ATE_RATIO * base['ate_rmse_m'],
@@ -67,7 +62,7 @@ def main():
     check(model['comp_mean_m'] < MAX_COMP_RATIO * base['comp_mean_m'],
           'Comp %.4f m < %.2f x baseline %.4f m' % (model['comp_mean_m'], MAX_COMP_RATIO,
                                                    base['comp_mean_m']))
-    sys.exit(0 if ok else 1)
+    sys.exit(0 if tally.passed else 1)
 
 
 if __name__ == '__main__':

@@ -6,21 +6,11 @@ import argparse
 import csv
 import json
 import os
-import shutil
-import subprocess
 import sys
 import zipfile
 
-
-def run(cmd):
-    p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    return p.returncode, p.stdout + p.stderr
-
-
-def check(cond, what):
-    if not cond:
-        print("FAIL:", what)
-        sys.exit(1)
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from cli_test import check, fresh_dir, run  # noqa: E402
 
 
 CONFIG = {
@@ -48,8 +38,7 @@ def main():
     ap.add_argument("--ckpt-info", required=True)
     ap.add_argument("--workdir", required=True)
     a = ap.parse_args()
-    shutil.rmtree(a.workdir, ignore_errors=True)
-    os.makedirs(a.workdir)
+    fresh_dir(a.workdir)
     cfg = os.path.join(a.workdir, "train.json")
     with open(cfg, "w") as f:
         json.dump(CONFIG, f)

@@ -18,13 +18,15 @@ import os
 import re
 import shutil
 import signal
-import socket
 import struct
 import subprocess
 import sys
 import time
 
 import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from cli_test import check, free_port, fresh_dir, run  # noqa: E402
 
 CONFIG = {
     "model": "long3r_tiny",
@@ -40,30 +42,12 @@ CONFIG = {
 }
 
 
-def check(cond, what):
-    if not cond:
-        print("FAIL:", what)
-        sys.exit(1)
-
-
-def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def torchrun(a, args):
     # --redirects/--tee 1: Debian 12's torchrun (torch 1.13 on Python 3.11)
     # cannot parse its own default "0" for them (docs/training.md).
     return [a.torchrun, "--nproc_per_node", "2", "--master_addr", "127.0.0.1",
             "--master_port", str(free_port()), "--redirects", "1", "--tee", "1",
             "--no_python", a.train] + args
-
-
-def run(cmd, timeout=600):
-    p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                       timeout=timeout)
-    return p.returncode, p.stdout
 
 
 def read_safetensors(path):
@@ -137,8 +121,7 @@ def main():
     ap.add_argument("--workdir", required=True)
     a = ap.parse_args()
     a.train = os.path.realpath(a.train)
-    shutil.rmtree(a.workdir, ignore_errors=True)
-    os.makedirs(a.workdir)
+    fresh_dir(a.workdir)
     cfg = os.path.join(a.workdir, "train.json")
     with open(cfg, "w") as f:
         json.dump(CONFIG, f)
@@ -146,7 +129,8 @@ def main():
 
     # Two ranks, three steps, replicas checked after each.
     two = os.path.join(a.workdir, "two_ranks")
-    rc, log = run(torchrun(a, common + ["--out", two, "--verify-replicas"]))
+    rc, log = run(torchrun(a, common + ["--out", two, "--verify-replicas"]),
+                  timeout=600, merge_output=True)
     check(rc == 0, "two-rank run: " + log)
     check("data parallel: 2 ranks (torchrun, gloo)" in log, "the run names its group: " + log)
     same = re.findall(r"step (\d+): weights bit-identical on 2 ranks", log)
@@ -157,10 +141,12 @@ def main():
 
     # One process, the same global batch of two; and the weights before step 1.
     one = os.path.join(a.workdir, "one_process")
-    rc, log = run([a.train] + common + ["--out", one, "--quiet"])
+    rc, log = run([a.train] + common + ["--out", one, "--quiet"],
+                  timeout=600, merge_output=True)
     check(rc == 0, "single-process run: " + log)
     init = os.path.join(a.workdir, "initial")
-    rc, log = run([a.train] + common[:-1] + ["0", "--out", init, "--quiet"])
+    rc, log = run([a.train] + common[:-1] + ["0", "--out", init, "--quiet"],
+                  timeout=600, merge_output=True)
     check(rc == 0, "initial weights: " + log)
     initial = os.path.join(init, "model.safetensors")
     compare_models(os.path.join(two, "model.safetensors"), os.path.join(one, "model.safetensors"),
@@ -174,7 +160,8 @@ def main():
                 os.path.join(resumed, "checkpoint"))
     with open(os.path.join(resumed, "checkpoint", "latest"), "w") as f:
         f.write("step_00000002.pt\n")
-    rc, log = run([a.train] + common + ["--out", resumed, "--resume"])
+    rc, log = run([a.train] + common + ["--out", resumed, "--resume"],
+                  timeout=600, merge_output=True)
     check(rc == 0 and "resumed at step 2" in log, "resume in one process: " + log)
     compare_models(os.path.join(resumed, "model.safetensors"),
                    os.path.join(two, "model.safetensors"), initial, "step 3 resumed vs 2 ranks")

@@ -8,19 +8,10 @@ import argparse
 import json
 import os
 import shutil
-import subprocess
 import sys
 
-
-def run(cmd, env=None):
-    p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
-    return p.returncode, p.stdout
-
-
-def check(cond, what):
-    if not cond:
-        print("FAIL:", what)
-        sys.exit(1)
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "support"))
+from cli_test import check, run  # noqa: E402
 
 
 def main():
@@ -38,13 +29,13 @@ def main():
     env.pop("LONG3R_EIGEN_DIR", None)
     env.pop("LONG3R_NLOHMANN_JSON_DIR", None)
 
-    rc, log = run(["bash", script, "--pack-deps", "--deps-dir", deps], env)
+    rc, log = run(["bash", script, "--pack-deps", "--deps-dir", deps], env=env, merge_output=True)
     check(rc == 0, "--pack-deps failed:\n" + log)
     check(os.path.isfile(os.path.join(deps, "eigen3", "Eigen", "Core")), "no Eigen packed")
     check(os.path.isfile(os.path.join(deps, "nlohmann", "json.hpp")), "no nlohmann-json packed")
 
     rc, log = run(["bash", script, "--cpu-dry-run", "--deps-dir", deps, "--build-dir", build,
-                   "--out", out, "--jobs", "2"], env)
+                   "--out", out, "--jobs", "2"], env=env, merge_output=True)
     print(log)
     check(rc == 0, "the dry run failed (rc %d)" % rc)
     cache = open(os.path.join(build, "CMakeCache.txt")).read()
@@ -76,7 +67,7 @@ def main():
 
     # The real run on this machine (no CUDA): refused with the reason, exit 3.
     rc, log = run(["bash", script, "--deps-dir", deps, "--build-dir", build,
-                   "--out", os.path.join(a.workdir, "no_gpu")], env)
+                   "--out", os.path.join(a.workdir, "no_gpu")], env=env, merge_output=True)
     check(rc == 3 and "NO CUDA GPU" in log, "without a GPU: rc %d\n%s" % (rc, log))
     print("PASS")
 
