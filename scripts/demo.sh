@@ -32,6 +32,8 @@ set +u; source "$LONG3R_WS/devel/setup.bash"; set -u
 bin="$LONG3R_WS/devel/lib/long3r_ros"
 
 mkdir -p "$out"
+# roslaunch starts its nodes in ~/.ros: the bag and the outputs by absolute path.
+out=$(cd "$out" && pwd)
 echo "== generating a $frames-frame synthetic sequence"
 rm -rf "$out/sequence"
 gt_traj="$out/sequence/groundtruth.txt"
