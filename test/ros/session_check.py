@@ -24,8 +24,8 @@ import math
 import os
 import shutil
 import signal
-import socket
 import subprocess
+import sys
 import tempfile
 import time
 import unittest
@@ -33,15 +33,12 @@ import unittest
 import numpy as np
 from map_checks import lost_points
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'support'))
+from cli_test import free_port  # noqa: E402
+
 DATA = os.environ.get('LONG3R_REPLAY_DATA', '/tmp/long3r_replay_data')
 SPLIT = 20  # images in part A
 RATE = 0.5  # bag playback rate: every frame gets processed on two cores
-
-
-def free_port():
-    with socket.socket() as s:
-        s.bind(('localhost', 0))
-        return s.getsockname()[1]
 
 
 def matrix(tr):
@@ -139,7 +136,7 @@ class Sessions(unittest.TestCase):
         cls.bag_b = os.path.join(cls.tmp, 'b.bag')
         cls.bag_r = os.path.join(cls.tmp, 'b_restart.bag')
         cls.odom = split_bag(os.path.join(DATA, 'robot.bag'), cls.bag_a, cls.bag_b, cls.bag_r)
-        cls.port = free_port()
+        cls.port = free_port('localhost')
         cls.env = dict(os.environ, ROS_MASTER_URI='http://localhost:%d' % cls.port)
         cls.env.pop('ROS_IP', None)
         os.environ.update(cls.env)

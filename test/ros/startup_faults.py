@@ -9,24 +9,21 @@ required) well before the timeout, and what it printed.
 """
 import os
 import shutil
-import socket
 import subprocess
+import sys
 import tempfile
 import unittest
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'support'))
+from cli_test import free_port  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 MODEL = os.path.join(ROOT, 'models', 'default.safetensors')
 TIMEOUT_S = 120
 
 
-def free_port():
-    with socket.socket() as s:
-        s.bind(('localhost', 0))
-        return s.getsockname()[1]
-
-
 def launch(*args):
-    port = free_port()
+    port = free_port('localhost')
     env = dict(os.environ, ROS_MASTER_URI='http://localhost:%d' % port)
     env.pop('ROS_IP', None)
     proc = subprocess.run(['roslaunch', '-p', str(port), 'long3r_ros', 'long3r.launch'] + list(args),

@@ -248,4 +248,14 @@ void delete_file(const std::string& path) {
   if (!std::filesystem::remove(path)) throw std::invalid_argument(path + ": no file to delete");
 }
 
+synth::SequenceConfig sequence_config(std::uint64_t seed, synth::TrajectoryType type, int frames,
+                                      int w, int h) {
+  synth::SequenceConfig c;
+  c.seed = seed;
+  c.trajectory.type = type;
+  c.trajectory.frames = frames;
+  c.intrinsics = PinholeIntrinsics::from_hfov(w, h, 70.0);
+  return c;
+}
+
 }  // namespace long3r::test

@@ -30,6 +30,11 @@ namespace long3r::test {
 cv::Mat pointmap_from_depth(const PinholeIntrinsics& k, const Eigen::Isometry3d& T,
                             const std::function<double(int u, int v)>& depth);
 
+// A generated sequence's configuration: seed, trajectory kind and length,
+// a w x h pinhole camera with a 70 degree horizontal field of view.
+synth::SequenceConfig sequence_config(std::uint64_t seed, synth::TrajectoryType type, int frames,
+                                      int w = 96, int h = 72);
+
 // A test image (CV_8UC3): two gradients and, in the third channel, a smooth
 // egg-crate pattern (period 24 px) whose steep slopes make a shift of a
 // pixel visible while bilinear resampling stays nearly exact.

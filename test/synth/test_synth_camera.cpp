@@ -18,6 +18,7 @@
 #include "long3r/synth/generate.hpp"
 #include "long3r/synth/geometry.hpp"
 #include "long3r/synth/render.hpp"
+#include "support/cv_test_support.hpp"
 #include "support/test_support.hpp"
 
 using namespace long3r;
@@ -27,15 +28,6 @@ namespace {
 
 using test::read_file;
 using test::scratch_dir;
-
-SequenceConfig make_config(uint64_t seed, TrajectoryType type, int frames, int w, int h) {
-  SequenceConfig c;
-  c.seed = seed;
-  c.trajectory.type = type;
-  c.trajectory.frames = frames;
-  c.intrinsics = PinholeIntrinsics::from_hfov(w, h, 70.0);
-  return c;
-}
 
 // A lens like a wide webcam's: strong barrel, some tangential (OpenCV's order).
 LensDistortion webcam_lens() {
@@ -94,8 +86,8 @@ TEST(SynthCamera, DefaultOutputIsWhatItWasBeforeCameraEffects) {
   // support existed (same configs through long3r_synth): with every effect
   // off the files are the same, pixel for pixel and byte for byte. A
   // deliberate change of the renderer or the scene updates these numbers.
-  SequenceConfig walk = make_config(3, TrajectoryType::kWalk, 6, 64, 48);
-  SequenceConfig super = make_config(9, TrajectoryType::kWalk, 3, 50, 40);
+  SequenceConfig walk = test::sequence_config(3, TrajectoryType::kWalk, 6, 64, 48);
+  SequenceConfig super = test::sequence_config(9, TrajectoryType::kWalk, 3, 50, 40);
   super.intrinsics.fx = 40;
   super.intrinsics.fy = 44;
   super.intrinsics.cx = 20;
@@ -110,7 +102,7 @@ TEST(SynthCamera, DefaultOutputIsWhatItWasBeforeCameraEffects) {
 }
 
 TEST(SynthCamera, EffectsLeaveSceneAndPathAlone) {
-  SequenceConfig plain = make_config(4, TrajectoryType::kWalk, 30, 64, 48);
+  SequenceConfig plain = test::sequence_config(4, TrajectoryType::kWalk, 30, 64, 48);
   SequenceConfig fancy = plain;
   fancy.distortion = webcam_lens();
   fancy.sensor.read_noise = 2.0;
@@ -137,7 +129,7 @@ TEST(SynthCamera, DistortedRenderUndistortsToThePinholeRender) {
   // sub-pixel offset and remapping it back (about 3.3 grey levels on
   // average here; the undistorted frame is at 1.8). The lens ignored, or k1
   // 20 % off, must be clearly worse.
-  SequenceConfig cfg = make_config(11, TrajectoryType::kWalk, 1, 160, 120);
+  SequenceConfig cfg = test::sequence_config(11, TrajectoryType::kWalk, 1, 160, 120);
   const Sequence seq = generate_sequence(cfg);
   const PinholeIntrinsics& k = cfg.intrinsics;
   RenderOptions opt;
@@ -200,7 +192,7 @@ TEST(SynthCamera, DistortedDepthIsRegisteredToItsPixels) {
   // ray that OpenCV undistorts (u, v) to: that point, looked up in the
   // pinhole render of the same pose (on planar surfaces, where inverse depth
   // interpolates exactly), has the same depth.
-  SequenceConfig cfg = make_config(12, TrajectoryType::kWalk, 1, 128, 96);
+  SequenceConfig cfg = test::sequence_config(12, TrajectoryType::kWalk, 1, 128, 96);
   const Sequence seq = generate_sequence(cfg);
   const PinholeIntrinsics& k = cfg.intrinsics;
   const LensDistortion lens = webcam_lens();
@@ -255,7 +247,8 @@ TEST(SynthCamera, LensRaysRefuseAnUninvertibleLens) {
   // Pinhole pixel size is 1/f; barrel distortion widens the corner pixels.
   EXPECT_GT(ok.pixel_size(0, 0), ok.pixel_size(32, 24));
   EXPECT_NEAR(LensRays(k, LensDistortion{}).pixel_size(5, 7), 1.0 / k.fx, 1e-9);
-  const Sequence seq = generate_sequence(make_config(1, TrajectoryType::kWalk, 1, 64, 48));
+  const Sequence seq =
+      generate_sequence(test::sequence_config(1, TrajectoryType::kWalk, 1, 64, 48));
   EXPECT_THROW(render_frame(seq.scene, seq.poses[0], ok), std::invalid_argument);  // supersample 1
 }
 
@@ -325,7 +318,8 @@ TEST(SynthCamera, ExposureDriftsAndStepsWithinItsBounds) {
     EXPECT_LE(g, 1.5 + 1e-12);
   }
   // Rendered with a gain: darker and brighter, black stays black.
-  const Sequence seq = generate_sequence(make_config(2, TrajectoryType::kWalk, 1, 48, 32));
+  const Sequence seq =
+      generate_sequence(test::sequence_config(2, TrajectoryType::kWalk, 1, 48, 32));
   RenderOptions dim, bright;
   dim.gain = 0.5f;
   bright.gain = 1.5f;
@@ -339,7 +333,7 @@ TEST(SynthCamera, ExposureDriftsAndStepsWithinItsBounds) {
 }
 
 TEST(SynthCamera, WrittenSequenceCarriesTheEffects) {
-  SequenceConfig cfg = make_config(6, TrajectoryType::kWalk, 4, 64, 48);
+  SequenceConfig cfg = test::sequence_config(6, TrajectoryType::kWalk, 4, 64, 48);
   cfg.distortion = webcam_lens();
   cfg.sensor.mono = true;
   cfg.sensor.read_noise = 1.5;
@@ -376,7 +370,7 @@ TEST(SynthCamera, WrittenSequenceCarriesTheEffects) {
 }
 
 TEST(SynthRobot, CameraIsTheBaseTimesTheMount) {
-  SequenceConfig cfg = make_config(5, TrajectoryType::kRobot, 1500, 64, 48);
+  SequenceConfig cfg = test::sequence_config(5, TrajectoryType::kRobot, 1500, 64, 48);
   cfg.trajectory.mount.z = 1.35;
   cfg.trajectory.mount.pitch_deg = 14.0;
   const Sequence seq = generate_sequence(cfg);
@@ -422,7 +416,7 @@ TEST(SynthRobot, CameraIsTheBaseTimesTheMount) {
 }
 
 TEST(SynthRobot, WritesBaseGroundTruthAndMount) {
-  SequenceConfig cfg = make_config(8, TrajectoryType::kRobot, 5, 64, 48);
+  SequenceConfig cfg = test::sequence_config(8, TrajectoryType::kRobot, 5, 64, 48);
   const Sequence seq = generate_sequence(cfg);
   const std::string dir = scratch_dir("synth_robot_files");
   write_tum_sequence(seq, dir);

@@ -13,22 +13,13 @@
 #include "long3r/synth/generate.hpp"
 #include "long3r/synth/geometry.hpp"
 #include "long3r/synth/render.hpp"
+#include "support/cv_test_support.hpp"
 #include "support/test_support.hpp"
 
 using namespace long3r;
 using namespace long3r::synth;
 
 namespace {
-
-SequenceConfig small_config(uint64_t seed, TrajectoryType type, int frames, int w = 96,
-                            int h = 72) {
-  SequenceConfig c;
-  c.seed = seed;
-  c.trajectory.type = type;
-  c.trajectory.frames = frames;
-  c.intrinsics = PinholeIntrinsics::from_hfov(w, h, 70.0);
-  return c;
-}
 
 using test::read_file;
 using test::scratch_dir;
@@ -103,7 +94,7 @@ TEST(SynthGenerator, RngIsPortableAndSeeded) {
 }
 
 TEST(SynthGenerator, DepthPosesAndIntrinsicsAgreeAcrossViews) {
-  SequenceConfig cfg = small_config(21, TrajectoryType::kWalk, 12, 128, 96);
+  SequenceConfig cfg = test::sequence_config(21, TrajectoryType::kWalk, 12, 128, 96);
   cfg.intrinsics.cx = 60.3;  // off-centre principal point and non-square pixels
   cfg.intrinsics.fy = cfg.intrinsics.fx * 1.1;
   const Sequence seq = generate_sequence(cfg);
@@ -120,7 +111,7 @@ TEST(SynthGenerator, DepthPosesAndIntrinsicsAgreeAcrossViews) {
 
 TEST(SynthGenerator, WrongIntrinsicsBreakTheCrossViewCheck) {
   // The check above must be able to fail: a 2% focal error is detected.
-  const SequenceConfig cfg = small_config(21, TrajectoryType::kWalk, 12, 128, 96);
+  const SequenceConfig cfg = test::sequence_config(21, TrajectoryType::kWalk, 12, 128, 96);
   const Sequence seq = generate_sequence(cfg);
   const RenderedFrame a = render_frame(seq.scene, seq.poses[0], cfg.intrinsics);
   const RenderedFrame b = render_frame(seq.scene, seq.poses[11], cfg.intrinsics);
@@ -132,7 +123,7 @@ TEST(SynthGenerator, WrongIntrinsicsBreakTheCrossViewCheck) {
 }
 
 TEST(SynthGenerator, SameSeedSameBytesAnyThreadCount) {
-  const SequenceConfig cfg = small_config(5, TrajectoryType::kOrbit, 4, 64, 48);
+  const SequenceConfig cfg = test::sequence_config(5, TrajectoryType::kOrbit, 4, 64, 48);
   const std::string d1 = scratch_dir("synth_det_1"), d2 = scratch_dir("synth_det_2");
   RenderOptions one, three;
   one.threads = 1;
@@ -162,7 +153,7 @@ TEST(SynthGenerator, CameraStaysClearOfEverySurface) {
   for (TrajectoryType type : {TrajectoryType::kWalk, TrajectoryType::kOrbit,
                               TrajectoryType::kPanReturn, TrajectoryType::kRobot}) {
     for (uint64_t seed : {1u, 2u, 3u}) {
-      SequenceConfig cfg = small_config(seed, type, 2000);
+      SequenceConfig cfg = test::sequence_config(seed, type, 2000);
       const Sequence seq = generate_sequence(cfg);
       ASSERT_EQ(seq.poses.size(), 2000u);
       const double c = cfg.trajectory.clearance;
@@ -202,13 +193,14 @@ TEST(SynthGenerator, CameraStaysClearOfEverySurface) {
 
 TEST(SynthGenerator, RevisitingTrajectoriesReturn) {
   // Pan-and-return comes back to where it started; an orbit closes its circle.
-  const Sequence pan = generate_sequence(small_config(4, TrajectoryType::kPanReturn, 2000));
+  const Sequence pan =
+      generate_sequence(test::sequence_config(4, TrajectoryType::kPanReturn, 2000));
   double closest = 1e9;
   for (size_t i = 300; i < pan.poses.size(); ++i) {
     closest = std::min(closest, (pan.poses[i].translation() - pan.poses[0].translation()).norm());
   }
   EXPECT_LT(closest, 0.05);
-  const Sequence walk = generate_sequence(small_config(4, TrajectoryType::kWalk, 2000));
+  const Sequence walk = generate_sequence(test::sequence_config(4, TrajectoryType::kWalk, 2000));
   closest = 1e9;
   for (size_t i = 600; i < walk.poses.size(); ++i) {
     closest = std::min(closest, (walk.poses[i].translation() - walk.poses[0].translation()).norm());
@@ -217,7 +209,7 @@ TEST(SynthGenerator, RevisitingTrajectoriesReturn) {
 }
 
 TEST(SynthGenerator, ImagesCarryMatchableTexture) {
-  const SequenceConfig cfg = small_config(8, TrajectoryType::kWalk, 10, 224, 224);
+  const SequenceConfig cfg = test::sequence_config(8, TrajectoryType::kWalk, 10, 224, 224);
   const Sequence seq = generate_sequence(cfg);
   for (int i : {0, 9}) {
     const RenderedFrame f = render_frame(seq.scene, seq.poses[i], cfg.intrinsics);
@@ -235,7 +227,7 @@ TEST(SynthGenerator, ImagesCarryMatchableTexture) {
 }
 
 TEST(SynthGenerator, RejectsBadConfigs) {
-  SequenceConfig c = small_config(1, TrajectoryType::kWalk, 0);
+  SequenceConfig c = test::sequence_config(1, TrajectoryType::kWalk, 0);
   EXPECT_THROW(generate_sequence(c), std::invalid_argument);
   c.trajectory.frames = 10;
   c.trajectory.clearance = 3.0;  // no room left for the camera
@@ -243,7 +235,7 @@ TEST(SynthGenerator, RejectsBadConfigs) {
   EXPECT_THROW(trajectory_type_from_string("spiral"), std::invalid_argument);
   EXPECT_EQ(trajectory_type_from_string("pan"), TrajectoryType::kPanReturn);
   EXPECT_EQ(trajectory_type_from_string("robot"), TrajectoryType::kRobot);
-  c = small_config(1, TrajectoryType::kRobot, 10);
+  c = test::sequence_config(1, TrajectoryType::kRobot, 10);
   c.trajectory.max_yaw_rate_deg = 0.2;  // a turning circle wider than any room
   EXPECT_THROW(generate_sequence(c), std::invalid_argument);
 }
