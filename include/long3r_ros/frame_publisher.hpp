@@ -22,14 +22,12 @@
 #include <utility>
 
 #include "long3r/pipeline/frame_result.hpp"
+#include "long3r_ros/log_throttle.hpp"
 
 namespace long3r_ros {
 
 class FramePublisher {
  public:
-  // Named warnings go through `warn(kind, message)` (the node throttles them).
-  using Warn = std::function<void(const std::string& kind, const std::string& message)>;
-
   // What the node adds to a result.
   struct Context {
     std_msgs::Header header;  // the image's stamp, the camera optical frame
@@ -46,6 +44,7 @@ class FramePublisher {
     std::optional<Eigen::Matrix<double, 6, 6>> given_covariance_map;
   };
 
+  // Named warnings go through `warn(kind, message)` (the node throttles them).
   FramePublisher(ros::NodeHandle& pnh, Warn warn);
 
   void publish(const long3r::FrameResult& r, const Context& c);

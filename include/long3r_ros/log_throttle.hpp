@@ -12,11 +12,16 @@
 
 #include <cstdint>
 #include <cstdio>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <string>
 
 namespace long3r_ros {
+
+// How the node's parts report a problem: a warning of a kind, throttled per
+// kind by the node (NodeDiagnostics::warn, through a LogThrottle).
+using Warn = std::function<void(const std::string& kind, const std::string& message)>;
 
 class LogThrottle {
  public:

@@ -49,6 +49,7 @@
 #include "long3r_ros/frame_publisher.hpp"
 #include "long3r_ros/image_input.hpp"
 #include "long3r_ros/image_subscriber.hpp"
+#include "long3r_ros/log_throttle.hpp"
 #include "long3r_ros/map_publisher.hpp"
 #include "long3r_ros/node_status.hpp"
 #include "long3r_ros/params.hpp"
@@ -68,8 +69,6 @@ class Long3rNodelet : public nodelet::Nodelet,
   ~Long3rNodelet() override;
 
  private:
-  using Warn = std::function<void(const std::string& kind, const std::string& message)>;
-
   void onInit() override;
   void loadModel();
   void advertise();

@@ -18,13 +18,12 @@
 
 #include "long3r/pipeline/occupancy_grid.hpp"
 #include "long3r/pipeline/voxel_map.hpp"
+#include "long3r_ros/log_throttle.hpp"
 
 namespace long3r_ros {
 
 class MapPublisher {
  public:
-  using Warn = std::function<void(const std::string& kind, const std::string& message)>;
-
   struct Config {
     std::string map_frame;
     double display_voxel_m = 0.0;        // ~map thinned to this voxel; 0 = the map's own

@@ -21,6 +21,7 @@
 #include <opencv2/core/mat.hpp>
 
 #include "long3r/pipeline/camera_rectifier.hpp"
+#include "long3r_ros/log_throttle.hpp"
 
 namespace long3r_ros {
 
@@ -37,7 +38,6 @@ class StampedInputs {
     unsigned reach = kReachMargin;
     std::string odom_frame, base_frame;  // the odometry's frames, as the robot has them
   };
-  using Warn = std::function<void(const std::string& kind, const std::string& message)>;
 
   // Subscribes (on nh) to camera_info, depth and odom as `config` asks.
   StampedInputs(ros::NodeHandle& nh, const Config& config, Warn warn);

@@ -24,14 +24,13 @@
 #include <string>
 
 #include "long3r/model/loading/state_dict.hpp"
+#include "long3r_ros/log_throttle.hpp"
 #include "long3r_ros/robot_frames.hpp"
 
 namespace long3r_ros {
 
 class StreamPlacement {
  public:
-  using Warn = std::function<void(const std::string& kind, const std::string& message)>;
-
   // `log_name`: the nodelet's logger. pose_from_odometry: pose_source odometry.
   StreamPlacement(RobotFrames& frames, bool pose_from_odometry, std::string log_name, Warn warn);
 

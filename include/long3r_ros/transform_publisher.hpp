@@ -19,6 +19,7 @@
 #include <optional>
 #include <string>
 
+#include "long3r_ros/log_throttle.hpp"
 #include "long3r_ros/robot_frames.hpp"
 #include "long3r_ros/tf_rival_watch.hpp"
 
@@ -26,8 +27,6 @@ namespace long3r_ros {
 
 class TransformPublisher {
  public:
-  using Warn = std::function<void(const std::string& kind, const std::string& message)>;
-
   struct Config {
     bool publish_tf = true;  // false: nothing is published, nothing watched
     double rate_hz = 0.0;    // map -> odom republished this often; 0 = with frames only

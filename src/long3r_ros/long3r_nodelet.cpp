@@ -186,7 +186,7 @@ void Long3rNodelet::subscribe() {
   }
 }
 
-Long3rNodelet::Warn Long3rNodelet::warner() {
+Warn Long3rNodelet::warner() {
   return [this](const std::string& kind, const std::string& message) {
     diagnostics_->warn(kind, message);
   };
