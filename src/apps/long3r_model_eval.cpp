@@ -52,6 +52,7 @@ int main(int argc, char** argv) {
   uint64_t seed_begin = 2000000, seed = 0;
   int pixel_step = 2;
   bool normals = true, estimate_intrinsics = false;
+  long3r::PnpRansac pnp_ransac = long3r::PnpRansac::kUsac;
   long3r::ThreadConfig threads;
   long3r::CliOptions cli("long3r_model_eval",
                          "Give exactly one of --model, --untrained, --baseline.");
@@ -80,6 +81,7 @@ int main(int argc, char** argv) {
   cli.flag("--estimate-intrinsics", &estimate_intrinsics,
            "PnP with the focal estimated from frame 0's pointmap (the pipeline without a "
            "calibration), not the GT one");
+  cli.option("--pnp-ransac", "NAME", &pnp_ransac, "the RANSAC of the PnP poses (as pnp_ransac)");
   cli.option("--picture", "FILE.png", &picture,
              "top views of the first sequence (prediction vs GT)");
   cli.option("--json", "FILE", &json_path, "write the per-sequence and mean metrics");
@@ -248,6 +250,7 @@ int main(int argc, char** argv) {
       po.pixel_step = pixel_step;
       po.normals = normals;
       po.estimate_intrinsics = estimate_intrinsics;
+      po.pnp_ransac = pnp_ransac;
       if (s == 0) po.picture_path = picture;
       const long3r::PredictionMetrics m = long3r::evaluate_prediction(pred, sample, po);
       const double fps =

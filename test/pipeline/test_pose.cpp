@@ -98,6 +98,40 @@ TEST(Pose, OutliersAndLowConfidenceAreRejected) {
   EXPECT_LT(r.inliers, 0.7 * r.correspondences);
 }
 
+// Both RANSACs find the pose among gross outliers and agree on the inliers.
+TEST(Pose, UsacAndClassicRansacAgree) {
+  const PinholeIntrinsics k = model_camera();
+  const Eigen::Isometry3d T = known_pose();
+  cv::Mat pts, conf;
+  make_scene(k, T, pts, conf);
+  cv::RNG rng(5);
+  for (int v = 0; v < pts.rows; ++v) {
+    for (int u = 0; u < pts.cols; ++u) {
+      if (rng.uniform(0.0, 1.0) < 0.6) {
+        pts.at<cv::Vec3f>(v, u) +=
+            cv::Vec3f(rng.uniform(-1.f, 1.f), rng.uniform(-1.f, 1.f), rng.uniform(-1.f, 1.f));
+      }
+    }
+  }
+  PnpConfig config;
+  config.iterations = 1000;
+  config.ransac = PnpRansac::kUsac;
+  const PoseResult usac = estimate_pose_pnp(pts, conf, k, config);
+  config.ransac = PnpRansac::kClassic;
+  const PoseResult classic = estimate_pose_pnp(pts, conf, k, config);
+  ASSERT_TRUE(usac.ok()) << usac.message;
+  ASSERT_TRUE(classic.ok()) << classic.message;
+  expect_pose_near(usac.T_W_C, T, 1e-4);
+  expect_pose_near(classic.T_W_C, T, 1e-4);
+  EXPECT_NEAR(usac.inliers, classic.inliers, 2);  // counted under each refined pose
+  EXPECT_GT(usac.inliers, 0.35 * usac.correspondences);
+  EXPECT_LT(usac.inliers, 0.45 * usac.correspondences);
+  // Deterministic.
+  config.ransac = PnpRansac::kUsac;
+  const PoseResult again = estimate_pose_pnp(pts, conf, k, config);
+  EXPECT_TRUE(again.T_W_C.matrix() == usac.T_W_C.matrix());
+}
+
 TEST(Pose, SubsamplingRespectsTheCap) {
   const PinholeIntrinsics k = model_camera();
   cv::Mat pts, conf;

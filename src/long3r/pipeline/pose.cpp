@@ -121,9 +121,27 @@ PoseResult estimate_pose_pnp(const cv::Mat& pts3d_W, const cv::Mat& conf,
   std::vector<int> ransac_inliers;
   bool found = false;
   try {
-    found = cv::solvePnPRansac(obj, img, K, no_distortion, rvec, tvec, false, config.iterations,
-                               static_cast<float>(config.reprojection_error_px),
-                               config.ransac_confidence, ransac_inliers, cv::SOLVEPNP_ITERATIVE);
+    if (config.ransac == PnpRansac::kUsac) {
+      cv::UsacParams usac;
+      usac.confidence = config.ransac_confidence;
+      usac.maxIterations = config.iterations;
+      usac.threshold = config.reprojection_error_px;
+      usac.sampler = cv::SAMPLING_UNIFORM;
+      usac.score = cv::SCORE_METHOD_MSAC;
+      usac.loMethod = cv::LOCAL_OPTIM_INNER_LO;
+      usac.loIterations = 10;
+      usac.loSampleSize = 14;
+      usac.randomGeneratorState = 0;  // deterministic
+      // Serial: its parallel mode is not deterministic, and the model's
+      // threads want the cores back right after.
+      usac.isParallel = false;
+      cv::Mat K_usac = K.clone();  // an in-out argument there
+      found = cv::solvePnPRansac(obj, img, K_usac, no_distortion, rvec, tvec, ransac_inliers, usac);
+    } else {
+      found = cv::solvePnPRansac(obj, img, K, no_distortion, rvec, tvec, false, config.iterations,
+                                 static_cast<float>(config.reprojection_error_px),
+                                 config.ransac_confidence, ransac_inliers, cv::SOLVEPNP_ITERATIVE);
+    }
   } catch (const cv::Exception& e) {
     return failure(PnpStatus::kSolverFailed, std::string("solvePnPRansac threw: ") + e.what(), n,
                    0);

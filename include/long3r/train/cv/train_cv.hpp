@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "long3r/pipeline/pose.hpp"
 #include "long3r/train/prediction.hpp"
 #include "long3r/train/train_config.hpp"
 #include "long3r/train/train_data.hpp"
@@ -37,6 +38,7 @@ struct PredictionMetricsOptions {
   // does without a calibration, estimated from frame 0's pointmap (true; if
   // that fails, no frame is posed).
   bool estimate_intrinsics = false;
+  PnpRansac pnp_ransac = PnpRansac::kUsac;  // the pipeline's default
 };
 // Scores a prediction against the sequence's ground truth: one Sim(3)
 // (Umeyama on corresponding valid pixels) aligns the predicted points to the

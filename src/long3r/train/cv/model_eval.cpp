@@ -84,6 +84,7 @@ PredictionMetrics evaluate_prediction(const SequencePrediction& prediction,
   PoseTrajectory ref, est;
   PnpConfig pc;
   pc.conf_threshold = 0.0f;
+  pc.ransac = options.pnp_ransac;
   std::optional<PinholeIntrinsics> estimated;
   for (std::size_t i = 0; i < n; ++i) {
     const at::Tensor p = prediction.pts[i].to(at::kFloat).contiguous();
