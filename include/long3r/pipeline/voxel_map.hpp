@@ -30,12 +30,12 @@
 #include <map>
 #include <mutex>
 #include <string>
-#include <unordered_map>
 #include <vector>
 
 #include "long3r/config/config_fields.hpp"
 #include "long3r/geometry/cv/point_cloud_io.hpp"
 #include "long3r/model/loading/state_dict.hpp"
+#include "long3r/pipeline/voxel_key_index.hpp"
 
 namespace long3r {
 
@@ -162,7 +162,7 @@ class VoxelMap {
   mutable std::mutex mutex_;
   // Voxels stored densely (fast snapshots); the hash maps key -> position.
   std::vector<Voxel> voxels_;
-  std::unordered_map<std::uint64_t, std::uint32_t> index_;
+  VoxelKeyIndex index_;
   // Voxel keys by last-seen frame, for eviction. Entries go stale when a voxel
   // is seen again or evicted; stale ones are skipped and pruned lazily.
   std::map<std::int64_t, std::vector<std::uint64_t>> buckets_;

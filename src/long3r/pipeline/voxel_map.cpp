@@ -74,7 +74,7 @@ void VoxelMap::fuse_locked(const Eigen::Vector3f& p, const std::uint8_t* rgb, st
     return;
   }
   const std::uint64_t key = pack(idx);
-  const auto [it, inserted] = index_.try_emplace(key, static_cast<std::uint32_t>(voxels_.size()));
+  const auto [pos, inserted] = index_.try_emplace(key, static_cast<std::uint32_t>(voxels_.size()));
   bool rebucket = false;
   if (inserted) {
     voxels_.push_back(
@@ -82,7 +82,7 @@ void VoxelMap::fuse_locked(const Eigen::Vector3f& p, const std::uint8_t* rgb, st
     ++stats.new_voxels;
     rebucket = true;
   } else {
-    Voxel& v = voxels_[it->second];
+    Voxel& v = voxels_[pos];
     ++v.hits;
     const double inv = 1.0 / v.hits;
     for (int a = 0; a < 3; ++a) {
@@ -102,13 +102,12 @@ void VoxelMap::fuse_locked(const Eigen::Vector3f& p, const std::uint8_t* rgb, st
 }
 
 void VoxelMap::erase_locked(std::uint64_t key) {
-  const auto it = index_.find(key);
-  const std::uint32_t pos = it->second;
-  index_.erase(it);
+  const std::uint32_t pos = *index_.find(key);
+  index_.erase(key);
   // Swap-remove keeps the storage dense.
   if (pos + 1 != voxels_.size()) {
     voxels_[pos] = voxels_.back();
-    index_[voxels_[pos].key] = pos;
+    index_.assign(voxels_[pos].key, pos);
   }
   voxels_.pop_back();
 }
@@ -126,9 +125,9 @@ void VoxelMap::evict_locked(IntegrationStats& stats) {
     std::vector<std::pair<std::uint32_t, std::uint64_t>> live;
     live.reserve(bucket->second.size());
     for (std::uint64_t key : bucket->second) {
-      const auto it = index_.find(key);
-      if (it != index_.end() && voxels_[it->second].last_seen == bucket->first) {
-        live.emplace_back(voxels_[it->second].hits, key);
+      const std::uint32_t* pos = index_.find(key);
+      if (pos && voxels_[*pos].last_seen == bucket->first) {
+        live.emplace_back(voxels_[*pos].hits, key);
       }
     }
     std::sort(live.begin(), live.end());
@@ -216,7 +215,8 @@ void VoxelMap::rescale(double factor) {
       continue;
     }
     const std::uint64_t key = pack(idx);
-    const auto [it, inserted] = index_.try_emplace(key, static_cast<std::uint32_t>(voxels_.size()));
+    const auto [pos, inserted] =
+        index_.try_emplace(key, static_cast<std::uint32_t>(voxels_.size()));
     if (inserted) {
       voxels_.push_back(Voxel{key,
                               {mean[0], mean[1], mean[2]},
@@ -225,7 +225,7 @@ void VoxelMap::rescale(double factor) {
                               o.last_seen});
       continue;
     }
-    Voxel& v = voxels_[it->second];
+    Voxel& v = voxels_[pos];
     const double total = static_cast<double>(v.hits) + o.hits;
     for (int a = 0; a < 3; ++a) {
       v.mean[a] = (v.mean[a] * v.hits + mean[a] * o.hits) / total;
@@ -311,7 +311,7 @@ void VoxelMap::restore(const std::vector<VoxelRecord>& records) {
   }
   std::vector<Voxel> voxels;
   voxels.reserve(records.size());
-  std::unordered_map<std::uint64_t, std::uint32_t> index;
+  VoxelKeyIndex index;
   index.reserve(records.size());
   // A mean lies inside its voxel up to the rounding of the running mean.
   const double slack = 1e-6 * config_.voxel_size_m;
@@ -333,7 +333,7 @@ void VoxelMap::restore(const std::vector<VoxelRecord>& records) {
     }
     if (r.hits == 0) throw std::invalid_argument(which + "no hits");
     const std::uint64_t key = pack(idx);
-    if (!index.emplace(key, static_cast<std::uint32_t>(n)).second) {
+    if (!index.try_emplace(key, static_cast<std::uint32_t>(n)).second) {
       throw std::invalid_argument(which + "a second voxel with the same index");
     }
     voxels.push_back(Voxel{key,
