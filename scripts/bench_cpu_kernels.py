@@ -10,8 +10,14 @@ on the same bfloat16-rounded inputs:
   - layer_norm in bfloat16 against casting to float32 and back;
   - conv2d (3x3, 256 channels) in bfloat16 against float32;
   - bilinear 2x upsampling (align_corners) in bfloat16 against float32;
+  - the attention softmax in bfloat16 against the float32 softmax rounded
+    once to bfloat16 (what the models run), and how many values differ;
   - the vector norm over a permuted (strided) last dimension against the same
-    view made contiguous first (the heads' postprocess).
+    view made contiguous first (the heads' postprocess);
+  - linear layers of the models' sizes in float32, bfloat16 and int8
+    (dynamically quantised weights and activations through torch's oneDNN
+    quantised engine, the only one Debian's torch has besides QNNPACK), with
+    each one's error against float32.
 A figure printer, not a test. bfloat16 figures mean little on a CPU without
 native bfloat16 (AVX512-BF16 / AMX): it says which it is.
 """
@@ -73,6 +79,15 @@ def main():
         up = lambda t: F.interpolate(t, scale_factor=2, mode="bilinear", align_corners=True)
         print("upsample 2x bilinear %dx%d: bfloat16 error %.1e" % (hw, hw, rel(up(x), up(x.float()))))
 
+    for shape in ((1, 3, 196, 196), (1, 3, 196, 1620)):
+        a = (torch.randn(shape) * 4).bfloat16()
+        via32 = lambda: torch.softmax(a, -1, dtype=torch.float32).bfloat16()
+        direct = lambda: torch.softmax(a, -1)
+        print("softmax %s: via float32 %.3f ms, bfloat16 directly %.3f ms (%d of %d values differ, "
+              "max %.1e)" % ("x".join(map(str, shape)), timed_ms(via32, 50), timed_ms(direct, 50),
+                             (via32() != direct()).sum().item(), a.numel(),
+                             (via32().float() - direct().float()).abs().max().item()))
+
     raw = torch.randn(1, 4, 224, 224)
     xyz = raw.permute(0, 2, 3, 1)[..., :3]
     norm = lambda t: torch.linalg.vector_norm(t, 2, dim=-1, keepdim=True)
@@ -80,6 +95,27 @@ def main():
     print("vector norm of a permuted 224x224x3 view: strided %.2f ms, contiguous first %.2f ms "
           "(same bits: %s)" % (timed_ms(lambda: norm(xyz), 20),
                                timed_ms(lambda: norm(xyz.contiguous()), 20), same))
+
+    if "onednn" in torch.backends.quantized.supported_engines:
+        torch.backends.quantized.engine = "onednn"
+        # (tokens, in, out): the shipped model's MLP, the paper-size encoder's
+        # attention projection and MLP.
+        for m, k, n in ((196, 128, 512), (196, 1024, 1024), (196, 1024, 4096)):
+            lin = torch.nn.Linear(k, n)
+            x = torch.randn(1, m, k)
+            q = torch.ao.quantization.quantize_dynamic(torch.nn.Sequential(lin),
+                                                       {torch.nn.Linear}, dtype=torch.qint8)
+            lin16 = torch.nn.Linear(k, n).bfloat16()
+            lin16.load_state_dict({key: v.bfloat16() for key, v in lin.state_dict().items()})
+            x16 = x.bfloat16()
+            with torch.inference_mode():
+                ref = lin(x)
+                print("linear %dx%d -> %d: float32 %.3f ms, bfloat16 %.3f ms (error %.1e), "
+                      "int8 dynamic %.3f ms (error %.1e)" % (
+                          m, k, n, timed_ms(lambda: lin(x), 50), timed_ms(lambda: lin16(x16), 50),
+                          rel(lin16(x16), ref), timed_ms(lambda: q(x), 50), rel(q(x), ref)))
+    else:
+        print("linear int8: no oneDNN quantised engine in this torch")
 
 
 if __name__ == "__main__":
