@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The shipped model end to end (long3r_reconstruct: preprocessing, model,
-# PnP-RANSAC, voxel map) in each precision, convolution precision and host
-# allocator setting, side by side in one run, alternating settings between
+# PnP-RANSAC, voxel map) in each precision, convolution precision, host
+# allocator setting and PnP RANSAC (classic / usac), side by side in one run, alternating settings between
 # rounds so that a shared machine's load falls on all of them alike.
 #
 #   scripts/bench_shipped.sh [--rounds N] [--threads N] [--frames N]
@@ -31,17 +31,18 @@ trap 'rm -rf "$work"' EXIT
   --seed 2000005 --quiet >/dev/null
 "$bin/long3r_load_bench" "$root/models/default.safetensors" --threads "$threads" | sed -n 1p
 
-settings=("float32 auto reuse" "float32 auto return")
+settings=("float32 auto reuse classic" "float32 auto return classic" "float32 auto reuse usac")
 if grep -qE 'avx512_bf16|amx_bf16' /proc/cpuinfo; then
-  settings+=("bfloat16 auto reuse" "bfloat16 float32 reuse" "bfloat16 auto return")
+  settings+=("bfloat16 auto reuse classic" "bfloat16 float32 reuse classic"
+             "bfloat16 auto return classic" "bfloat16 auto reuse usac")
 fi
-printf '%-10s %-6s %-7s %-5s %9s %11s %10s %9s %8s %9s\n' precision convs freed round \
+printf '%-10s %-6s %-7s %-8s %-5s %9s %11s %10s %9s %8s %9s\n' precision convs freed pnp round \
   "mean_FPS" "median_FPS" "model_ms" "pose_ms" "map_ms" "total_ms"
 for round in $(seq 1 "$rounds"); do
   for s in "${settings[@]}"; do
-    read -r precision convs freed <<<"$s"
+    read -r precision convs freed pnp <<<"$s"
     args=(--model "$root/models/default.safetensors" --out "$work/out" --threads "$threads"
-          --precision "$precision" --conv-precision "$convs")
+          --precision "$precision" --conv-precision "$convs" --pnp-ransac "$pnp")
     [ "$freed" = return ] && args+=(--return-freed-memory)
     summary="$("$bin/long3r_reconstruct" "${args[@]}" "$work/seq" 2>&1 | grep -m1 'mean .* FPS')"
     mean="$(sed -E 's/.*mean ([0-9.]+) FPS.*/\1/' <<<"$summary")"
@@ -56,7 +57,7 @@ print("%.1f %.1f %.1f %.1f" % (mean("model_ms"), mean("pose_ms"), mean("map_ms")
 EOF
 )"
     read -r model pose map total <<<"$stages"
-    printf '%-10s %-6s %-7s %-5s %9s %11s %10s %9s %8s %9s\n' "$precision" "$convs" "$freed" \
-      "$round" "$mean" "$median" "$model" "$pose" "$map" "$total"
+    printf '%-10s %-6s %-7s %-8s %-5s %9s %11s %10s %9s %8s %9s\n' "$precision" "$convs" \
+      "$freed" "$pnp" "$round" "$mean" "$median" "$model" "$pose" "$map" "$total"
   done
 done

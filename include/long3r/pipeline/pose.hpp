@@ -3,10 +3,11 @@
 // Frames: the model's pointmaps are in the frame of camera 0 of the stream,
 // which is the world frame W here. Each pixel (u, v) whose confidence passes
 // the threshold gives a 2D-3D correspondence (pixel centre (u, v), world
-// point); RANSAC finds the inliers (OpenCV's USAC by default: P3P samples,
-// MSAC scoring, inner local optimisation; or the classic cv::solvePnPRansac,
-// EPnP samples scored through cv::projectPoints, about 5x slower at the same
-// iteration count), then Levenberg-Marquardt on the inliers refines the pose.
+// point); RANSAC finds the inliers (the classic cv::solvePnPRansac by
+// default: EPnP samples scored through cv::projectPoints; or OpenCV's USAC:
+// P3P samples, MSAC scoring, inner local optimisation, about 4x faster at the
+// same iteration count, see docs/performance.md for what it changes), then
+// Levenberg-Marquardt on the inliers refines the pose.
 // The result is T_W_C, camera optical frame (x right, y down, z forward) to
 // world.
 #pragma once
@@ -36,7 +37,7 @@ inline const std::array<std::pair<PnpRansac, const char*>, 2>& enum_names(PnpRan
 }
 
 struct PnpConfig {
-  PnpRansac ransac = PnpRansac::kUsac;
+  PnpRansac ransac = PnpRansac::kClassic;
   float conf_threshold = 3.0f;         // model confidence (>= 1); pixels below are ignored
   double reprojection_error_px = 2.0;  // RANSAC inlier threshold, model pixels
   int iterations = 100;                // RANSAC iterations
