@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The shipped model end to end (long3r_reconstruct: preprocessing, model,
 # PnP-RANSAC, voxel map) in each precision, convolution precision, host
-# allocator setting and PnP RANSAC (classic / usac), side by side in one run, alternating settings between
-# rounds so that a shared machine's load falls on all of them alike.
+# allocator setting and PnP RANSAC (classic / usac), side by side in one run,
+# alternating settings between rounds so that a shared machine's load falls
+# on all of them alike.
 #
 #   scripts/bench_shipped.sh [--rounds N] [--threads N] [--frames N]
 #

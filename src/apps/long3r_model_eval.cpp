@@ -52,7 +52,7 @@ int main(int argc, char** argv) {
   uint64_t seed_begin = 2000000, seed = 0;
   int pixel_step = 2;
   bool normals = true, estimate_intrinsics = false;
-  long3r::PnpRansac pnp_ransac = long3r::PnpRansac::kClassic;
+  long3r::PnpRansac pnp_ransac = long3r::PnpConfig{}.ransac;
   long3r::ThreadConfig threads;
   long3r::CliOptions cli("long3r_model_eval",
                          "Give exactly one of --model, --untrained, --baseline.");

@@ -38,7 +38,7 @@ struct PredictionMetricsOptions {
   // does without a calibration, estimated from frame 0's pointmap (true; if
   // that fails, no frame is posed).
   bool estimate_intrinsics = false;
-  PnpRansac pnp_ransac = PnpRansac::kClassic;  // the pipeline's default
+  PnpRansac pnp_ransac = PnpConfig{}.ransac;  // the pipeline's default
 };
 // Scores a prediction against the sequence's ground truth: one Sim(3)
 // (Umeyama on corresponding valid pixels) aligns the predicted points to the
