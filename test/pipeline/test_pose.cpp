@@ -33,6 +33,12 @@ void make_scene(const PinholeIntrinsics& k, const Eigen::Isometry3d& T_W_C, cv::
   conf = cv::Mat(k.height, k.width, CV_32FC1, cv::Scalar(5.0f));
 }
 
+// A gross outlier that the confidence does not flag: the point moved up to
+// 1 m along each axis.
+cv::Vec3f gross_offset(cv::RNG& rng) {
+  return cv::Vec3f(rng.uniform(-1.f, 1.f), rng.uniform(-1.f, 1.f), rng.uniform(-1.f, 1.f));
+}
+
 double rotation_error(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
   return Eigen::AngleAxisd(a.linear().transpose() * b.linear()).angle();
 }
@@ -78,8 +84,8 @@ TEST(Pose, OutliersAndLowConfidenceAreRejected) {
     for (int u = 0; u < pts.cols; ++u) {
       const double x = rng.uniform(0.0, 1.0);
       cv::Vec3f& p = pts.at<cv::Vec3f>(v, u);
-      if (x < 0.3) {  // gross outliers the confidence does not flag
-        p += cv::Vec3f(rng.uniform(-1.f, 1.f), rng.uniform(-1.f, 1.f), rng.uniform(-1.f, 1.f));
+      if (x < 0.3) {
+        p += gross_offset(rng);
       } else if (x < 0.5) {  // outliers with low confidence
         p += cv::Vec3f(5.f, 5.f, 5.f);
         conf.at<float>(v, u) = 1.2f;
@@ -107,10 +113,7 @@ TEST(Pose, UsacAndClassicRansacAgree) {
   cv::RNG rng(5);
   for (int v = 0; v < pts.rows; ++v) {
     for (int u = 0; u < pts.cols; ++u) {
-      if (rng.uniform(0.0, 1.0) < 0.6) {
-        pts.at<cv::Vec3f>(v, u) +=
-            cv::Vec3f(rng.uniform(-1.f, 1.f), rng.uniform(-1.f, 1.f), rng.uniform(-1.f, 1.f));
-      }
+      if (rng.uniform(0.0, 1.0) < 0.6) pts.at<cv::Vec3f>(v, u) += gross_offset(rng);
     }
   }
   PnpConfig config;

@@ -204,6 +204,7 @@ void VoxelMap::rescale(double factor) {
   std::vector<Voxel> old;
   old.swap(voxels_);
   index_.clear();
+  index_.reserve(old.size());  // at most as many voxels as before: no rehash on the way
   IntegrationStats stats;
   for (const Voxel& o : old) {
     const double mean[3] = {o.mean[0] * factor, o.mean[1] * factor, o.mean[2] * factor};
