@@ -1,49 +1,84 @@
 #!/usr/bin/env bash
 # The registration-onset experiment (docs/model_card.md, "Registration
 # against pairs seen"): config/train_pairs_fast.json, trained across sittings
-# that resume exactly. Builds the trainer without ROS, continues RUN_DIR's own
-# checkpoint or, in a fresh clone, the snapshot kept in
-# models/experiments/pairs_fast/, trains for at most --budget-s seconds, then
-# prints the blind control against pairs seen. --keep stores the newest
-# checkpoint and log back into models/experiments/pairs_fast/ for the next
-# sitting (a full checkpoint: weights, AdamW state, data and RNG states).
-#   bash scripts/train_pairs_curve.sh [RUN_DIR] [--budget-s S] [--threads N] [--keep]
-# Run it in the background and build nothing beside it: the figures are
-# pairs per second of the whole machine.
+# that resume exactly. Builds the trainer and the frame-cache writer without
+# ROS; renders the configuration's training scenes once into a frame cache
+# (build/cache/, about 14 GB at 64 px; kept while it fits the configuration);
+# continues RUN_DIR's own checkpoint or, in a fresh clone, the snapshot kept
+# in models/experiments/pairs_fast/; trains for at most --budget-s seconds as
+# --ranks data-parallel processes of one thread each (Gloo over loopback;
+# the global batch and its draws are the same at any rank count); then prints
+# the blind control against pairs seen. --keep stores the newest checkpoint
+# and log back into models/experiments/pairs_fast/ for the next sitting (a
+# full checkpoint: weights, AdamW state, data and RNG states).
+#   bash scripts/train_pairs_curve.sh [RUN_DIR] [--budget-s S] [--ranks N] [--keep]
+#        [--config FILE] [--snapshot DIR]
+# Run it in the background (nice -n 19) and build nothing beside it: the
+# figures are pairs per second of the whole machine.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 
-run="$LONG3R_ROOT/build/runs/pairs_fast"
+config="config/train_pairs_fast.json"
+run=""
 budget=3000
-threads=$(nproc)
+ranks=$(nproc)
 keep=0
+snapshot="$LONG3R_ROOT/models/experiments/pairs_fast"
 while [ $# -gt 0 ]; do
   case "$1" in
     --budget-s) budget=$2; shift 2 ;;
-    --threads) threads=$2; shift 2 ;;
+    --ranks) ranks=$2; shift 2 ;;
+    --config) config=$2; shift 2 ;;
+    --snapshot) snapshot=$2; shift 2 ;;
     --keep) keep=1; shift ;;
-    -h|--help) sed -n '2,13p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
     -*) echo "unknown option $1" >&2; exit 2 ;;
     *) run=$1; shift ;;
   esac
 done
-snapshot="$LONG3R_ROOT/models/experiments/pairs_fast"
+name=$(basename "$config" .json)
+[ -n "$run" ] || run="$LONG3R_ROOT/build/runs/${name#train_}"
+[ "$ranks" -ge 1 ] || { echo "--ranks must be >= 1" >&2; exit 2; }
 
 build="$LONG3R_ROOT/build/core"
 cmake -S "$LONG3R_ROOT" -B "$build" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
-cmake --build "$build" -j "$LONG3R_JOBS" --target app_long3r_train
+cmake --build "$build" -j "$LONG3R_JOBS" --target app_long3r_train app_long3r_frame_cache
+
+# The model config path in the training config is relative to the repository.
+cd "$LONG3R_ROOT"
+cache="$LONG3R_ROOT/build/cache/$name.frames"
+mkdir -p "$(dirname "$cache")"
+if ! "$build/long3r_frame_cache" --config "$config" --out "$cache" --check 2>/dev/null; then
+  echo "== rendering the training scenes into $cache"
+  "$build/long3r_frame_cache" --config "$config" --out "$cache" --threads "$(nproc)"
+fi
 
 mkdir -p "$run/checkpoint"
 if [ ! -f "$run/checkpoint/latest" ] && [ -f "$snapshot/checkpoint/latest" ]; then
   echo "== continuing the kept snapshot ($(cat "$snapshot/checkpoint/latest"))"
   cp "$snapshot/checkpoint/"* "$run/checkpoint/"
+  # The log up to the checkpoint (newer checkpoints keep only its length).
+  [ -f "$snapshot/train_log.csv" ] && cp "$snapshot/train_log.csv" "$run/train_log.csv"
 fi
 resume=()
 [ -f "$run/checkpoint/latest" ] && resume=(--resume)
-# The model config path in the training config is relative to the repository.
-cd "$LONG3R_ROOT"
-"$build/long3r_train" --config config/train_pairs_fast.json --out "$run" --seed 0 \
-  --threads "$threads" --prefetch 1 --render-threads 1 --time-budget-s "$budget" "${resume[@]}"
+args=(--config "$config" --out "$run" --seed 0 --threads 1 --prefetch 0 --render-threads 1
+      --frame-cache "$cache" --time-budget-s "$budget" "${resume[@]}")
+if [ "$ranks" = 1 ]; then
+  "$build/long3r_train" "${args[@]}"
+else
+  # One process per rank on this machine; rank 0 serves the rendezvous.
+  port=$(/usr/bin/python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+  pids=()
+  for ((r = 0; r < ranks; r++)); do
+    RANK=$r WORLD_SIZE=$ranks LOCAL_RANK=$r MASTER_ADDR=127.0.0.1 MASTER_PORT=$port \
+      "$build/long3r_train" "${args[@]}" &
+    pids+=($!)
+  done
+  status=0
+  for p in "${pids[@]}"; do wait "$p" || status=$?; done
+  [ "$status" = 0 ] || { echo "a rank failed (exit $status)" >&2; exit "$status"; }
+fi
 
 if [ "$keep" = 1 ]; then
   latest=$(cat "$run/checkpoint/latest")

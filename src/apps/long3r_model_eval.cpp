@@ -5,6 +5,7 @@
 #include <ATen/ATen.h>
 #include <ATen/Parallel.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -48,7 +49,7 @@ int main(int argc, char** argv) {
   bool blind = false;
   std::vector<int64_t> blind_strides, blind_lengths;
   int64_t blind_starts = 8;
-  int64_t frames = 50, sequences = 3, stride = 2, img_size = 224, lt_capacity = -1, st_frames = -1;
+  int64_t frames = 50, sequences = 3, stride = 2, img_size = 0, lt_capacity = -1, st_frames = -1;
   uint64_t seed_begin = 2000000, seed = 0;
   int pixel_step = 2;
   bool normals = true, estimate_intrinsics = false;
@@ -75,7 +76,9 @@ int main(int argc, char** argv) {
   cli.option("--stride", "D", &stride, "trajectory frames between used frames").min(1);
   cli.option("--seed-begin", "N", &seed_begin,
              "first scene seed (training uses 1000.., validation 1000000..)");
-  cli.option("--img-size", "N", &img_size, "model input N x N");
+  cli.option("--img-size", "N", &img_size, "model input N x N")
+      .min(0)
+      .shown_default("the model's own (its config's img_size), 224 for a baseline");
   cli.option("--pixel-step", "N", &pixel_step, "cloud subsampling for the metrics").min(1);
   cli.flag("--no-normals", &normals, "skip NC", false);
   cli.flag("--estimate-intrinsics", &estimate_intrinsics,
@@ -92,7 +95,7 @@ int main(int argc, char** argv) {
            "true / blind (about 1: no registration), with the rotation error against the true "
            "relative rotation and the image motion in pixels and patches");
   cli.option("--blind-stride", "D", &blind_strides,
-             "a stride of the blind control (repeatable; default 4, 8, 16)");
+             "a stride of the blind control (repeatable; default 4, 8, 16, 32)");
   cli.option("--blind-frames", "N", &blind_lengths,
              "a sequence length of the blind control (repeatable; default 2 and 5)");
   cli.option("--blind-starts", "N", &blind_starts,
@@ -138,6 +141,8 @@ int main(int argc, char** argv) {
       model = std::make_unique<long3r::Long3rModel>(mc);
       if (!weights.empty()) model->load_weights(weights, model_path);
       model->to(target);
+      // The model's own resolution unless asked: what it was trained at.
+      if (img_size == 0) img_size = std::max(mc.dust3r.img_size[0], mc.dust3r.img_size[1]);
       if (img_size % mc.dust3r.patch_size != 0) {
         throw std::invalid_argument("--img-size must be a multiple of the patch size");
       }
@@ -147,6 +152,7 @@ int main(int argc, char** argv) {
               long3r::describe(target) + ")";
     } else {
       what = "baseline " + baseline;
+      if (img_size == 0) img_size = 224;
     }
 
     long3r::DataConfig dc;
@@ -155,7 +161,7 @@ int main(int argc, char** argv) {
     dc.synth.trajectory_frames = (frames - 1) * stride + 1;
     if (blind) {
       if (!model) throw std::invalid_argument("--blind-control needs --model or --untrained");
-      if (blind_strides.empty()) blind_strides = {4, 8, 16};
+      if (blind_strides.empty()) blind_strides = {4, 8, 16, 32};
       if (blind_lengths.empty()) blind_lengths = {2, 5};
       // The training scenes' path length, so that the strides mean what they
       // mean in training.
@@ -167,9 +173,9 @@ int main(int argc, char** argv) {
                   what.c_str(), static_cast<long long>(sequences),
                   static_cast<long long>(blind_starts), static_cast<long long>(img_size),
                   static_cast<long long>(img_size), static_cast<unsigned long long>(seed_begin));
-      std::printf("%6s %6s %6s %9s %9s %9s %9s %11s %10s %11s\n", "frames", "stride", "scored",
-                  "motion_px", "motion_tk", "reg_true", "reg_blind", "blind_ratio", "rot_err_deg",
-                  "rot_true_deg");
+      std::printf("%6s %6s %6s %9s %9s %9s %9s %11s %9s %10s %11s\n", "frames", "stride", "scored",
+                  "motion_px", "motion_tk", "reg_true", "reg_blind", "blind_ratio", "shape_err",
+                  "rot_err_deg", "rot_true_deg");
       nlohmann::ordered_json rows = nlohmann::ordered_json::array();
       for (const int64_t n : blind_lengths) {
         for (const int64_t d : blind_strides) {
@@ -186,10 +192,10 @@ int main(int argc, char** argv) {
           }
           const long3r::BlindControl b = long3r::blind_control(*model, sampler.blind_sequences(vc));
           const double tokens = b.motion_px / static_cast<double>(patch);
-          std::printf("%6lld %6lld %6lld %9.2f %9.2f %9.4f %9.4f %11.3f %10.2f %11.2f\n",
+          std::printf("%6lld %6lld %6lld %9.2f %9.2f %9.4f %9.4f %11.3f %9.4f %10.2f %11.2f\n",
                       static_cast<long long>(n), static_cast<long long>(d),
                       static_cast<long long>(b.frames), b.motion_px, tokens, b.reg_true,
-                      b.reg_blind, b.blind_ratio, b.rot_err_deg, b.rot_true_deg);
+                      b.reg_blind, b.blind_ratio, b.shape_err, b.rot_err_deg, b.rot_true_deg);
           std::fflush(stdout);
           nlohmann::ordered_json o;
           o["frames"] = n;
@@ -201,6 +207,7 @@ int main(int argc, char** argv) {
           o["reg_true"] = num(b.reg_true);
           o["reg_blind"] = num(b.reg_blind);
           o["blind_ratio"] = num(b.blind_ratio);
+          o["shape_err"] = num(b.shape_err);
           o["rot_err_deg"] = num(b.rot_err_deg);
           o["rot_true_deg"] = num(b.rot_true_deg);
           rows.push_back(o);

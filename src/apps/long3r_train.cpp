@@ -63,6 +63,10 @@ int main(int argc, char** argv) {
              "batches prepared ahead on a data thread while the model trains (the same batches "
              "in the same order; for a GPU, whose steps leave the CPU cores free)")
       .min(0);
+  cli.option("--frame-cache", "FILE", &opt.frame_cache,
+             "read the training scenes' frames from this cache (long3r_frame_cache) instead of "
+             "rendering them: the same bytes; refused unless made for this configuration")
+      .shown_default("");
   cli.option("--time-budget-s", "S", &opt.time_budget_s,
              "stop before a step that would end past S seconds of this run, then validate and "
              "write the outputs (0: no budget)")

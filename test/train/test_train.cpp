@@ -29,6 +29,7 @@
 #include "long3r/train/cross_view_completion.hpp"
 #include "long3r/train/cv/train_cv.hpp"
 #include "long3r/train/data_parallel.hpp"
+#include "long3r/train/frame_cache.hpp"
 #include "long3r/train/prediction.hpp"
 #include "long3r/train/train_config.hpp"
 #include "long3r/train/train_data.hpp"
@@ -523,6 +524,183 @@ TEST(TrainTrainer, ResumeReproducesTheNextStep) {
   EXPECT_NE(d.step().loss, expected);
 }
 
+// The frame cache holds the renderer's bytes: every frame of every scene
+// equals its render, a sampler reading it draws the same batches as one that
+// renders, and a trainer given it trains the same steps.
+TEST(TrainFrameCache, HoldsTheRenderersFramesAndTrainsTheSameSteps) {
+  long3r::TrainConfig c = tiny_config();
+  c.data.synth.train_scenes = 3;
+  c.data.synth.trajectory_frames = 12;
+  c.data.min_stride = 1;
+  c.data.max_stride = 3;
+  c.data.reverse_fraction = 0.5;
+  const int size = c.data.synth.render_side(c.image_size);
+  const std::string path = scratch("frame_cache") + "/frames.cache";
+  std::vector<std::pair<int64_t, int64_t>> progress;
+  long3r::FrameCache::write(path, c.data.synth, size, 2, [&](int64_t done, int64_t total) {
+    progress.emplace_back(done, total);
+  });
+  EXPECT_EQ(progress.back(), std::make_pair(int64_t{3}, int64_t{3}));
+  const auto cache = std::make_shared<const long3r::FrameCache>(path, c.data.synth, size, 3);
+  EXPECT_EQ(cache->scenes(), 3);
+  EXPECT_EQ(cache->frames_per_scene(), 12);
+  EXPECT_FALSE(cache->covers(c.data.synth.train_seed_begin + 3));
+  EXPECT_FALSE(cache->covers(c.data.synth.val_seed_begin));
+  EXPECT_THROW(cache->frame(c.data.synth.train_seed_begin, 12), std::out_of_range);
+  long3r::SequenceSampler rendering(c.data, static_cast<int>(c.image_size), 1, 1);
+  for (int64_t s = 0; s < 3; ++s) {
+    const uint64_t seed = c.data.synth.train_seed_begin + static_cast<uint64_t>(s);
+    const std::vector<long3r::RawFrame> rendered = rendering.synth_frames(seed, 0, 1, 12);
+    for (int64_t f = 0; f < 12; ++f) {
+      const long3r::RawFrame a = cache->frame(seed, f);
+      const long3r::RawFrame& b = rendered[static_cast<std::size_t>(f)];
+      ASSERT_TRUE(at::equal(a.bgr, b.bgr)) << "scene " << seed << " frame " << f;
+      ASSERT_TRUE(at::equal(a.depth, b.depth)) << "scene " << seed << " frame " << f;
+      ASSERT_EQ(a.T_W_C.matrix(), b.T_W_C.matrix()) << "scene " << seed << " frame " << f;
+      ASSERT_EQ(a.intrinsics.fx, b.intrinsics.fx);
+      ASSERT_EQ(a.intrinsics.fy, b.intrinsics.fy);
+      ASSERT_EQ(a.intrinsics.cx, b.intrinsics.cx);
+      ASSERT_EQ(a.intrinsics.cy, b.intrinsics.cy);
+      ASSERT_EQ(a.intrinsics.width, b.intrinsics.width);
+    }
+  }
+  long3r::SequenceSampler cached(c.data, static_cast<int>(c.image_size), 9, 1);
+  long3r::SequenceSampler plain(c.data, static_cast<int>(c.image_size), 9, 1);
+  cached.set_frame_cache(cache);
+  for (int i = 0; i < 3; ++i) {
+    const long3r::Batch a = cached.sample_batch(2, 3), b = plain.sample_batch(2, 3);
+    EXPECT_EQ(a.sources, b.sources);
+    EXPECT_TRUE(at::equal(a.pts, b.pts));
+    EXPECT_TRUE(at::equal(a.valid, b.valid));
+    for (std::size_t k = 0; k < a.frames.size(); ++k)
+      EXPECT_TRUE(at::equal(a.frames[k], b.frames[k]));
+  }
+  // Validation's held-out scenes are not in the cache and are rendered.
+  EXPECT_TRUE(
+      at::equal(cached.validation_sequence(0, 2, 3).pts, plain.validation_sequence(0, 2, 3).pts));
+
+  long3r::TrainOptions o;
+  o.quiet = true;
+  o.seed = 4;
+  o.out_dir = scratch("frame_cache_rendered");
+  long3r::Trainer rendered_run(c, o);
+  o.out_dir = scratch("frame_cache_cached");
+  o.frame_cache = path;
+  long3r::Trainer cached_run(c, o);
+  for (int i = 0; i < 3; ++i) {
+    const double want = rendered_run.step().loss;
+    EXPECT_DOUBLE_EQ(cached_run.step().loss, want) << "step " << i + 1;
+  }
+}
+
+// A cache that does not fit is refused, naming the file and what is wrong:
+// made for other scenes, cut short, not a cache, or frames other than the
+// generator's.
+TEST(TrainFrameCache, RefusesACacheThatDoesNotFit) {
+  long3r::TrainConfig c = tiny_config();
+  c.data.synth.train_scenes = 2;
+  c.data.synth.trajectory_frames = 5;
+  const int size = c.data.synth.render_side(c.image_size);
+  const std::string dir = scratch("frame_cache_refused");
+  const std::string path = dir + "/frames.cache";
+  long3r::FrameCache::write(path, c.data.synth, size, 1);
+  const auto refused = [&](const std::string& file, const long3r::SynthDataConfig& synth,
+                           const std::string& why) {
+    try {
+      long3r::FrameCache cache(file, synth, size, 2);
+      ADD_FAILURE() << "accepted: " << why;
+    } catch (const long3r::FrameCacheError& e) {
+      const std::string m = e.what();
+      EXPECT_NE(m.find(file), std::string::npos) << m;
+      EXPECT_NE(m.find(why), std::string::npos) << m;
+    }
+  };
+  long3r::SynthDataConfig other = c.data.synth;
+  other.speed = 0.03;
+  refused(path, other, "made for speed 0.02, the configuration has 0.03");
+  other = c.data.synth;
+  other.train_scenes = 3;
+  refused(path, other, "made for train_scenes 2");
+  try {
+    long3r::FrameCache cache(path, c.data.synth, size + 8, 0);
+    ADD_FAILURE() << "accepted another render size";
+  } catch (const long3r::FrameCacheError& e) {
+    EXPECT_NE(std::string(e.what()).find("render_size"), std::string::npos) << e.what();
+  }
+  std::string bytes;
+  {
+    std::ifstream in(path, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  const auto write = [&](const std::string& file, const std::string& content) {
+    std::ofstream(file, std::ios::binary) << content;
+    return file;
+  };
+  refused(write(dir + "/short.cache", bytes.substr(0, bytes.size() - 64)), c.data.synth,
+          "cut short or grown");
+  refused(write(dir + "/text.cache", "not a cache\n" + std::string(5000, 'x')), c.data.synth,
+          "not a frame cache");
+  refused(dir + "/missing.cache", c.data.synth, "cannot open");
+  // One pixel of the last scene's last frame changed: the check renders
+  // the first and the last frame of the cache.
+  std::string tampered = bytes;
+  tampered[tampered.size() - 100] ^= 0x01;
+  refused(write(dir + "/tampered.cache", tampered), c.data.synth,
+          "frame 4 of scene " + std::to_string(c.data.synth.train_seed_begin + 1) + " differs");
+  EXPECT_NO_THROW(long3r::FrameCache(path, c.data.synth, size, 2));
+}
+
+// train_log.csv is appended to at each checkpoint; a resume takes the log
+// up to its checkpoint from the file and cuts off the rows logged after it.
+TEST(TrainTrainer, LogIsAppendedAndCutBackToTheCheckpointOnResume) {
+  long3r::TrainConfig c = tiny_config();
+  long3r::TrainOptions o;
+  o.out_dir = scratch("log_append");
+  o.quiet = true;
+  o.seed = 4;
+  const std::string csv = o.out_dir + "/train_log.csv";
+  const auto steps_in_file = [&csv] {
+    std::ifstream in(csv);
+    std::stringstream ss;
+    ss << in.rdbuf();
+    std::vector<int64_t> steps;
+    for (const long3r::LogRow& r : long3r::log_rows_from_csv(ss.str())) steps.push_back(r.step);
+    return steps;
+  };
+  {
+    long3r::Trainer a(c, o);
+    a.step();
+    a.step();
+    a.save_checkpoint();
+    EXPECT_EQ(steps_in_file(), (std::vector<int64_t>{1, 2}));
+    a.step();
+    a.save_checkpoint();
+    a.step();
+    a.write_outputs();
+    EXPECT_EQ(steps_in_file(), (std::vector<int64_t>{1, 2, 3, 4}));
+  }
+  // Back to the checkpoint of step 2 (as if the later ones were lost).
+  const std::string ckpt = o.out_dir + "/checkpoint";
+  fs::remove(ckpt + "/step_00000003.pt");
+  std::ofstream(ckpt + "/latest") << "step_00000002.pt\n";
+  o.resume = true;
+  {
+    long3r::Trainer b(c, o);
+    ASSERT_EQ(b.log().size(), 2u);
+    b.step();
+    b.save_checkpoint();
+    EXPECT_EQ(steps_in_file(), (std::vector<int64_t>{1, 2, 3}));
+  }
+  // A log that lacks the checkpoint's rows is refused, not silently restarted.
+  fs::remove(csv);
+  try {
+    long3r::Trainer d(c, o);
+    ADD_FAILURE() << "resumed without its log";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("train_log.csv"), std::string::npos) << e.what();
+  }
+}
+
 // The data thread draws the same batches in the same order (across the stage
 // change, whose sequences are longer), and a checkpoint taken while batches
 // wait ahead resumes exactly, with or without a data thread.
@@ -784,7 +962,7 @@ TEST(TrainLog, CsvColumnsAreReadBackByName) {
             "val_loss,val_regression,val_pointmap_err_m,val_acc_mean_m,val_acc_median_m,"
             "val_comp_mean_m,val_comp_median_m,val_nc_mean,val_nc_median,val_ate_rmse_m,"
             "val_registered,val_blind_ratio,val_reg_true,val_reg_blind,val_rot_err_deg,"
-            "val_rot_true_deg,val_completion_true,val_completion_shuffled");
+            "val_rot_true_deg,val_completion_true,val_completion_shuffled,val_shape_err");
   auto expect_rows = [&](const std::vector<long3r::LogRow>& got) {
     ASSERT_EQ(got.size(), 2u);
     EXPECT_EQ(got[0].step, 1);
@@ -823,6 +1001,7 @@ TEST(TrainLog, CsvColumnsAreReadBackByName) {
   rows[1].val->registered = 0.75;
   rows[1].val->blind.blind_ratio = 0.5;
   rows[1].val->completion.loss_shuffled = 1.25;
+  rows[1].val->blind.shape_err = 0.375;
   std::string older;
   std::istringstream lines(long3r::log_rows_to_csv(rows));
   while (std::getline(lines, line)) {
@@ -835,10 +1014,12 @@ TEST(TrainLog, CsvColumnsAreReadBackByName) {
   EXPECT_TRUE(std::isnan(read[1].val->registered));
   EXPECT_TRUE(std::isnan(read[1].val->blind.blind_ratio));
   EXPECT_TRUE(std::isnan(read[1].val->completion.loss_shuffled));
+  EXPECT_TRUE(std::isnan(read[1].val->blind.shape_err));
   const std::vector<long3r::LogRow> now = long3r::log_rows_from_csv(long3r::log_rows_to_csv(rows));
   EXPECT_EQ(now[1].val->registered, 0.75);
   EXPECT_EQ(now[1].val->blind.blind_ratio, 0.5);
   EXPECT_EQ(now[1].val->completion.loss_shuffled, 1.25);
+  EXPECT_EQ(now[1].val->blind.shape_err, 0.375);
 }
 
 TEST(TrainInit, CopiesMatchingTensorsByNameAndShape) {
@@ -1137,11 +1318,33 @@ TEST(TrainBlind, OraclesScoreZeroAndOne) {
   EXPECT_LT(perfect.rot_err_deg, 0.05);
   EXPECT_GT(perfect.rot_true_deg, 0.1);
   EXPECT_GT(perfect.motion_px, 0.5);
+  EXPECT_LT(perfect.shape_err, 1e-5);
 
   const long3r::BlindControl none = long3r::score_blind_control(seqs, still, still);
   EXPECT_DOUBLE_EQ(none.blind_ratio, 1.0);
   EXPECT_DOUBLE_EQ(none.reg_true, perfect.reg_blind);
   EXPECT_NEAR(none.rot_err_deg, none.rot_true_deg, 0.05);
+  // Each frame in its own camera has the true shape: its error is all
+  // placement, and the shape error tells the two apart.
+  EXPECT_LT(none.shape_err, 1e-4);
+  EXPECT_GT(none.reg_true, 100.0 * none.shape_err);
+
+  // Points bent away from any Sim(3) (depth grows across the image): a shape
+  // error, which no placement removes, bounded by the whole error.
+  std::vector<long3r::SequencePrediction> bent = exact;
+  for (long3r::SequencePrediction& p : bent) {
+    for (at::Tensor& f : p.pts) {
+      const at::Tensor x = f.select(-1, 0);
+      f = (f * (1.0 + 0.3 * (x - x.mean()) / (x.std() + 1e-6)).unsqueeze(-1)).contiguous();
+    }
+  }
+  const long3r::BlindControl shaped = long3r::score_blind_control(seqs, bent, still);
+  EXPECT_GT(shaped.shape_err, 0.01);
+  EXPECT_LE(shaped.shape_err, 1.05 * shaped.reg_true);
+  EXPECT_NEAR(
+      long3r::frame_shape_error(bent[0].pts[1], seqs[0].pts[1], seqs[0].valid[1]),
+      long3r::frame_shape_error(bent[0].pts[1] * 3.0f + 1.0f, seqs[0].pts[1], seqs[0].valid[1]),
+      1e-4);
 
   // Wider strides move the points further across the image.
   const std::vector<long3r::SequenceSample> wide = blind_set(3, 18);
@@ -1188,6 +1391,7 @@ TEST(TrainBlind, ModelRunMatchesPerSequencePredictions) {
   const long3r::BlindControl one = long3r::score_blind_control(seqs, truth, blind);
   EXPECT_NEAR(b.reg_true, one.reg_true, 1e-4 * one.reg_true);
   EXPECT_NEAR(b.reg_blind, one.reg_blind, 1e-4 * one.reg_blind);
+  EXPECT_NEAR(b.shape_err, one.shape_err, 1e-3 * one.shape_err);
   EXPECT_DOUBLE_EQ(b.rot_true_deg, one.rot_true_deg);
   EXPECT_DOUBLE_EQ(b.motion_px, one.motion_px);
 }

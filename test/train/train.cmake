@@ -39,6 +39,17 @@ if(TARGET app_long3r_train)
     ENVIRONMENT "OMP_NUM_THREADS=1;OPENBLAS_NUM_THREADS=1" TIMEOUT 300)
 endif()
 
+# scripts/bench_pairs.py without the reference, on a frame cache of its own:
+# its table checked (rates are printed, not asserted).
+if(TARGET app_long3r_train AND TARGET app_long3r_frame_cache AND "gloo" IN_LIST LONG3R_DATA_PARALLEL)
+  add_test(NAME bench_pairs
+    COMMAND /usr/bin/python3 ${PROJECT_SOURCE_DIR}/test/train/bench_pairs_test.py
+      ${PROJECT_SOURCE_DIR} $<TARGET_FILE_DIR:app_long3r_train>
+      ${PROJECT_BINARY_DIR}/test_tmp/bench_pairs)
+  set_tests_properties(bench_pairs PROPERTIES
+    ENVIRONMENT "OMP_NUM_THREADS=1;OPENBLAS_NUM_THREADS=1" TIMEOUT 300)
+endif()
+
 # Data-parallel training under torchrun (--no_python) with Gloo on this CPU:
 # bit-identical replicas, the same weights as one process on the same global
 # batch, a two-rank checkpoint resumed in one process, a killed rank.

@@ -24,7 +24,7 @@ CONFIG = {
     "data": {"synth": {"train_scenes": 4, "val_scenes": 1, "trajectory_frames": 30},
              "max_stride": 3},
     "validation": {"every": 3, "sequences": 1, "frames": 5, "stride": 2,
-                   "blind_scenes": 1, "blind_starts": 2, "blind_strides": [2]},
+                   "blind_scenes": 1, "blind_starts": 2, "blind_strides": [2, 4]},
     "checkpoint_every": 2,
 }
 
@@ -71,6 +71,17 @@ def main():
         check(ratio > 0 and abs(ratio - true / blind) < 1e-6 * ratio,
               "blind control in validation: %s" % r)
         check(float(r["val_rot_true_deg"]) > 0, "relative rotation readout: %s" % r)
+    # The blind control at every stride, a row per validation and stride; the
+    # log's columns are its first stride's.
+    blind_rows = list(csv.DictReader(open(os.path.join(out, "blind_control.csv"))))
+    check([(int(b["step"]), int(b["stride"]), int(b["frames"])) for b in blind_rows] ==
+          [(3, 2, 2), (3, 4, 2), (6, 2, 2), (6, 4, 2)], "blind_control.csv rows: %s" % blind_rows)
+    for r in val:
+        first = next(b for b in blind_rows if b["step"] == r["step"] and b["stride"] == "2")
+        check(abs(float(first["blind_ratio"]) - float(r["val_blind_ratio"])) <=
+              1e-6 * float(r["val_blind_ratio"]), "log = first stride: %s / %s" % (first, r))
+        shape = float(r["val_shape_err"])
+        check(0 < shape < float(r["val_reg_true"]) * 1.05, "shape error readout: %s" % r)
     check(all(r["val_completion_true"] == "nan" for r in rows),
           "no completion control without a completion stage")
     vj = json.load(open(os.path.join(out, "validation.json")))
@@ -82,7 +93,7 @@ def main():
     with zipfile.ZipFile(bundle) as z:
         pickled = b"".join(z.read(n) for n in z.namelist() if n.endswith(".pkl"))
     for part in [b"weights", b"optimizer", b"step", b"sampler_rng", b"torch_cpu_rng", b"wall_s",
-                 b"model_config", b"train_config", b"train_log_csv"]:
+                 b"model_config", b"train_config", b"train_log_rows"]:
         check(part in pickled, "checkpoint part %s" % part)
 
     model = os.path.join(out, "model.safetensors")

@@ -20,12 +20,25 @@ struct BlindControl {
   static constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
   double reg_true = kNaN, reg_blind = kNaN;  // means over the frames scored
   double blind_ratio = kNaN;                 // reg_true / reg_blind
+  // Mean over the frames of the true run's error after aligning each
+  // frame's prediction to its ground truth by a Sim(3) of its own
+  // (shape_error): what is left when the frame's placement is perfect, the
+  // floor of reg_true.
+  double shape_err = kNaN;
   double rot_err_deg = kNaN;   // mean angle between applied and true relative rotation
   double rot_true_deg = kNaN;  // mean true relative rotation (a model that never turns scores this)
   double motion_px = kNaN;  // mean over frames of the median image motion of their points, pixels
   int64_t frames = 0;       // frames scored
   int64_t unplaced = 0;     // frames left out: a non-finite or collapsed prediction
 };
+
+// The error of a frame's shape alone: the prediction p ([H, W, 3], any
+// coordinates) aligned to the ground truth g by the Sim(3) that fits it best
+// over the valid pixels (Umeyama), then mean || p' - g || divided by the mean
+// distance of g's valid points to the origin, the normalisation of
+// frame_placement_error's ground truth. NaN when the fit fails (fewer than
+// three points, a collapsed or non-finite prediction).
+double frame_shape_error(const at::Tensor& pred, const at::Tensor& gt, const at::Tensor& valid);
 
 // The blind control: does the model place a frame using its reference view?
 // For every frame k >= 1 of each sequence, the placement error of frame k in
@@ -35,7 +48,8 @@ struct BlindControl {
 // view is placed by the head that places a pair's second view (reg_blind).
 // blind_ratio = reg_true / reg_blind: about 1 for a model that does not
 // register (it predicts each frame in its own camera, wherever the reference
-// was), 0 for perfect registration. Also the rotation the true run applies to
+// was), 0 for perfect registration. Also the shape error of the true run's
+// frames (frame_shape_error), the rotation the true run applies to
 // each frame (Umeyama of the frame's ground-truth points in its own camera
 // onto its prediction) against the true relative rotation, and the median image
 // motion of the frames' points relative to camera 0 (ground truth).

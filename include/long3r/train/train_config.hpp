@@ -60,6 +60,10 @@ struct SynthDataConfig {
   double speed = 0.02;              // metres per frame of the path
   double hfov_min_deg = 60.0, hfov_max_deg = 80.0;
   int render_size = 0;  // square render side before cropping; 0 = image_size
+
+  int render_side(int64_t image_size) const {
+    return render_size > 0 ? render_size : static_cast<int>(image_size);
+  }
 };
 
 // The public datasets' layouts that data.datasets reads (docs/training.md,
@@ -132,7 +136,9 @@ struct TrainConfig {
   // Mixed precision: the forward pass under bfloat16 autocast, the weights,
   // optimizer state, gradients and losses float32. "bf16": on any device (a
   // CPU without native bfloat16 needs allow_emulated_precision); "auto": on
-  // CUDA only; "off": float32 throughout.
+  // CUDA only; "native": on CUDA and on a CPU with native bfloat16
+  // arithmetic (AVX512-BF16, AMX), float32 on other CPUs; "off": float32
+  // throughout.
   std::string amp = "auto";
   // Initial weights of a model trained from scratch: "torch" (libtorch's
   // module defaults) or "croco" (CroCo's / DUSt3R's: xavier-uniform linear

@@ -27,6 +27,8 @@
 
 namespace long3r {
 
+class FrameCache;
+
 // One source frame with ground truth (CPU tensors).
 struct RawFrame {
   at::Tensor bgr;    // [H, W, 3] uint8, BGR order
@@ -101,6 +103,13 @@ SequenceSample prepare_sequence(const std::vector<RawFrame>& frames, int size,
                                 const AugmentConfig& augment, std::mt19937_64* rng,
                                 const std::string& source = "");
 
+// The generated scene of one seed of a synth data configuration, rendered at
+// render_size x render_size: its field of view and path type drawn from the
+// seed alone, so that a seed names the same scene in every run (the sampler's
+// scenes and the frame cache's alike).
+synth::SequenceConfig synth_scene_config(const SynthDataConfig& config, uint64_t seed,
+                                         int render_size);
+
 // A batch: frames[i] = [B, 3, H, W]; pts [B, N, H, W, 3]; valid [B, N, H, W].
 struct Batch {
   std::vector<at::Tensor> frames;
@@ -143,6 +152,10 @@ class SequenceSampler {
   // evenly spaced starts x strides), in that order.
   std::vector<SequenceSample> blind_sequences(const ValidationConfig& config);
 
+  // Training frames of the scenes `cache` holds come from it instead of the
+  // renderer (the same bytes); other scenes (validation's) are rendered.
+  void set_frame_cache(std::shared_ptr<const FrameCache> cache) { cache_ = std::move(cache); }
+
   // Raw frames of a generated scene (start, stride) without preprocessing.
   std::vector<RawFrame> synth_frames(uint64_t scene_seed, int64_t start, int64_t stride,
                                      int64_t frames);
@@ -167,6 +180,7 @@ class SequenceSampler {
   int render_threads_;
   std::mt19937_64 rng_;
   std::map<uint64_t, synth::Sequence> scenes_;
+  std::shared_ptr<const FrameCache> cache_;
   std::vector<std::unique_ptr<RecordedSource>> recorded_;
   struct Dataset {
     DatasetSource source;

@@ -107,8 +107,11 @@ struct ValidationMetrics {
   // frames and posed are totals.
   PredictionMetrics prediction;
   int64_t sequences = 0;
-  // The blind control over validation.blind_* (NaN figures when not run).
+  // The blind control over validation.blind_* at the first of its strides
+  // (NaN figures when not run), and at each of them, in order (the trainer
+  // writes these to blind_control.csv).
   BlindControl blind;
+  std::vector<std::pair<int64_t, BlindControl>> blind_per_stride;
   // In a cross_view_completion stage, its control on the same pairs.
   CompletionControl completion;
 };

@@ -22,6 +22,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "long3r/model/network/long3r_model.hpp"
@@ -61,6 +62,10 @@ struct TrainOptions {
   // on the CPU while a GPU computes); 0: each batch when its step needs it.
   // Any value trains on the same batches, in the same order.
   int prefetch_batches = 0;
+  // A frame cache of the configuration's training scenes (FrameCache, made
+  // by long3r_train --write-frame-cache): their frames are read from it
+  // instead of rendered, the same bytes; empty: every frame rendered.
+  std::string frame_cache;
   // Wall-clock budget of this run in seconds (0: none): no step starts that
   // would, at the mean step time so far, end past it; the run then validates
   // and writes its outputs as at the schedule's end, learning-rate schedule
@@ -101,8 +106,10 @@ class Trainer {
 
   // One file, checkpoint/step_NNNNNNNN.pt (a libtorch archive written
   // atomically): weights, AdamW state, step, sampler and torch RNG states,
-  // wall time, configurations and the log so far, so that a run resumes
-  // bit-exactly from it; checkpoint/latest names the newest.
+  // wall time, configurations and the number of log rows so far, so that a
+  // run resumes bit-exactly from it; checkpoint/latest names the newest. The
+  // log's rows are appended to train_log.csv first (the log of a resumed run
+  // is that file up to the checkpoint's step).
   void save_checkpoint();
   // Restores all of the above from such a file.
   void load_checkpoint(const std::string& path);
@@ -128,6 +135,9 @@ class Trainer {
   int64_t shard_size(int64_t batch_size) const;
   Batch draw_shard(int64_t batch_size, int64_t frames);
   void stop_prefetch();
+  // Appends the rows not yet in train_log.csv (or writes it whole after a
+  // resume or a changed row).
+  void write_log();
   // The forward pass and backward of one step's task; return its loss terms.
   LossTerms sequence_step(const Batch& batch);
   LossTerms completion_step(const Batch& batch, double mask_ratio);
@@ -152,8 +162,13 @@ class Trainer {
   std::unique_ptr<Prefetch> prefetch_;
   std::string stop_reason_;
   std::vector<SequenceSample> val_sequences_;
-  std::vector<SequenceSample> blind_sequences_;  // validation.blind_*
+  // validation.blind_*: the held-out sequences of each stride, in order.
+  std::vector<std::pair<int64_t, std::vector<SequenceSample>>> blind_sets_;
   std::vector<LogRow> log_;
+  std::size_t log_rows_written_ = 0;  // rows of log_ in train_log.csv
+  bool log_rewrite_ = false;          // the file needs writing whole
+  int64_t blind_step_written_ = 0;    // the last step in blind_control.csv
+  bool blind_file_fresh_ = true;      // a new run writes blind_control.csv anew
   std::optional<InitReport> init_report_;
   int64_t step_ = 0;
   int64_t applied_stage_ = -1;

@@ -84,6 +84,25 @@ double frame_placement_error(const at::Tensor& pred, const at::Tensor& gt,
   return e.mean().item<double>();
 }
 
+double frame_shape_error(const at::Tensor& pred, const at::Tensor& gt, const at::Tensor& valid) {
+  std::vector<Eigen::Vector3f> src, dst;
+  append_correspondences(pred, gt, valid, 1, &src, &dst);
+  const double zg = mean_distance(gt, valid);
+  if (src.size() < 3 || !(zg > 0.0)) return std::numeric_limits<double>::quiet_NaN();
+  Sim3 T;
+  try {
+    T = align_correspondences(src, dst, true);
+  } catch (const std::invalid_argument&) {
+    return std::numeric_limits<double>::quiet_NaN();  // a collapsed prediction
+  }
+  double sum = 0.0;
+  for (std::size_t i = 0; i < src.size(); ++i) {
+    sum += (T * src[i].cast<double>() - dst[i].cast<double>()).norm();
+  }
+  const double e = sum / static_cast<double>(src.size()) / zg;
+  return std::isfinite(e) ? e : std::numeric_limits<double>::quiet_NaN();
+}
+
 BlindControl score_blind_control(const std::vector<SequenceSample>& sequences,
                                  const std::vector<SequencePrediction>& truth,
                                  const std::vector<SequencePrediction>& blind) {
@@ -92,8 +111,8 @@ BlindControl score_blind_control(const std::vector<SequenceSample>& sequences,
     throw std::invalid_argument("blind_control: one true and one blind prediction per sequence");
   }
   BlindControl r;
-  double sum_true = 0, sum_blind = 0, sum_rot_err = 0, sum_rot = 0, sum_motion = 0;
-  int64_t motion_n = 0;
+  double sum_true = 0, sum_blind = 0, sum_rot_err = 0, sum_rot = 0, sum_motion = 0, sum_shape = 0;
+  int64_t motion_n = 0, shape_n = 0;
   for (std::size_t s = 0; s < sequences.size(); ++s) {
     const SequenceSample& seq = sequences[s];
     const std::size_t n = seq.images.size();
@@ -112,6 +131,11 @@ BlindControl score_blind_control(const std::vector<SequenceSample>& sequences,
       }
       sum_true += e_true;
       sum_blind += e_blind;
+      const double shape = frame_shape_error(pred, seq.pts[f], valid);
+      if (std::isfinite(shape)) {
+        sum_shape += shape;
+        ++shape_n;
+      }
       // The rotation the prediction applies to the frame: its points in
       // their own camera (ground truth) onto the predicted ones.
       const at::Tensor own_gt = transform_points(seq.pts[f], seq.T_C0_C[k].inverse());
@@ -146,6 +170,7 @@ BlindControl score_blind_control(const std::vector<SequenceSample>& sequences,
     r.rot_true_deg = sum_rot / nf;
   }
   if (motion_n > 0) r.motion_px = sum_motion / static_cast<double>(motion_n);
+  if (shape_n > 0) r.shape_err = sum_shape / static_cast<double>(shape_n);
   return r;
 }
 

@@ -49,8 +49,8 @@ void validate_train_config(const TrainConfig& c) {
     }
   }
   if (c.image_size < 16 || c.image_size % 16 != 0) fail("image_size must be a multiple of 16");
-  if (c.amp != "auto" && c.amp != "bf16" && c.amp != "off") {
-    fail("amp must be \"auto\", \"bf16\" or \"off\"");
+  if (c.amp != "auto" && c.amp != "bf16" && c.amp != "native" && c.amp != "off") {
+    fail("amp must be \"auto\", \"bf16\", \"native\" or \"off\"");
   }
   if (c.weight_init != "torch" && c.weight_init != "croco") {
     fail("weight_init must be \"torch\" or \"croco\"");

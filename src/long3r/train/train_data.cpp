@@ -10,6 +10,7 @@
 
 #include "long3r/synth/generate.hpp"
 #include "long3r/synth/render.hpp"
+#include "long3r/train/frame_cache.hpp"
 #include "long3r/train/train_config.hpp"
 #include "long3r/train/train_data.hpp"
 
@@ -257,24 +258,29 @@ SequenceSampler::SequenceSampler(const DataConfig& config, int image_size, uint6
   }
 }
 
-const synth::Sequence& SequenceSampler::scene(uint64_t seed) {
-  auto it = scenes_.find(seed);
-  if (it != scenes_.end()) return it->second;
+synth::SequenceConfig synth_scene_config(const SynthDataConfig& sc, uint64_t seed,
+                                         int render_size) {
   // Everything about a scene is a function of its seed (not of the sampler's
   // RNG), so a seed names the same sequence in every run.
   std::mt19937_64 r(seed * 0x9E3779B97F4A7C15ull + 17);
-  const SynthDataConfig& sc = config_.synth;
   synth::SequenceConfig c;
   c.seed = seed;
-  const int render = sc.render_size > 0 ? sc.render_size : image_size_;
   const double hfov = sc.hfov_min_deg + uniform01(r) * (sc.hfov_max_deg - sc.hfov_min_deg);
-  c.intrinsics = PinholeIntrinsics::from_hfov(render, render, hfov);
+  c.intrinsics = PinholeIntrinsics::from_hfov(render_size, render_size, hfov);
   const synth::TrajectoryType types[3] = {synth::TrajectoryType::kWalk,
                                           synth::TrajectoryType::kOrbit,
                                           synth::TrajectoryType::kPanReturn};
   c.trajectory.type = types[uniform_int(r, 0, 2)];
   c.trajectory.frames = static_cast<int>(sc.trajectory_frames);
   c.trajectory.speed = sc.speed;
+  return c;
+}
+
+const synth::Sequence& SequenceSampler::scene(uint64_t seed) {
+  auto it = scenes_.find(seed);
+  if (it != scenes_.end()) return it->second;
+  const SynthDataConfig& sc = config_.synth;
+  const synth::SequenceConfig c = synth_scene_config(sc, seed, sc.render_side(image_size_));
   // Keep a bounded cache: scenes are cheap to regenerate, not to keep forever.
   if (scenes_.size() >= 4096) scenes_.clear();
   return scenes_.emplace(seed, synth::generate_sequence(c)).first->second;
@@ -282,10 +288,15 @@ const synth::Sequence& SequenceSampler::scene(uint64_t seed) {
 
 std::vector<RawFrame> SequenceSampler::synth_frames(uint64_t scene_seed, int64_t start,
                                                     int64_t stride, int64_t frames) {
+  std::vector<RawFrame> out;
+  if (cache_ && cache_->covers(scene_seed)) {
+    for (int64_t i = 0; i < frames; ++i)
+      out.push_back(cache_->frame(scene_seed, start + i * stride));
+    return out;
+  }
   const synth::Sequence& seq = scene(scene_seed);
   synth::RenderOptions ro;
   ro.threads = render_threads_;
-  std::vector<RawFrame> out;
   for (int64_t i = 0; i < frames; ++i) {
     const std::size_t idx = static_cast<std::size_t>(start + i * stride);
     if (idx >= seq.poses.size()) throw std::out_of_range("synth_frames: past the trajectory");

@@ -18,6 +18,7 @@
 #include <exception>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <limits>
 #include <mutex>
 #include <nlohmann/json.hpp>
@@ -34,6 +35,7 @@
 #include "long3r/train/blind_control.hpp"
 #include "long3r/train/cross_view_completion.hpp"
 #include "long3r/train/data_parallel.hpp"
+#include "long3r/train/frame_cache.hpp"
 #include "long3r/train/prediction.hpp"
 #include "long3r/train/train_config.hpp"
 #include "long3r/train/train_data.hpp"
@@ -119,7 +121,13 @@ const ValColumn kValColumns[] = {
      true},
     {"val_completion_shuffled",
      [](ValidationMetrics& v) -> double& { return v.completion.loss_shuffled; }, true},
+    {"val_shape_err", [](ValidationMetrics& v) -> double& { return v.blind.shape_err; }, true},
 };
+
+// blind_control.csv: a row per validation and stride of validation.blind_*.
+constexpr const char* kBlindHeader =
+    "step,frames,stride,scored,motion_px,reg_true,reg_blind,blind_ratio,shape_err,rot_err_deg,"
+    "rot_true_deg";
 
 std::vector<std::string> split_csv_line(const std::string& line) {
   std::vector<std::string> cells;
@@ -236,14 +244,15 @@ Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
     dp_ = std::make_unique<DataParallel>(env, options_.data_parallel, device_);
     if (env.rank != 0) options_.quiet = true;  // rank 0 speaks for the job
   }
-  mixed_precision_ = config_.amp == "bf16" || (config_.amp == "auto" && device_.is_cuda());
+  mixed_precision_ = config_.amp == "bf16" || (config_.amp == "auto" && device_.is_cuda()) ||
+                     (config_.amp == "native" && (device_.is_cuda() || cpu_has_native_bfloat16()));
   if (mixed_precision_ && device_.is_cpu() && !cpu_has_native_bfloat16() &&
       !config_.allow_emulated_precision) {
     throw ConfigError(
         "training config: amp \"bf16\" on the CPU: this CPU has no native bfloat16 arithmetic "
         "(AVX512-BF16 or AMX-BF16), so bfloat16 would run emulated, slower than float32; set amp "
-        "to \"auto\" or \"off\" (float32 on the CPU), or allow_emulated_precision to true to "
-        "measure it anyway");
+        "to \"native\" (bfloat16 where the CPU has it), \"auto\" or \"off\" (float32 on the "
+        "CPU), or allow_emulated_precision to true to measure it anyway");
   }
   if (!options_.model_override.empty()) config_.model = options_.model_override;
   if (is_root()) fs::create_directories(fs::path(options_.out_dir) / "checkpoint");
@@ -309,13 +318,29 @@ Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
   sampler_ = std::make_unique<SequenceSampler>(
       config_.data, static_cast<int>(config_.image_size), options_.seed, render_threads,
       options_.extensions.open_recorded, options_.extensions.open_dataset);
+  if (!options_.frame_cache.empty()) {
+    auto cache =
+        std::make_shared<const FrameCache>(options_.frame_cache, config_.data.synth,
+                                           config_.data.synth.render_side(config_.image_size));
+    if (!options_.quiet) {
+      std::printf("frame cache %s: %lld scenes x %lld frames at %d px (%.2f GB), mapped\n",
+                  cache->path().c_str(), static_cast<long long>(cache->scenes()),
+                  static_cast<long long>(cache->frames_per_scene()), cache->render_size(),
+                  static_cast<double>(cache->file_bytes()) / 1e9);
+    }
+    sampler_->set_frame_cache(std::move(cache));
+  }
   // Rank 0 validates for the job.
   for (int64_t i = 0; is_root() && i < config_.validation.sequences; ++i) {
     val_sequences_.push_back(
         sampler_->validation_sequence(i, config_.validation.frames, config_.validation.stride));
   }
   if (is_root() && config_.validation.blind_scenes > 0) {
-    blind_sequences_ = sampler_->blind_sequences(config_.validation);
+    for (const int64_t stride : config_.validation.blind_strides) {
+      ValidationConfig one = config_.validation;
+      one.blind_strides = {stride};
+      blind_sets_.emplace_back(stride, sampler_->blind_sequences(one));
+    }
   }
   sampler_state_ = sampler_->rng_state();
   if (options_.resume) {
@@ -513,13 +538,16 @@ LogRow Trainer::step() {
 ValidationMetrics Trainer::run_validation() {
   ValidationMetrics v = validate(*model_, val_sequences_, config_.loss, config_.validation,
                                  options_.extensions.score);
-  if (!blind_sequences_.empty()) {
-    v.blind = blind_control(*model_, blind_sequences_);
+  for (const auto& [stride, sequences] : blind_sets_) {
+    v.blind_per_stride.emplace_back(stride, blind_control(*model_, sequences));
+  }
+  if (!blind_sets_.empty()) {
+    v.blind = v.blind_per_stride.front().second;
+    const std::vector<SequenceSample>& pairs = blind_sets_.front().second;
     const TrainStage& stage = stage_of_step(std::max<int64_t>(0, step_ - 1));
     if (stage.task == kTaskCrossViewCompletion && config_.validation.blind_frames == 2 &&
-        blind_sequences_.size() >= 2) {
-      v.completion =
-          completion_control(*model_, completion_head_, blind_sequences_, stage.mask_ratio);
+        pairs.size() >= 2) {
+      v.completion = completion_control(*model_, completion_head_, pairs, stage.mask_ratio);
     }
   }
   // set_training() re-enabled every parameter: re-apply the stage's freeze.
@@ -527,8 +555,61 @@ ValidationMetrics Trainer::run_validation() {
   return v;
 }
 
+void Trainer::write_log() {
+  if (!is_root()) return;
+  const fs::path path = fs::path(options_.out_dir) / "train_log.csv";
+  if (log_rewrite_ || log_rows_written_ == 0 || !fs::exists(path)) {
+    write_file_atomically(path.string(), log_rows_to_csv(log_));
+  } else if (log_rows_written_ < log_.size()) {
+    // Only the new rows, so that a long run's log costs what its new rows
+    // do. A line cut short by a crash is skipped by the reader, and a resume
+    // writes the file anew up to its checkpoint.
+    const std::vector<LogRow> rows(log_.begin() + static_cast<std::ptrdiff_t>(log_rows_written_),
+                                   log_.end());
+    std::string text = log_rows_to_csv(rows);
+    text.erase(0, text.find('\n') + 1);  // the header is in the file
+    std::ofstream out(path, std::ios::app | std::ios::binary);
+    out << text;
+    out.flush();
+    if (!out) throw std::runtime_error("cannot append to " + path.string());
+  }
+  log_rows_written_ = log_.size();
+  log_rewrite_ = false;
+  // The blind control at each stride: appended only (a resume cuts it back).
+  std::string text;
+  auto first = log_.end();
+  while (first != log_.begin() && std::prev(first)->step > blind_step_written_) --first;
+  for (auto r = first; r != log_.end(); ++r) {
+    if (!r->val) continue;
+    for (const auto& [stride, b] : r->val->blind_per_stride) {
+      text += std::to_string(r->step) + "," + std::to_string(config_.validation.blind_frames) +
+              "," + std::to_string(stride) + "," + std::to_string(b.frames) + "," +
+              fmt(b.motion_px) + "," + fmt(b.reg_true) + "," + fmt(b.reg_blind) + "," +
+              fmt(b.blind_ratio) + "," + fmt(b.shape_err) + "," + fmt(b.rot_err_deg) + "," +
+              fmt(b.rot_true_deg) + "\n";
+    }
+    blind_step_written_ = r->step;
+  }
+  if (!text.empty()) {
+    const fs::path blind = fs::path(options_.out_dir) / "blind_control.csv";
+    if (blind_file_fresh_ || !fs::exists(blind)) {  // a new run: no rows of another
+      write_file_atomically(blind.string(), std::string(kBlindHeader) + "\n" + text);
+      blind_file_fresh_ = false;
+    } else {
+      std::ofstream out(blind, std::ios::app | std::ios::binary);
+      out << text;
+      out.flush();
+      if (!out) throw std::runtime_error("cannot append to " + blind.string());
+    }
+  }
+}
+
 void Trainer::save_checkpoint() {
   if (!is_root()) return;  // rank 0 writes for the job
+  // The log first: a checkpoint's rows are in train_log.csv before the
+  // checkpoint exists (a crash between them leaves rows past the newest
+  // checkpoint, which a resume drops).
+  write_log();
   const fs::path root = fs::path(options_.out_dir) / "checkpoint";
   char name[32];
   std::snprintf(name, sizeof(name), "step_%08lld.pt", static_cast<long long>(step_));
@@ -556,7 +637,8 @@ void Trainer::save_checkpoint() {
   bundle.write("wall_s", wall_offset_s_ + now_s() - start_time_);
   bundle.write("model_config", model_config_to_json(model_->config()));
   bundle.write("train_config", train_config_to_json(config_));
-  bundle.write("train_log_csv", log_rows_to_csv(log_));
+  // The log itself is train_log.csv beside the checkpoints, appended to.
+  bundle.write("train_log_rows", static_cast<int64_t>(log_.size()));
   std::ostringstream bytes;
   bundle.save_to(bytes);
   // The file appears complete or not at all; "latest" moves only then.
@@ -623,16 +705,57 @@ void Trainer::load_checkpoint(const std::string& path) {
   bundle.read("wall_s", value);
   wall_offset_s_ = value.toDouble();
   start_time_ = now_s();
-  // The log up to the checkpoint (a crash may have logged further steps).
-  bundle.read("train_log_csv", value);
-  log_ = log_rows_from_csv(value.toStringRef());
+  // The log up to the checkpoint (a crash may have logged further steps):
+  // in the checkpoint itself in files written before the log was appended
+  // to, else the rows of train_log.csv up to the checkpoint's step.
+  if (bundle.try_read("train_log_csv", value)) {
+    log_ = log_rows_from_csv(value.toStringRef());
+  } else if (is_root()) {
+    bundle.read("train_log_rows", value);
+    const int64_t rows = value.toInt();
+    const fs::path csv = fs::path(options_.out_dir) / "train_log.csv";
+    std::vector<LogRow> logged =
+        fs::exists(csv) ? log_rows_from_csv(read_text(csv)) : std::vector<LogRow>{};
+    logged.erase(std::remove_if(logged.begin(), logged.end(),
+                                [this](const LogRow& r) { return r.step > step_; }),
+                 logged.end());
+    if (static_cast<int64_t>(logged.size()) != rows) {
+      throw std::runtime_error("checkpoint " + path + " (step " + std::to_string(step_) +
+                               ") continues a log of " + std::to_string(rows) + " rows, but " +
+                               csv.string() + " holds " + std::to_string(logged.size()) +
+                               " up to that step: copy the run's train_log.csv beside its "
+                               "checkpoint folder");
+    }
+    log_ = std::move(logged);
+  } else {
+    log_.clear();  // rank 0 keeps the job's log
+  }
+  // The file is written anew, up to the checkpoint, at the next write.
+  log_rows_written_ = log_.size();
+  log_rewrite_ = true;
+  // The blind control's rows past the checkpoint go now (they are appended
+  // to, never written anew).
+  blind_step_written_ = step_;
+  const fs::path blind = fs::path(options_.out_dir) / "blind_control.csv";
+  if (is_root() && fs::exists(blind)) {
+    std::istringstream in(read_text(blind));
+    std::string line, kept;
+    while (std::getline(in, line)) {
+      const std::vector<std::string> cells = split_csv_line(line);
+      if (cells.size() != 11) continue;  // cut short by a crash
+      const bool keep = line == kBlindHeader || parse_num(cells[0]) <= static_cast<double>(step_);
+      if (keep) kept += line + "\n";
+    }
+    write_file_atomically(blind.string(), kept);
+  }
+  blind_file_fresh_ = false;
 }
 
 void Trainer::write_outputs() {
   if (!is_root()) return;
   const fs::path out(options_.out_dir);
   model_->save((out / "model.safetensors").string());
-  write_file_atomically((out / "train_log.csv").string(), log_rows_to_csv(log_));
+  write_log();
   if (options_.extensions.write_plot) {
     options_.extensions.write_plot(log_, (out / "loss_curve.png").string());
   }
@@ -654,6 +777,7 @@ void Trainer::write_outputs() {
     j["regression"] = v.regression;
     j["registered"] = v.registered;
     j["blind_ratio"] = v.blind.blind_ratio;
+    j["shape_err"] = v.blind.shape_err;
     j["reg_true"] = v.blind.reg_true;
     j["reg_blind"] = v.blind.reg_blind;
     j["rot_err_deg"] = v.blind.rot_err_deg;
@@ -779,8 +903,9 @@ void Trainer::run() {
                     r.val->prediction.comp_mean, r.val->prediction.nc_mean,
                     r.val->prediction.ate_rmse);
         if (r.val->blind.frames > 0) {
-          std::printf("  blind ratio %.3f (rot err %.2f of %.2f deg)", r.val->blind.blind_ratio,
-                      r.val->blind.rot_err_deg, r.val->blind.rot_true_deg);
+          std::printf("  blind ratio %.3f (shape %.3f, rot err %.2f of %.2f deg)",
+                      r.val->blind.blind_ratio, r.val->blind.shape_err, r.val->blind.rot_err_deg,
+                      r.val->blind.rot_true_deg);
         }
         if (std::isfinite(r.val->completion.loss_true)) {
           std::printf("  completion %.4f (shuffled reference %.4f)", r.val->completion.loss_true,
@@ -798,6 +923,8 @@ void Trainer::run() {
   stop_prefetch();
   if (is_root() && config_.validation.sequences > 0 && !validated_last && !log_.empty()) {
     log_.back().val = run_validation();
+    // A row already in the file cannot be appended to again.
+    if (log_rows_written_ >= log_.size()) log_rewrite_ = true;
   }
   save_checkpoint();
   write_outputs();
