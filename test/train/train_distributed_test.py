@@ -153,11 +153,13 @@ def main():
                    initial, "2 ranks vs 1 process")
     compare_losses(rows_two, log_rows(one), "2 ranks vs 1 process", 1e-5)
 
-    # The two-rank checkpoint of step 2, resumed in one process.
+    # The two-rank checkpoint of step 2, resumed in one process (the run's
+    # log goes with it: a checkpoint keeps only its row count).
     resumed = os.path.join(a.workdir, "resumed")
     os.makedirs(os.path.join(resumed, "checkpoint"))
     shutil.copy(os.path.join(two, "checkpoint", "step_00000002.pt"),
                 os.path.join(resumed, "checkpoint"))
+    shutil.copy(os.path.join(two, "train_log.csv"), resumed)
     with open(os.path.join(resumed, "checkpoint", "latest"), "w") as f:
         f.write("step_00000002.pt\n")
     rc, log = run([a.train] + common + ["--out", resumed, "--resume"],
