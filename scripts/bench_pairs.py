@@ -155,9 +155,9 @@ def main():
     p.add_argument("--ranks", type=int, default=os.cpu_count())
     p.add_argument("--scenes", type=int, default=64,
                    help="training scenes of the benchmark's own frame cache")
-    p.add_argument("--cache", default=os.path.join(ROOT, "build", "cache",
-                                                   "train_pairs_fast.frames"),
-                   help="a frame cache of the configuration to use if it fits")
+    p.add_argument("--cache", default=os.path.join(ROOT, "build", "cache"),
+                   help="a frame cache of the configuration to use if it fits, or the folder "
+                        "of scripts/train_pairs_curve.sh's caches")
     p.add_argument("--cases", default="reference,rendered,cached,ranks")
     p.add_argument("--work", default="", help="folder for the runs (default: a temporary one)")
     opts = p.parse_args()
@@ -178,9 +178,13 @@ def main():
         work = opts.work or tmp
         os.makedirs(work, exist_ok=True)
         tool = os.path.join(opts.build, "long3r_frame_cache")
+        check = case_config(work, "check", "off", 0)
         cache, scenes = opts.cache, 0
-        fits = cache and os.path.exists(cache) and subprocess.run(
-            [tool, "--config", case_config(work, "check", "off", 0), "--out", cache, "--check"],
+        if os.path.isdir(cache):
+            cache = subprocess.run([tool, "--config", check, "--out", cache, "--print-name"],
+                                   check=True, capture_output=True, text=True).stdout.strip()
+        fits = os.path.exists(cache) and subprocess.run(
+            [tool, "--config", check, "--out", cache, "--check"],
             capture_output=True).returncode == 0
         if not fits:
             scenes = opts.scenes

@@ -1,16 +1,18 @@
 #!/usr/bin/env bash
 # The registration-onset experiment (docs/model_card.md, "Registration
-# against pairs seen"): config/train_pairs_fast.json, trained across sittings
-# that resume exactly. Builds the trainer and the frame-cache writer without
-# ROS; renders the configuration's training scenes once into a frame cache
-# (build/cache/, about 14 GB at 64 px; kept while it fits the configuration);
-# continues RUN_DIR's own checkpoint or, in a fresh clone, the snapshot kept
-# in models/experiments/pairs_fast/; trains for at most --budget-s seconds as
+# against pairs seen"): config/train_pairs_fast.json (or --config), trained
+# across sittings that resume exactly. Builds the trainer and the
+# frame-cache writer without ROS; renders the configuration's training
+# scenes once into a frame cache (build/cache/, about 14 GB at 64 px, named
+# by the scenes it holds, so that configurations drawing the same frames
+# share it; kept while it fits); continues RUN_DIR's own checkpoint or, in a
+# fresh clone, the snapshot kept in --snapshot (default
+# models/experiments/pairs_fast/); trains for at most --budget-s seconds as
 # --ranks data-parallel processes of one thread each (Gloo over loopback;
-# the global batch and its draws are the same at any rank count); then prints
-# the blind control against pairs seen. --keep stores the newest checkpoint
-# and log back into models/experiments/pairs_fast/ for the next sitting (a
-# full checkpoint: weights, AdamW state, data and RNG states).
+# the global batch and its draws are the same at any rank count); then
+# prints the blind control against pairs seen. --keep stores the newest
+# checkpoint and the logs back into the snapshot folder for the next sitting
+# (a full checkpoint: weights, AdamW state, data and RNG states).
 #   bash scripts/train_pairs_curve.sh [RUN_DIR] [--budget-s S] [--ranks N] [--keep]
 #        [--config FILE] [--snapshot DIR]
 # Run it in the background (nice -n 19) and build nothing beside it: the
@@ -31,7 +33,7 @@ while [ $# -gt 0 ]; do
     --config) config=$2; shift 2 ;;
     --snapshot) snapshot=$2; shift 2 ;;
     --keep) keep=1; shift ;;
-    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
     -*) echo "unknown option $1" >&2; exit 2 ;;
     *) run=$1; shift ;;
   esac
@@ -46,8 +48,8 @@ cmake --build "$build" -j "$LONG3R_JOBS" --target app_long3r_train app_long3r_fr
 
 # The model config path in the training config is relative to the repository.
 cd "$LONG3R_ROOT"
-cache="$LONG3R_ROOT/build/cache/$name.frames"
-mkdir -p "$(dirname "$cache")"
+mkdir -p "$LONG3R_ROOT/build/cache"
+cache=$("$build/long3r_frame_cache" --config "$config" --out "$LONG3R_ROOT/build/cache" --print-name)
 if ! "$build/long3r_frame_cache" --config "$config" --out "$cache" --check 2>/dev/null; then
   echo "== rendering the training scenes into $cache"
   "$build/long3r_frame_cache" --config "$config" --out "$cache" --threads "$(nproc)"
@@ -57,8 +59,10 @@ mkdir -p "$run/checkpoint"
 if [ ! -f "$run/checkpoint/latest" ] && [ -f "$snapshot/checkpoint/latest" ]; then
   echo "== continuing the kept snapshot ($(cat "$snapshot/checkpoint/latest"))"
   cp "$snapshot/checkpoint/"* "$run/checkpoint/"
-  # The log up to the checkpoint (newer checkpoints keep only its length).
-  [ -f "$snapshot/train_log.csv" ] && cp "$snapshot/train_log.csv" "$run/train_log.csv"
+  # The logs up to the checkpoint (newer checkpoints keep only their length).
+  for f in train_log.csv blind_control.csv; do
+    if [ -f "$snapshot/$f" ]; then cp "$snapshot/$f" "$run/$f"; fi
+  done
 fi
 resume=()
 [ -f "$run/checkpoint/latest" ] && resume=(--resume)
@@ -87,7 +91,9 @@ if [ "$keep" = 1 ]; then
   mv "$snapshot/checkpoint/$latest.tmp" "$snapshot/checkpoint/$latest"
   echo "$latest" > "$snapshot/checkpoint/latest"
   find "$snapshot/checkpoint" -name 'step_*.pt' ! -name "$latest" -delete
-  cp "$run/train_log.csv" "$snapshot/train_log.csv"
+  for f in train_log.csv blind_control.csv; do
+    if [ -f "$run/$f" ]; then cp "$run/$f" "$snapshot/$f"; fi
+  done
   echo "== kept $latest in $snapshot"
 fi
 /usr/bin/python3 "$LONG3R_ROOT/scripts/blind_curve.py" "$run/train_log.csv" --every 4

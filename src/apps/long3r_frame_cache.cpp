@@ -6,6 +6,7 @@
 // cache".
 #include <chrono>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
@@ -40,7 +41,14 @@ int main(int argc, char** argv) {
   bool check = false, quiet = false;
   long3r::CliOptions cli("long3r_frame_cache");
   cli.option("--config", "FILE", &config_path, "training configuration (JSON)").required();
-  cli.option("--out", "FILE", &out, "the cache file to write (or to check)").required();
+  cli.option("--out", "FILE", &out,
+             "the cache file to write (or to check); a folder: the file named as --print-name "
+             "says, in it")
+      .required();
+  bool print_name = false;
+  cli.flag("--print-name", &print_name,
+           "only print the file path --out stands for (the file name that says which scenes "
+           "the configuration's cache holds, shared by configurations that draw the same frames)");
   cli.option("--threads", "N", &threads, "scenes rendered at a time")
       .min(1)
       .shown_default("hardware concurrency");
@@ -58,6 +66,13 @@ int main(int argc, char** argv) {
     const long3r::TrainConfig config = long3r::parse_train_config(read_file(config_path));
     const long3r::SynthDataConfig& synth = config.data.synth;
     const int size = synth.render_side(config.image_size);
+    if (std::filesystem::is_directory(out)) {
+      out = (std::filesystem::path(out) / long3r::FrameCache::file_name(synth, size)).string();
+    }
+    if (print_name) {
+      std::printf("%s\n", out.c_str());
+      return 0;
+    }
     const auto t0 = std::chrono::steady_clock::now();
     if (!check) {
       if (!synth.enabled) throw std::runtime_error(config_path + " trains on no generated scenes");

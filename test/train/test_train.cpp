@@ -618,6 +618,15 @@ TEST(TrainFrameCache, RefusesACacheThatDoesNotFit) {
   long3r::SynthDataConfig other = c.data.synth;
   other.speed = 0.03;
   refused(path, other, "made for speed 0.02, the configuration has 0.03");
+  // Its name says which scenes it holds: the same for the same frames (a
+  // validation setting is no part of them), another for other frames.
+  const std::string name = long3r::FrameCache::file_name(c.data.synth, size);
+  EXPECT_EQ(name.rfind("synth_64px_1000-1001x5_", 0), 0u) << name;
+  long3r::SynthDataConfig same = c.data.synth;
+  same.val_scenes = 7;
+  EXPECT_EQ(long3r::FrameCache::file_name(same, size), name);
+  EXPECT_NE(long3r::FrameCache::file_name(other, size), name);
+  EXPECT_NE(long3r::FrameCache::file_name(c.data.synth, size + 8), name);
   other = c.data.synth;
   other.train_scenes = 3;
   refused(path, other, "made for train_scenes 2");

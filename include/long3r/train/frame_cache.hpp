@@ -61,6 +61,12 @@ class FrameCache {
   FrameCache(const FrameCache&) = delete;
   FrameCache& operator=(const FrameCache&) = delete;
 
+  // A file name that says which scenes a cache of `config` at render_size
+  // holds ("synth_64px_1000-2999x240_<hash of the key>.frames"): the same
+  // for every configuration that draws the same frames, so that they share
+  // one cache.
+  static std::string file_name(const SynthDataConfig& config, int render_size);
+
   // Whether the cache holds the scene of this seed.
   bool covers(uint64_t seed) const;
   // Frame `index` of scene `seed` (copied out of the mapping). Throws

@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <cstdio>
 #include <cstring>
 #include <nlohmann/json.hpp>
 #include <stdexcept>
@@ -92,6 +93,20 @@ RenderedScene render_scene(const SynthDataConfig& config, uint64_t seed, int siz
 }
 
 }  // namespace
+
+std::string FrameCache::file_name(const SynthDataConfig& config, int render_size) {
+  // FNV-1a of the key's text: the fields the frames depend on.
+  uint64_t h = 14695981039346656037ull;
+  for (const char c : cache_key(config, render_size).dump()) {
+    h = (h ^ static_cast<unsigned char>(c)) * 1099511628211ull;
+  }
+  char hash[17];
+  std::snprintf(hash, sizeof(hash), "%016llx", static_cast<unsigned long long>(h));
+  return "synth_" + std::to_string(render_size) + "px_" + std::to_string(config.train_seed_begin) +
+         "-" +
+         std::to_string(config.train_seed_begin + static_cast<uint64_t>(config.train_scenes) - 1) +
+         "x" + std::to_string(config.trajectory_frames) + "_" + std::string(hash, 8) + ".frames";
+}
 
 void FrameCache::write(const std::string& path, const SynthDataConfig& config, int render_size,
                        int threads, const std::function<void(int64_t, int64_t)>& progress) {
