@@ -92,8 +92,9 @@ int main(int argc, char** argv) {
            "instead of the metrics: the blind control (docs/model_card.md) of the model, per "
            "sequence length and stride: reg_true (placement error of frames 1.. given the true "
            "reference), reg_blind (each frame given itself as its reference) and blind_ratio = "
-           "true / blind (about 1: no registration), with the rotation error against the true "
-           "relative rotation and the image motion in pixels and patches");
+           "true / blind (about 1: no registration), with the shape error left after each frame's "
+           "own Sim(3) alignment, the rotation error against the true relative rotation and the "
+           "image motion in pixels and patches");
   cli.option("--blind-stride", "D", &blind_strides,
              "a stride of the blind control (repeatable; default 4, 8, 16, 32)");
   cli.option("--blind-frames", "N", &blind_lengths,
