@@ -7,8 +7,6 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
-#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -19,14 +17,6 @@
 #include "long3r/train/train_config.hpp"
 
 namespace {
-
-std::string read_file(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw std::runtime_error("cannot read " + path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 
 double seconds_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -63,7 +53,7 @@ int main(int argc, char** argv) {
     tc.torch_threads = 1;  // the scenes are rendered in parallel instead
     tc.openblas_threads = 1;
     long3r::apply_thread_config(tc);
-    const long3r::TrainConfig config = long3r::parse_train_config(read_file(config_path));
+    const long3r::TrainConfig config = long3r::load_train_config(config_path);
     const long3r::SynthDataConfig& synth = config.data.synth;
     const int size = synth.render_side(config.image_size);
     if (std::filesystem::is_directory(out)) {

@@ -4,9 +4,6 @@
 // generated scenes and validates by the loss and pointmap figures only.
 #include <cstdio>
 #include <cstdlib>
-#include <filesystem>
-#include <fstream>
-#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -19,18 +16,6 @@
 #ifdef LONG3R_TRAIN_WITH_OPENCV
 #include "long3r/train/cv/train_cv.hpp"
 #endif
-
-namespace {
-
-std::string read_file(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw std::runtime_error("cannot read " + path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-}  // namespace
 
 int main(int argc, char** argv) {
   std::string config_path = "config/train_default.json";
@@ -91,9 +76,7 @@ int main(int argc, char** argv) {
     tc.torch_threads = threads;
     tc.openblas_threads = threads;  // the recipe's wall times were measured so
     long3r::apply_thread_config(tc);
-    long3r::TrainConfig config = long3r::parse_train_config(read_file(config_path));
-    config.model = long3r::locate_model_config(
-        config.model, std::filesystem::path(config_path).parent_path().string());
+    const long3r::TrainConfig config = long3r::load_train_config(config_path);
 #ifdef LONG3R_TRAIN_WITH_OPENCV
     opt.extensions = long3r::opencv_trainer_extensions();
 #endif

@@ -267,6 +267,10 @@ ModelConfig resolve_model_config(const std::string& name_or_path);
 // that a configuration names the model file beside it wherever it is run
 // from; anything else is returned unchanged.
 std::string locate_model_config(const std::string& model, const std::string& config_dir);
+// The training configuration of a JSON file, parsed, with its `model`
+// located relative to the file's folder (locate_model_config). Throws
+// std::runtime_error naming a file it cannot read, ConfigError as above.
+TrainConfig load_train_config(const std::string& path);
 
 // The learning-rate schedule over the stages.
 struct StagePosition {

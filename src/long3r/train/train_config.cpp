@@ -4,6 +4,7 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <stdexcept>
 
 #include "long3r/config/config_json.hpp"
 #include "long3r/model/network/model_config.hpp"
@@ -167,6 +168,16 @@ ModelConfig resolve_model_config(const std::string& name_or_path) {
     return parse_model_config(ss.str());
   }
   return named_model_config(name_or_path);
+}
+
+TrainConfig load_train_config(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error("cannot read " + path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  TrainConfig c = parse_train_config(ss.str());
+  c.model = locate_model_config(c.model, std::filesystem::path(path).parent_path().string());
+  return c;
 }
 
 std::string locate_model_config(const std::string& model, const std::string& config_dir) {
