@@ -124,6 +124,15 @@ const ValColumn kValColumns[] = {
     {"val_shape_err", [](ValidationMetrics& v) -> double& { return v.blind.shape_err; }, true},
 };
 
+// Appends `text` to the file at `path` (creating it), or throws naming it.
+// Not atomic: the logs' readers skip a line cut short by a crash.
+void append_to_file(const fs::path& path, const std::string& text) {
+  std::ofstream out(path, std::ios::app | std::ios::binary);
+  out << text;
+  out.flush();
+  if (!out) throw std::runtime_error("cannot append to " + path.string());
+}
+
 // blind_control.csv: a row per validation and stride of validation.blind_*.
 constexpr const char* kBlindHeader =
     "step,frames,stride,scored,motion_px,reg_true,reg_blind,blind_ratio,shape_err,rot_err_deg,"
@@ -568,10 +577,7 @@ void Trainer::write_log() {
                                    log_.end());
     std::string text = log_rows_to_csv(rows);
     text.erase(0, text.find('\n') + 1);  // the header is in the file
-    std::ofstream out(path, std::ios::app | std::ios::binary);
-    out << text;
-    out.flush();
-    if (!out) throw std::runtime_error("cannot append to " + path.string());
+    append_to_file(path, text);
   }
   log_rows_written_ = log_.size();
   log_rewrite_ = false;
@@ -596,10 +602,7 @@ void Trainer::write_log() {
       write_file_atomically(blind.string(), std::string(kBlindHeader) + "\n" + text);
       blind_file_fresh_ = false;
     } else {
-      std::ofstream out(blind, std::ios::app | std::ios::binary);
-      out << text;
-      out.flush();
-      if (!out) throw std::runtime_error("cannot append to " + blind.string());
+      append_to_file(blind, text);
     }
   }
 }
