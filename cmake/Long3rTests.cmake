@@ -84,12 +84,17 @@ if(LONG3R_WITH_ROS)
   find_package(roslaunch REQUIRED)
   roslaunch_add_file_check(launch/long3r.launch)
   roslaunch_add_file_check(launch/replay.launch bag:=replay.bag)
+  roslaunch_add_file_check(launch/realsense.launch)
+  roslaunch_add_file_check(launch/usb_camera.launch)
   # Users start the launch files by package and name; two files of one name
   # anywhere in the package make that fail ("multiple files named ...").
-  foreach(l long3r replay)
+  foreach(l long3r replay realsense usb_camera)
     add_test(NAME launch_by_name_${l}
       COMMAND ${CATKIN_ENV} roslaunch --nodes long3r_ros ${l}.launch bag:=replay.bag)
   endforeach()
+  # The launch files keep the user's config file (roslaunch --dump-params).
+  add_test(NAME ros_launch_params
+    COMMAND ${CATKIN_ENV} /usr/bin/python3 ${PROJECT_SOURCE_DIR}/test/ros/launch_params.py)
   file(GLOB LONG3R_ROSTESTS CONFIGURE_DEPENDS test/ros/*.test)
   foreach(t ${LONG3R_ROSTESTS})
     add_rostest(${t})

@@ -41,7 +41,7 @@ robot_args=()
 if [ "$robot" = 1 ]; then
   "$bin/long3r_synth" --out "$out/sequence" --frames "$frames" --seed 7 --trajectory robot --quiet
   /usr/bin/python3 "$LONG3R_ROOT/scripts/tum_to_bag.py" "$out/sequence" "$out/sequence.bag" \
-    --robot --depth-topic /camera/depth/image_raw --time-offset 1000 >/dev/null
+    --robot --depth-topic /camera/depth_registered/image_raw --time-offset 1000 >/dev/null
   # The node's trajectory is then base_link's, in metres.
   gt_traj="$out/sequence/base_groundtruth.txt"
   robot_args=(odom_frame:=odom base_frame:=base_link pose_source:=odometry scale_source:=depth)

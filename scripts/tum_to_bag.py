@@ -542,6 +542,31 @@ def write_image(bag, classes, args, topic, header, img):
     bag.write(topic, msg, header.stamp)
 
 
+# Where the stamps go when the sequence starts at 0 (long3r_synth's do) and
+# no --time-offset is given.
+AUTO_START_S = 1000.0
+
+
+def resolve_time_offset(offset, first_stamp):
+    """The offset added to every stamp. A stamp of 0 is "no time" in ROS: the
+    node drops such frames (drop_zero_stamps) and so would a bag's reader, so
+    a sequence that starts at or before 0 is moved to start at AUTO_START_S
+    unless an offset is given, and an offset that leaves the first frame at
+    or before 0 is refused."""
+    if offset is None:
+        if first_stamp > 0.0:
+            return 0.0
+        offset = AUTO_START_S - first_stamp
+        sys.stderr.write("tum_to_bag: the first frame is stamped %.6f s (0 is \"no time\" in ROS); "
+                         "every stamp moved by %+.3f s (--time-offset to choose)\n" % (first_stamp, offset))
+        return offset
+    if first_stamp + offset <= 0.0:
+        raise ValueError("--time-offset %g puts the first frame at %.6f s: stamps must be > 0 "
+                         "(0 is \"no time\" in ROS, and its frame would be dropped)"
+                         % (offset, first_stamp + offset))
+    return offset
+
+
 def convert(args):
     classes = load_message_classes()
     root = args.tum_dir
@@ -576,6 +601,8 @@ def convert(args):
     frames = rgb[args.start:]
     if args.max_frames > 0:
         frames = frames[:args.max_frames]
+    if frames:
+        args.time_offset = resolve_time_offset(args.time_offset, frames[0][0])
     robot = Robot(root, args, [f[0] for f in frames]) if args.robot and frames else None
     fx, fy, cx, cy = calib.K
     counts = {"image": 0, "info": 0, "tf": 0, "depth": 0, "odom": 0, "tf_static": 0}
@@ -664,7 +691,9 @@ def main(argv=None):
     p.add_argument("--calib", default="", help="'fx fy cx cy' when there is no calibration.txt")
     p.add_argument("--depth-factor", type=float, default=5000.0, help="depth PNG value per metre")
     p.add_argument("--max-diff", type=float, default=0.02, help="timestamp association tolerance (s)")
-    p.add_argument("--time-offset", type=float, default=0.0, help="added to every stamp (s)")
+    p.add_argument("--time-offset", type=float, default=None,
+                   help="added to every stamp (s); default 0, or, when the first frame is stamped 0 "
+                        "or earlier, what moves it to %g s (a zero stamp is dropped in ROS)" % AUTO_START_S)
     p.add_argument("--start", type=int, default=0, help="first frame")
     p.add_argument("--max-frames", type=int, default=0, help="at most this many frames (0: all)")
     p.add_argument("--compression", default="none", choices=["none", "bz2", "lz4"])
@@ -687,7 +716,10 @@ def main(argv=None):
         p.error("--jpeg-quality must be within 1-100")
     if args.odom_rate < 0:
         p.error("--odom-rate must be >= 0")
-    counts = convert(args)
+    try:
+        counts = convert(args)
+    except ValueError as e:
+        p.error(str(e))
     print("wrote %s: %d images, %d camera infos, %d depth images, %d tf messages"
           % (args.output, counts["image"], counts["info"], counts["depth"], counts["tf"])
           + (", %d odometry transforms, %d tf_static" % (counts["odom"], counts["tf_static"]) if args.robot else ""))

@@ -75,7 +75,16 @@ def main():
     bag_path = os.path.join(args.workdir, "seq.bag")
     run([args.synth, "--out", seq, "--frames", "5", "--width", "64", "--height", "48",
          "--seed", "3", "--quiet"], check=True)
+    # long3r_synth stamps its first frame 0 ("no time" in ROS): without an
+    # offset the bag starts at 1000 s, and every frame is kept.
     run([sys.executable, args.script, seq, bag_path, "--depth-topic", "/camera/depth"], check=True)
+    offset = t2b.AUTO_START_S
+    check(t2b.resolve_time_offset(None, 1305031102.175) == 0.0, "positive stamps are kept")
+    check(t2b.resolve_time_offset(2.5, 0.0) == 2.5, "an explicit offset is kept")
+    rc, out = run([sys.executable, args.script, seq, os.path.join(args.workdir, "zero.bag"),
+                   "--time-offset", "0"])
+    check(rc != 0 and "must be > 0" in out, "a first frame at 0 refused: %s" % out)
+    check(not os.path.exists(os.path.join(args.workdir, "zero.bag")), "no bag written when refused")
 
     rgb_list = t2b.read_list(os.path.join(seq, "rgb.txt"))
     gt = t2b.read_trajectory(os.path.join(seq, "groundtruth.txt"))
@@ -121,14 +130,15 @@ def main():
     for i in range(5):
         stamp = rgb_list[i][0]
         img, ci, tf, dm = images[i], infos[i], tfs[i], depths[i]
-        check(abs(img.header.stamp.to_sec() - stamp) < 1e-6, "image stamp %d" % i)
+        check(img.header.stamp.to_sec() > 0.0, "image %d stamped 0" % i)
+        check(abs(img.header.stamp.to_sec() - (stamp + offset)) < 1e-6, "image stamp %d" % i)
         check(img.header.frame_id == "camera", "frame_id")
         check((img.width, img.height, img.encoding, img.step) == (64, 48, "rgb8", 192), "image layout")
         pixels = np.frombuffer(img.data, np.uint8).reshape(48, 64, 3)
         png = t2b.read_png(os.path.join(seq, rgb_list[i][1]))
         check(np.array_equal(pixels, png), "pixels %d" % i)
         check(pixels.std() > 5.0, "image %d looks blank" % i)
-        check(abs(ci.header.stamp.to_sec() - stamp) < 1e-6, "camera info stamp")
+        check(abs(ci.header.stamp.to_sec() - (stamp + offset)) < 1e-6, "camera info stamp")
         check(list(ci.K) == [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0], "K")
         check(ci.distortion_model == "plumb_bob" and list(ci.D) == [0.0] * 5, "no distortion")
         check((ci.width, ci.height) == (64, 48), "camera info size")
