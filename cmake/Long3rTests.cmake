@@ -122,6 +122,11 @@ if(LONG3R_WITH_ROS)
     COMMAND ${CATKIN_ENV} /usr/bin/python3 ${PROJECT_SOURCE_DIR}/test/ros/session_check.py)
   set_tests_properties(ros_sessions PROPERTIES FIXTURES_REQUIRED ros_replay_data
     ENVIRONMENT "LONG3R_REPLAY_DATA=${LONG3R_REPLAY_DATA}" TIMEOUT 900)
+  # The install space on its own: the package, its launch files and the demo.
+  add_test(NAME ros_install_space
+    COMMAND ${PROJECT_SOURCE_DIR}/test/ros/install_space_check.sh ${CMAKE_BINARY_DIR}
+            ${LONG3R_REPLAY_DATA} ${PROJECT_BINARY_DIR}/test_tmp/install_space)
+  set_tests_properties(ros_install_space PROPERTIES FIXTURES_REQUIRED ros_replay_data TIMEOUT 900)
   # The distorted camera's map is as accurate as the undistorted one's (within 5 %).
   foreach(t robot_undistorted robot_distorted)
     set_tests_properties(_ctest_${PROJECT_NAME}_rostest_test_ros_${t}.test PROPERTIES

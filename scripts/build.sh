@@ -3,12 +3,27 @@
 # linked into its src/). The folder is hidden because roslaunch looks for
 # launch files by walking the package folder, following links and skipping
 # only dot-folders: a visible workspace would lead it round the link back into
-# the repository, again and again. Extra arguments go to catkin_make.
+# the repository, again and again.
+#   bash scripts/build.sh [--no-tests] [--no-trainer] [TARGET...]
+# --no-tests leaves out the tests, --no-trainer the trainer and its tools
+# (long3r_train, long3r_frame_cache, long3r_model_eval; the tests need it, so
+# it implies --no-tests): what a robot needs. TARGETs (catkin_make's, e.g.
+# long3r_node) build only those; other arguments go to catkin_make.
 # LONG3R_TORCH_DIR (a folder with TorchConfig.cmake, e.g. a CUDA libtorch;
 # see scripts/install_deps.sh) builds against that libtorch instead of
 # Debian's.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
+tests=ON
+trainer=ON
+make_args=()
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --no-tests) tests=OFF; shift ;;
+    --no-trainer) trainer=OFF; tests=OFF; shift ;;
+    *) make_args+=("$1"); shift ;;
+  esac
+done
 torch_args=()
 [ -n "${LONG3R_TORCH_DIR:-}" ] && torch_args=(-DTorch_DIR="$LONG3R_TORCH_DIR")
 
@@ -19,6 +34,8 @@ mkdir -p "$LONG3R_WS/src"
 mkdir -p "$LONG3R_WS/devel/lib/python3/dist-packages"
 ln -sfn "$LONG3R_ROOT" "$LONG3R_WS/src/long3r_ros"
 cd "$LONG3R_WS"
-catkin_make --make-args -j"$LONG3R_JOBS" "$@" -- \
+# Every option given each time: the workspace's cache keeps what the last
+# build asked for otherwise.
+catkin_make --make-args -j"$LONG3R_JOBS" "${make_args[@]}" -- \
   "${LONG3R_CMAKE_PY_ARGS[@]}" "${torch_args[@]}" -DCMAKE_BUILD_TYPE=Release \
-  -DCATKIN_ENABLE_TESTING=ON
+  -DCATKIN_ENABLE_TESTING="$tests" -DLONG3R_BUILD_TESTS="$tests" -DLONG3R_BUILD_TRAINER="$trainer"

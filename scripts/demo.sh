@@ -7,8 +7,10 @@
 # odometry odom -> base_link, registered depth), replayed as on a robot:
 # map -> odom published, z-up map, frames placed by the odometry and scaled
 # to metres by the depth (the shipped model's own poses are too coarse for an
-# odometry scale; README, "Metric scale and pose source").
+# odometry scale; README, "Metric scale and pose source"); --pose-source and
+# --scale-source choose otherwise (scripts/units_table.sh runs each pair).
 #   bash scripts/demo.sh [OUT_DIR] [--frames N] [--model FILE] [--robot]
+#        [--pose-source model|odometry] [--scale-source none|odometry|depth]
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 
@@ -16,18 +18,25 @@ out="$LONG3R_ROOT/build/demo"
 frames=60
 model=""
 robot=0
+pose_source=odometry
+scale_source=depth
 while [ $# -gt 0 ]; do
   case "$1" in
     --frames) frames=$2; shift 2 ;;
     --model) model=$2; shift 2 ;;
     --robot) robot=1; shift ;;
+    --pose-source) pose_source=$2; shift 2 ;;
+    --scale-source) scale_source=$2; shift 2 ;;
     -*) echo "unknown option $1" >&2; exit 2 ;;
     *) out=$1; shift ;;
   esac
 done
 
 "$LONG3R_ROOT/scripts/install_deps.sh"
-"$LONG3R_ROOT/scripts/build.sh"
+# Only what the demo runs: the nodelet, the generator, the scorer (no tests,
+# no trainer).
+"$LONG3R_ROOT/scripts/build.sh" --no-trainer long3r_node long3r_nodelet long3r_ros_generate_messages \
+  app_long3r_synth app_long3r_eval app_long3r_make_random_model
 set +u; source "$LONG3R_WS/devel/setup.bash"; set -u
 bin="$LONG3R_WS/devel/lib/long3r_ros"
 
@@ -44,7 +53,8 @@ if [ "$robot" = 1 ]; then
     --robot --depth-topic /camera/depth_registered/image_raw --time-offset 1000 >/dev/null
   # The node's trajectory is then base_link's, in metres.
   gt_traj="$out/sequence/base_groundtruth.txt"
-  robot_args=(odom_frame:=odom base_frame:=base_link pose_source:=odometry scale_source:=depth)
+  robot_args=(odom_frame:=odom base_frame:=base_link pose_source:="$pose_source"
+              scale_source:="$scale_source" depth:=/camera/depth_registered/image_raw)
 else
   "$bin/long3r_synth" --out "$out/sequence" --frames "$frames" --seed 7 --quiet
   /usr/bin/python3 "$LONG3R_ROOT/scripts/tum_to_bag.py" "$out/sequence" "$out/sequence.bag" \
@@ -70,7 +80,7 @@ fi
 
 echo "== replaying through the nodelet (model: $model)"
 roslaunch long3r_ros demo.launch bag:="$out/sequence.bag" model_path:="$model" \
-  out_dir:="$out" "${robot_args[@]}" 2>&1 | tee "$out/roslaunch.log" | grep -E "WARN|ERROR|FATAL|demo:|save_map" || true
+  out_dir:="$out" frames:="$frames" "${robot_args[@]}" 2>&1 | tee "$out/roslaunch.log" | grep -E "WARN|ERROR|FATAL|demo:|save_map" || true
 [ -s "$out/map.ply" ] && [ -f "$out/trajectory.txt" ] || { echo "demo failed: see $out/roslaunch.log" >&2; exit 1; }
 
 echo "== scoring against the ground truth"

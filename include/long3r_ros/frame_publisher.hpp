@@ -8,7 +8,8 @@
 // map_frame. ~odometry carries a pose covariance (the odometry's own for a
 // pose it placed, else PnP's moved to the body) and a twist from the
 // finite difference of two consecutive poses; without a covariance it is
-// not published. Lengths in metres once the scale is metric.
+// not published. Lengths in metres once the scale is metric; until then
+// what carries metres is held (Context::units).
 #pragma once
 
 #include <ros/ros.h>
@@ -23,6 +24,7 @@
 
 #include "long3r/pipeline/frame_result.hpp"
 #include "long3r_ros/log_throttle.hpp"
+#include "long3r_ros/output_units.hpp"
 
 namespace long3r_ros {
 
@@ -36,9 +38,9 @@ class FramePublisher {
     Eigen::Isometry3d T_map_body = Eigen::Isometry3d::Identity();
     bool scale_metric = false;
     double scale_stddev = 0.0;
-    // ~depth and ~frame_cloud wait for the metric scale (held, with a warning).
-    bool depth_held = false;
-    std::string depth_held_why;  // the rest of that warning
+    // Outputs held, not in metres (output_units.hpp); ~pointmap says it itself.
+    OutputUnits units;
+    std::string held_why;  // the rest of the warning that says so
     float conf_threshold = 1.0f;
     // The odometry's covariance (row-major, map) of a pose it placed.
     std::optional<Eigen::Matrix<double, 6, 6>> given_covariance_map;

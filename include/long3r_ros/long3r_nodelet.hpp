@@ -52,6 +52,7 @@
 #include "long3r_ros/log_throttle.hpp"
 #include "long3r_ros/map_publisher.hpp"
 #include "long3r_ros/node_status.hpp"
+#include "long3r_ros/output_units.hpp"
 #include "long3r_ros/params.hpp"
 #include "long3r_ros/robot_frames.hpp"
 #include "long3r_ros/session_services.hpp"
@@ -113,6 +114,9 @@ class Long3rNodelet : public nodelet::Nodelet,
   long3r::MapSnapshot mapSnapshot() override;
 
   void publishOutputs(const long3r::FrameResult& r, const std_msgs::Header& header);
+  // What is held now, not in metres (output_units.hpp); session_mutex_ held.
+  OutputUnits outputUnits(bool pose_given);
+  std::string heldWhy(const OutputUnits& units) const;
   nav_msgs::Path pathMessage();  // session_mutex_ held
   void shutdown();
 

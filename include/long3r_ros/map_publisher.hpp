@@ -42,6 +42,9 @@ class MapPublisher {
   // (the grid's rays start there).
   void publish(long3r::MapSnapshot map, const std::vector<Eigen::Vector3d>& cameras_map,
                bool metric, std::uint64_t revision);
+  // Publishes nothing while the map is not in metres (output_units.hpp);
+  // the grid's status says why.
+  void hold(const std::string& why);
   std::string gridStatus() const;
 
  private:

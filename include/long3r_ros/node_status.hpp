@@ -34,6 +34,8 @@ namespace long3r_ros {
 struct NodeStatus {
   long3r::LiveStatus session;
   long3r::ScaleSource scale_source = long3r::ScaleSource::kNone;
+  bool pose_from_odometry = false;  // pose_source odometry
+  bool publish_unscaled = false;
   WindowStats::Counts window;  // the last diagnostics period's
   double quiet_s = 0.0;        // since the last image (or the start)
   bool input_seen = false;
@@ -56,6 +58,8 @@ class NodeDiagnostics {
     double no_input_warn_s = 5.0;  // warn after this long without images
     double max_latency_s = 5.0;    // a ~pointmap stamp delay beyond this is an error
     long3r::ScaleSource scale_source = long3r::ScaleSource::kNone;
+    bool pose_from_odometry = false;
+    bool publish_unscaled = false;
   };
   // The node's part of a report: its state snapshot, the TF rival, the
   // pause, the map's size, the queue's drops.
@@ -67,7 +71,7 @@ class NodeDiagnostics {
   void advertise(ros::NodeHandle& nh, ros::NodeHandle& pnh, Fill fill);
   // The quiet time before the first image counts from now.
   void start();
-  void update();    // publishes the tasks (the map timer)
+  void update();    // publishes the tasks every diagnostic_period of wall time (the map timer)
   void shutdown();  // the updater goes; counting and warnings go on
 
   // A warning per kind of problem, throttled per kind (LogThrottle).
@@ -90,6 +94,7 @@ class NodeDiagnostics {
   const std::string log_name_;
   Fill fill_;
   std::unique_ptr<diagnostic_updater::Updater> updater_;
+  double last_report_wall_s_ = 0.0;  // update(): the map timer's thread only
   // Output rate and stamp delay of ~pointmap over a sliding window (library tasks).
   double min_rate_hz_ = 0.0, max_rate_hz_ = 0.0;
   std::unique_ptr<diagnostic_updater::TopicDiagnostic> output_diagnostic_;

@@ -59,11 +59,18 @@ struct NodeletConfig {
   // many neighbours, beyond this many standard deviations); 0 = off.
   int map_display_outlier_neighbours = 0;
   double map_display_outlier_stddev = 1.0;
-  double tf_publish_rate_hz = 20.0;  // map -> odom republished this often; 0 = with frames only
-  double tf_delay_s = 0.0;           // map -> odom forward-dated by this (as rtabmap's tf_delay)
-  // With a scale source: ~depth and ~frame_cloud wait for the metric scale
-  // (false), or go out in model units meanwhile (true).
-  bool publish_unscaled_depth = false;
+  // map -> odom published this often (rtabmap's tf_delay is its period,
+  // 1 / rate); 0 = with frames only.
+  double tf_publish_rate_hz = 20.0;
+  // map -> odom forward-dated by this (rtabmap's tf_tolerance), for
+  // consumers that look up slightly ahead of the odometry.
+  double tf_tolerance_s = 0.0;
+  // An image's camera_info: the one of its stamp, else the nearest within
+  // this; none within it: the last calibration stands.
+  double camera_info_max_dt_s = 0.1;
+  // Outputs in model units where metres are meant (output_units.hpp): held
+  // (false), or published in model units (true).
+  bool publish_unscaled = false;
   double no_input_warn_s = 5.0;  // diagnostics warn after this long without images
   double max_latency_s = 5.0;    // diagnostics: stamp delay beyond this is an error
 
@@ -87,8 +94,9 @@ long3r::config::FieldsOf<S, NodeletConfig> visit_fields(S& s, V& v) {
   v("map_display_outlier_neighbours", s.map_display_outlier_neighbours, "(off)");
   v("map_display_outlier_stddev", s.map_display_outlier_stddev);
   v("tf_publish_rate_hz", s.tf_publish_rate_hz, "(with frames only)");
-  v("tf_delay_s", s.tf_delay_s);
-  v("publish_unscaled_depth", s.publish_unscaled_depth);
+  v("tf_tolerance_s", s.tf_tolerance_s);
+  v("camera_info_max_dt_s", s.camera_info_max_dt_s);
+  v("publish_unscaled", s.publish_unscaled);
   v("no_input_warn_s", s.no_input_warn_s);
   v("max_latency_s", s.max_latency_s);
 }

@@ -30,9 +30,10 @@ class StampedInputs {
   // What arrives while the worker runs one frame.
   static constexpr unsigned kReachMargin = 30;
   struct Config {
-    bool camera_info = true;  // use_camera_info
-    bool depth = false;       // scale_source depth
-    bool odometry = false;    // pose_source odometry
+    bool camera_info = true;            // use_camera_info
+    double camera_info_max_dt_s = 0.1;  // pairing bound (camera_info_max_dt_s)
+    bool depth = false;                 // scale_source depth
+    bool odometry = false;              // pose_source odometry
     // How many messages of each image-rate topic to keep: as many as the
     // image queue reaches back over, plus kReachMargin.
     unsigned reach = kReachMargin;
@@ -46,8 +47,11 @@ class StampedInputs {
   std::string depthTopic() const { return depth_sub_.getTopic(); }
   std::string odomTopic() const { return odom_sub_.getTopic(); }
 
-  // The camera_info of this stamp, else the latest before it, else the first
-  // after it; unvalidated (the session validates it against the image).
+  // The camera_info of this stamp, else the nearest within
+  // camera_info_max_dt_s (the earlier one on a tie); unvalidated (the session
+  // validates it against the image). None within the bound: nullopt (the
+  // session keeps the last calibration), with a throttled warning once any
+  // camera_info has arrived.
   std::optional<long3r::CameraModel> camera(const ros::Time& stamp);
   // The depth image of this stamp (the nearest within 20 ms), 16UC1 mm or
   // 32FC1 m. Throws long3r::LiveSessionClient::Unavailable naming what is

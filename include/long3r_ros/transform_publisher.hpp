@@ -1,11 +1,21 @@
 // TransformPublisher: the one transform the node publishes into the robot's
 // TF tree (RobotFrames::transformFor: map -> odom, map -> base, or map -> the
-// camera frame or the root of its tree), sent with each posed frame by the
-// worker thread. map -> odom, a slowly changing correction, is also
-// republished by a timer (tf_publish_rate_hz, on roscpp's callback thread) at
-// the current time, as SLAM nodes do. Ours gives way while another node
-// publishes the same transform (TfRivalWatch). Thread-safe: the last
-// map -> odom is kept under its own lock, taken last.
+// camera frame or the root of its tree). Every transform goes out through
+// one path, send(), whose stamps only grow per child frame, so that a TF
+// lookup anywhere in the latency window sees one history, never new, old,
+// new.
+//
+// map -> odom, a slowly changing correction, is stamped at the time it is
+// published (plus tf_tolerance_s), as SLAM nodes do (rtabmap's tf_tolerance):
+// a lookup at an image's stamp sees the correction in force then, and
+// map -> base resolves at the odometry's latest stamps (a stream's first
+// one also at its image's stamp). It is sent when a frame changes it and by
+// a timer (tf_publish_rate_hz, on roscpp's callback
+// thread; rtabmap's tf_delay is that period). map -> base and map -> camera
+// (no odometry to correct) are stamped at their image's stamp, sent with
+// each posed frame by the worker thread. Ours gives way while another node
+// publishes the same transform (TfRivalWatch). Thread-safe: one lock, taken
+// last.
 #pragma once
 
 #include <geometry_msgs/TransformStamped.h>
@@ -28,9 +38,9 @@ namespace long3r_ros {
 class TransformPublisher {
  public:
   struct Config {
-    bool publish_tf = true;  // false: nothing is published, nothing watched
-    double rate_hz = 0.0;    // map -> odom republished this often; 0 = with frames only
-    double delay_s = 0.0;    // the republished map -> odom forward-dated by this
+    bool publish_tf = true;    // false: nothing is published, nothing watched
+    double rate_hz = 0.0;      // map -> odom published this often; 0 = with frames only
+    double tolerance_s = 0.0;  // map -> odom forward-dated by this
   };
 
   // Watches for a rival and starts the timer on nh; `log_name`: the nodelet's logger.
@@ -50,6 +60,10 @@ class TransformPublisher {
  private:
   bool rivalPublishing() const;
   void timerCallback(const ros::TimerEvent& event);
+  // The one way out; mutex_ held. Skips a stamp that is not after the last
+  // one sent (equal stamps: TF_REPEATED_DATA in every listener).
+  void send(geometry_msgs::TransformStamped t);
+  void sendMapToOdom();  // mutex_ held: map_to_odom_ stamped now (+ tolerance)
 
   const Config config_;
   Warn warn_;
@@ -59,6 +73,8 @@ class TransformPublisher {
   ros::Timer timer_;
   mutable std::mutex mutex_;
   std::optional<geometry_msgs::TransformStamped> map_to_odom_;
+  ros::Time last_sent_;   // the stamp of the last transform sent
+  ros::Time last_clock_;  // ros::Time::now() then
 };
 
 }  // namespace long3r_ros

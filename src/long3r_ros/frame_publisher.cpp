@@ -52,21 +52,22 @@ void FramePublisher::publish(const long3r::FrameResult& r, const Context& c) {
   pose.header.stamp = c.header.stamp;
   pose.header.frame_id = c.map_frame;
   pose.pose = tf2::toMsg(c.T_map_body);
+  if (c.units.poses_held) return;
   pose_pub_.publish(pose);
   publishOdometry(r, c, T_map_cam);
 }
 
 void FramePublisher::publishDepth(const long3r::FrameResult& r, const Context& c,
                                   const sensor_msgs::CameraInfo& info) {
-  const bool depth = depth_pub_.getNumSubscribers() > 0;
-  const bool cloud = frame_cloud_pub_.getNumSubscribers() > 0;
-  if (!depth && !cloud) return;
-  if (c.depth_held) {
-    warn_("depth held",
-          atStamp("~depth and ~frame_cloud of the frame at t=%.3f held: ", c.header.stamp.toSec()) +
-              c.depth_held_why);
-    return;
+  const bool depth_wanted = depth_pub_.getNumSubscribers() > 0;
+  const bool cloud_wanted = frame_cloud_pub_.getNumSubscribers() > 0;
+  const bool depth = depth_wanted && !c.units.depth_held;
+  const bool cloud = cloud_wanted && !c.units.frame_cloud_held;
+  if ((depth_wanted && !depth) || (cloud_wanted && !cloud)) {
+    warn_("units held",
+          atStamp("outputs of the frame at t=%.3f held: ", c.header.stamp.toSec()) + c.held_why);
   }
+  if (!depth && !cloud) return;
   const sensor_msgs::ImagePtr image = toDepthImage(r.points_C, r.conf, c.conf_threshold, c.header);
   if (depth) depth_pub_.publish(image);
   if (cloud) frame_cloud_pub_.publish(toFrameCloud(image, info, r.conf, r.rgb));

@@ -64,7 +64,8 @@ void Long3rNodelet::onInit() {
   NODELET_INFO_STREAM("configuration:\n" << describe(params_));
   diagnostics_ = std::make_unique<NodeDiagnostics>(
       NodeDiagnostics::Config{params_.node.no_input_warn_s, params_.node.max_latency_s,
-                              params_.session.scale.source},
+                              params_.session.scale.source, pose_from_odometry,
+                              params_.node.publish_unscaled},
       getName());
   tf_listener_ = std::make_unique<tf2_ros::TransformListener>(tf_buffer_, getNodeHandle());
   frames_ = std::make_unique<RobotFrames>(params_.frames, tf_buffer_);
@@ -152,7 +153,7 @@ void Long3rNodelet::advertise() {
   tf_pub_ = std::make_unique<TransformPublisher>(
       nh, params_.frames,
       TransformPublisher::Config{params_.node.publish_tf, params_.node.tf_publish_rate_hz,
-                                 params_.node.tf_delay_s},
+                                 params_.node.tf_tolerance_s},
       getName(), warner());
   diagnostics_->advertise(nh, pnh, [this](NodeStatus& status) { fillStatus(status); });
 }
@@ -161,6 +162,7 @@ void Long3rNodelet::subscribe() {
   ros::NodeHandle& nh = getNodeHandle();
   StampedInputs::Config stamped;
   stamped.camera_info = params_.node.use_camera_info;
+  stamped.camera_info_max_dt_s = params_.node.camera_info_max_dt_s;
   stamped.depth = params_.session.scale.source == long3r::ScaleSource::kDepth;
   stamped.odometry = params_.node.pose_source == PoseSource::kOdometry;
   // The worker pairs each queued image with the messages of its stamp, so
@@ -222,7 +224,13 @@ void Long3rNodelet::mapTimerCallback(const ros::WallTimerEvent&) {
       cameras = state_.cameras_map;
       metric = state_.session.scale_metric;
     }
-    map_pub_->publish(mapSnapshot(), cameras, metric, revision);
+    const OutputUnits units = long3r_ros::outputUnits(params_.session.scale.source, metric, false,
+                                                      params_.node.publish_unscaled);
+    if (units.map_held) {
+      map_pub_->hold("held until the metric scale is known");
+    } else {
+      map_pub_->publish(mapSnapshot(), cameras, metric, revision);
+    }
   }
   std::lock_guard<std::mutex> lock(state_mutex_);
   state_.grid = map_pub_->gridStatus();
@@ -373,7 +381,7 @@ long3r::StateDict Long3rNodelet::session_state() { return placement_->sessionSta
 void Long3rNodelet::restore_session_state(const long3r::StateDict& state) {
   placement_->restoreSessionState(state);
   copyStatus();
-  path_pub_.publish(pathMessage());
+  if (!outputUnits(false).poses_held) path_pub_.publish(pathMessage());
 }
 
 nav_msgs::Path Long3rNodelet::pathMessage() {
@@ -447,14 +455,8 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
   const long3r::LiveStatus status = session_->status();
   c.scale_metric = status.scale_metric;
   c.scale_stddev = status.scale_estimate.stddev;
-  const long3r::ScaleSource source = params_.session.scale.source;
-  c.depth_held = source != long3r::ScaleSource::kNone && !status.scale_metric &&
-                 !params_.node.publish_unscaled_depth;
-  if (c.depth_held) {
-    c.depth_held_why = std::string("they wait for the metric scale (scale_source ") +
-                       long3r::config::enum_name(source) +
-                       "); publish_unscaled_depth: true sends them in model units meanwhile";
-  }
+  c.units = outputUnits(r.pose_given);
+  if (c.units.anyHeld()) c.held_why = heldWhy(c.units);
   c.conf_threshold = params_.reconstruction.conf_threshold;
   // A pose the odometry placed has the odometry's covariance.
   if (r.posed() && r.pose_given) {
@@ -462,9 +464,26 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
         stamped_->odometryCovarianceInMap(header.stamp, frames_->T_map_odom().linear());
   }
   frame_pub_->publish(r, c);
-  if (!r.posed()) return;
+  if (!r.posed() || c.units.poses_held) return;
   path_pub_.publish(pathMessage());
   tf_pub_->publish(*frames_, r.pose.T_W_C, header.stamp);
+}
+
+OutputUnits Long3rNodelet::outputUnits(bool pose_given) {
+  return long3r_ros::outputUnits(params_.session.scale.source, session_->status().scale_metric,
+                                 pose_given, params_.node.publish_unscaled);
+}
+
+std::string Long3rNodelet::heldWhy(const OutputUnits& units) const {
+  const long3r::ScaleSource source = params_.session.scale.source;
+  if (source == long3r::ScaleSource::kNone) {
+    return units.held() +
+           " would be in model units (scale_source none; REP-118 depth is metres); "
+           "publish_unscaled: true sends it anyway";
+  }
+  return units.held() + " wait for the metric scale (scale_source " +
+         long3r::config::enum_name(source) +
+         "); publish_unscaled: true sends them in model units meanwhile";
 }
 
 // ---------------------------------------------------------------- shutdown

@@ -53,6 +53,8 @@ void MapPublisher::publish(long3r::MapSnapshot map, const std::vector<Eigen::Vec
   map_pub_.publish(msg);
 }
 
+void MapPublisher::hold(const std::string& why) { grid_status_ = "none: " + why; }
+
 void MapPublisher::publishGrid(const std::vector<Eigen::Vector3f>& points_map,
                                const std::vector<Eigen::Vector3d>& cameras_map, bool metric) {
   if (!config_.z_up) {
@@ -68,7 +70,7 @@ void MapPublisher::publishGrid(const std::vector<Eigen::Vector3f>& points_map,
     if (g.width > 0) grid_pub_.publish(toOccupancyGrid(g, header));
     grid_status_ = std::to_string(g.width) + " x " + std::to_string(g.height) + " cells, " +
                    std::to_string(g.occupied) + " occupied, " + std::to_string(g.free) + " free" +
-                   (metric ? "" : "; in model units: the scale is not metric yet");
+                   (metric ? "" : "; in model units");
   } catch (const std::exception& e) {
     grid_status_ = std::string("not published: ") + e.what();
     warn_("grid", "~grid " + grid_status_);

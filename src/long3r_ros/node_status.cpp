@@ -3,6 +3,9 @@
 #include <diagnostic_msgs/DiagnosticStatus.h>
 
 #include <limits>
+#include <string>
+
+#include "long3r_ros/output_units.hpp"
 
 namespace long3r_ros {
 
@@ -26,16 +29,24 @@ void fillDiagnostics(const NodeStatus& n, diagnostic_updater::DiagnosticStatusWr
                   n.quiet_s);
   } else if (s.lost_frames > 0) {
     stat.summaryf(S::WARN, "tracking lost for %d frame(s) (%.1f s)", s.lost_frames, s.lost_for_s);
-  } else if (s.mapping_held) {
-    stat.summaryf(S::WARN, "map held until the metric scale is known (%d samples so far)",
-                  s.scale_estimate.samples);
+  } else if (n.scale_source != long3r::ScaleSource::kNone && !s.scale_metric) {
+    const std::string held =
+        outputUnits(n.scale_source, false, n.pose_from_odometry, n.publish_unscaled).held();
+    const std::string waiting = std::string("until the metric scale is known (scale_source ") +
+                                long3r::config::enum_name(n.scale_source) + ", " +
+                                std::to_string(s.scale_estimate.samples) + " samples so far)";
+    stat.summary(S::WARN, held.empty()
+                              ? "publishing in model units " + waiting + ": publish_unscaled"
+                              : "held " + waiting + ": " + held);
   } else if (s.calibration_refused) {
     stat.summary(S::WARN, s.calibration);
   } else if (w.dropped + w.failed > 0) {
     stat.summaryf(S::WARN, "dropped %lu and failed %lu frame(s) in the window",
                   static_cast<unsigned long>(w.dropped), static_cast<unsigned long>(w.failed));
   } else {
-    stat.summary(S::OK, "running");
+    stat.summary(S::OK, n.scale_source == long3r::ScaleSource::kNone
+                            ? "running, in model units (scale_source none)"
+                            : "running");
   }
   stat.add("frames received (window)", w.received);
   stat.add("frames processed (window)", w.processed);
@@ -56,6 +67,7 @@ void fillDiagnostics(const NodeStatus& n, diagnostic_updater::DiagnosticStatusWr
   stat.add("frames", n.frames);
   const long3r::ScaleEstimate& e = s.scale_estimate;
   stat.add("scale source", long3r::config::enum_name(n.scale_source));
+  stat.add("units", describeUnits(n.scale_source, s.scale_metric, n.publish_unscaled));
   stat.addf("scale in use (m per model unit)", "%.6g", s.scale);
   stat.add("scale metric", s.scale_metric);
   stat.add("map held for the scale", s.mapping_held);
@@ -99,8 +111,15 @@ void NodeDiagnostics::advertise(ros::NodeHandle& nh, ros::NodeHandle& pnh, Fill 
 
 void NodeDiagnostics::start() { started_wall_s_ = wallNow(); }
 
+// By the wall clock: the updater's own period runs on ROS time, which stops
+// with a replayed bag's /clock, and the report after the bag's end (the
+// last frames, "no input") must still go out.
 void NodeDiagnostics::update() {
-  if (updater_) updater_->update();
+  if (!updater_) return;
+  const double now = wallNow();
+  if (now - last_report_wall_s_ < updater_->getPeriod()) return;
+  last_report_wall_s_ = now;
+  updater_->force_update();
 }
 
 void NodeDiagnostics::shutdown() {
@@ -163,6 +182,8 @@ void NodeDiagnostics::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat
   n.quiet_s = wallNow() - (n.input_seen ? last_input : started_wall_s_.load());
   n.no_input_warn_s = config_.no_input_warn_s;
   n.scale_source = config_.scale_source;
+  n.pose_from_odometry = config_.pose_from_odometry;
+  n.publish_unscaled = config_.publish_unscaled;
   n.received = received_;
   n.processed = processed_;
   n.failed = failed_;

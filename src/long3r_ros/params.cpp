@@ -25,7 +25,10 @@ void NodeletConfig::validate(const long3r::config::FieldCheck& check) const {
                 "map_display_outlier_stddev", "must be > 0");
   check.require(tf_publish_rate_hz >= 0.0 && tf_publish_rate_hz <= 1000.0, "tf_publish_rate_hz",
                 "must be in [0, 1000] (0 = with frames only)");
-  check.require(tf_delay_s >= 0.0 && tf_delay_s <= 10.0, "tf_delay_s", "must be in [0, 10]");
+  check.require(tf_tolerance_s >= 0.0 && tf_tolerance_s <= 10.0, "tf_tolerance_s",
+                "must be in [0, 10]");
+  check.require(camera_info_max_dt_s >= 0.0 && camera_info_max_dt_s <= 10.0, "camera_info_max_dt_s",
+                "must be in [0, 10] (0 = the image's own stamp only)");
   check.require(max_image_pixels >= 16 * 16, "max_image_pixels", "must be >= 256");
   check.require(no_input_warn_s > 0.0, "no_input_warn_s", "must be > 0");
   check.require(max_latency_s > 0.0, "max_latency_s", "must be > 0");
@@ -42,8 +45,12 @@ void NodeParams::validate(const long3r::config::FieldCheck& check) const {
 }
 
 const std::vector<RenamedParam>& renamedParams() {
+  // tf_delay_s: named after rtabmap's tf_delay, which is the publishing
+  // period, while it forward-dates as rtabmap's tf_tolerance does.
   static const std::vector<RenamedParam> renamed{{"world_frame", "map_frame"},
-                                                 {"scale", "scale_m_per_unit"}};
+                                                 {"scale", "scale_m_per_unit"},
+                                                 {"tf_delay_s", "tf_tolerance_s"},
+                                                 {"publish_unscaled_depth", "publish_unscaled"}};
   return renamed;
 }
 

@@ -4,6 +4,7 @@
 #include <sensor_msgs/image_encodings.h>
 
 #include <cmath>
+#include <cstdio>
 
 #include "long3r/pipeline/live_session.hpp"
 #include "long3r_ros/conversions.hpp"
@@ -76,11 +77,18 @@ std::optional<long3r::CameraModel> StampedInputs::camera(const ros::Time& stamp)
   const auto exact = camera_info_cache_.getInterval(stamp, stamp);
   if (!exact.empty()) {
     info = exact.back();
-  } else if (!(info = camera_info_cache_.getElemBeforeTime(stamp))) {
-    info = camera_info_cache_.getElemAfterTime(stamp);
+  } else {
+    info = nearestInCache(camera_info_cache_, stamp, config_.camera_info_max_dt_s);
   }
-  if (!info) return std::nullopt;
-  return toCameraModel(*info);
+  if (info) return toCameraModel(*info);
+  if (camera_info_cache_.getLatestTime().isZero()) return std::nullopt;  // none published yet
+  char bound[32];
+  std::snprintf(bound, sizeof(bound), "%.3f", config_.camera_info_max_dt_s);
+  warn_("camera_info stamp",
+        std::string("no camera_info within ") + bound +
+            atStamp(" s of the frame at t=%.3f (camera_info_max_dt_s): ", stamp.toSec()) +
+            "the last calibration stands");
+  return std::nullopt;
 }
 
 cv::Mat StampedInputs::depth(const ros::Time& stamp) {

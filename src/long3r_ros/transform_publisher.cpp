@@ -33,10 +33,15 @@ void TransformPublisher::publish(const RobotFrames& frames, const Eigen::Isometr
   if (!config_.publish_tf) return;
   try {
     if (const auto t = frames.transformFor(T_W_C, stamp)) {
-      if (!rivalPublishing()) broadcaster_.sendTransform(*t);
+      std::lock_guard<std::mutex> lock(mutex_);
       if (frames.mode() == RobotFrames::Mode::kMapToOdom) {
-        std::lock_guard<std::mutex> lock(mutex_);
+        // A stream's first correction also at its image's stamp, so that
+        // map -> base resolves at every posed frame's stamp.
+        if (!map_to_odom_) send(*t);
         map_to_odom_ = *t;
+        sendMapToOdom();  // now, not at the next tick
+      } else {
+        send(*t);
       }
     } else {
       warn_("tf conflict", "no TF published: " + frames.conflict());
@@ -52,17 +57,25 @@ void TransformPublisher::forget() {
 }
 
 void TransformPublisher::timerCallback(const ros::TimerEvent&) {
-  std::optional<geometry_msgs::TransformStamped> t;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    t = map_to_odom_;
-  }
-  if (!t || rivalPublishing()) return;
-  // map -> odom is a slowly changing correction: kept valid at the current
-  // time (and tf_delay_s ahead), so that map -> base resolves at the
-  // odometry's latest stamps.
-  t->header.stamp = ros::Time::now() + ros::Duration(config_.delay_s);
-  broadcaster_.sendTransform(*t);
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (map_to_odom_) sendMapToOdom();
+}
+
+void TransformPublisher::sendMapToOdom() {
+  geometry_msgs::TransformStamped t = *map_to_odom_;
+  t.header.stamp = ros::Time::now() + ros::Duration(config_.tolerance_s);
+  send(t);
+}
+
+void TransformPublisher::send(geometry_msgs::TransformStamped t) {
+  // A clock that went back (a looped bag on simulated time) starts the
+  // history over, as tf2's listeners do.
+  const ros::Time now = ros::Time::now();
+  if (now < last_clock_) last_sent_ = ros::Time();
+  last_clock_ = now;
+  if (rivalPublishing() || t.header.stamp <= last_sent_) return;
+  last_sent_ = t.header.stamp;
+  broadcaster_.sendTransform(t);
 }
 
 }  // namespace long3r_ros

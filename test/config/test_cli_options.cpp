@@ -2,6 +2,7 @@
 // handlers, positionals, required options, the errors (each naming the
 // option) and the help text generated from the same table.
 #include <gtest/gtest.h>
+#include <cctype>
 
 #include <array>
 #include <cstdint>
@@ -339,6 +340,9 @@ TEST(CliOptions, ConfigFieldsAreOptionsByTheirFlatNames) {
   EXPECT_NE(help.find("(default red)"), std::string::npos) << help;
   EXPECT_NE(help.find("(default 0 (no"), std::string::npos) << help;
 
+  // Every default is the node's here: no option says otherwise.
+  EXPECT_EQ(help.find("the node's default"), std::string::npos) << help;
+
   Outer d;
   CliOptions strict("prog");
   long3r::add_config_options(strict, &d);
@@ -349,6 +353,34 @@ TEST(CliOptions, ConfigFieldsAreOptionsByTheirFlatNames) {
   } catch (const UsageError& e) {
     EXPECT_STREQ(e.what(), "--scale-freeze must be true or false (got \"yes\")");
   }
+}
+
+TEST(CliOptions, AToolsOwnDefaultNamesTheNodes) {
+  // A tool that sets a field before adding the options (long3r_reconstruct's
+  // drop_zero_stamps) shows its own default and says the node's.
+  Outer c;
+  c.inner.freeze = false;
+  c.inner.colour = Colour::kGreen;
+  CliOptions cli("prog");
+  long3r::add_config_options(cli, &c);
+  // The help's rows wrapped and indented: compared with single spaces.
+  std::string help;
+  for (const char ch : cli.help()) {
+    const bool space = std::isspace(static_cast<unsigned char>(ch)) != 0;
+    if (!space || (!help.empty() && help.back() != ' ')) help += space ? ' ' : ch;
+  }
+  for (const char* text :
+       {"scale_freeze; the node's default is true, this tool's differs", "(default false)",
+        "the node's default is red, this tool's differs", "(default green)"}) {
+    EXPECT_NE(help.find(text), std::string::npos) << text << "\n" << help;
+  }
+  // Only those two.
+  std::size_t notes = 0;
+  for (std::size_t at = help.find("the node's default"); at != std::string::npos;
+       at = help.find("the node's default", at + 1)) {
+    ++notes;
+  }
+  EXPECT_EQ(notes, 2u) << help;
 }
 
 }  // namespace

@@ -19,6 +19,12 @@ def main():
     ap.add_argument("--workdir", required=True)
     a = ap.parse_args()
     fresh_dir(a.workdir)
+    # The help of a node parameter whose default here is not the node's says both.
+    rc, log = run([a.reconstruct, "--help"])
+    check(rc == 0, "--help: " + log)
+    row = " ".join(log[log.index("--drop-zero-stamps"):].split("--")[1].split())
+    check("the node's default is true, this tool's differs (default false)" in row,
+          "--drop-zero-stamps help: " + row)
     seq = os.path.join(a.workdir, "seq")
     model = os.path.join(a.workdir, "tiny.safetensors")
     out = os.path.join(a.workdir, "out")

@@ -5,8 +5,10 @@ wheel-odometry error, camera_info, registered depth) replayed with base_frame
 and odom_frame set:
 
   * every child frame in /tf and /tf_static has exactly one parent throughout;
-  * ~odometry arrives for every posed frame (every ~pointmap), with a
-    symmetric positive-definite pose covariance;
+  * ~odometry arrives for every posed frame (every ~pointmap) whose pose is
+    in metres, with a symmetric positive-definite pose covariance: with
+    --pose-source model none before the scale is metric (the poses are held
+    in model units, as TF is; the diagnostics say so);
   * ~depth and ~camera_info through depth_image_proc's point_cloud_xyz give the
     same points as ~frame_cloud, to float precision (with --expect-unscaled:
     neither is published, they wait for a metric scale);
@@ -18,6 +20,9 @@ and odom_frame set:
   * with --eval, the saved map is scored against the ground truth (long3r_eval,
     metrics.json under OUT/robot_MODE_eval) and, with --max-scale-error > 0,
     its Sim(3) scale must be within that of 1;
+  * map -> odom has one history: the nodelet's stamps only grow, as sent;
+    map -> base resolves at each posed frame's stamp when its ~odometry
+    arrives (inside the latency window), and later to the same transform;
   * with --rival (another node publishes map -> odom from the start), the
     nodelet publishes none, and its diagnostics name the other publisher;
   * with --odom-covariance (pose_source odometry), the covariance of each
@@ -45,6 +50,7 @@ import unittest
 import numpy as np
 import rospy
 import rostest
+import tf2_ros
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import OccupancyGrid, Odometry, Path
@@ -53,6 +59,9 @@ from tf2_msgs.msg import TFMessage
 
 from long3r_ros.msg import Pointmap
 from long3r_ros.srv import SaveMap, SaveTrajectory
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'scripts'))
+from demo_record import FrameAccounting  # noqa: E402
 
 ARGS = None
 
@@ -104,6 +113,11 @@ def floor_normal(points):
     return n if n[2] >= 0 else -n
 
 
+def transform_tuple(t):
+    return (t.translation.x, t.translation.y, t.translation.z,
+            t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w)
+
+
 class Recorder:
     def __init__(self):
         self.lock = threading.Lock()
@@ -124,6 +138,13 @@ class Recorder:
         self.wheel = []  # the bag's odometry messages
         rospy.Subscriber('/odom', Odometry, self._add('wheel'), queue_size=1000)
         self.map_odom_rotations = []  # map -> odom as published, (x, y, z, w)
+        self.map_odom_stamps = {}  # publisher -> the stamps of its map -> odom, as they arrived
+        # map -> base looked up at each ~odometry's stamp as it arrives.
+        self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(600))
+        self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
+        self.window_lookups = []  # (stamp, transform or the error's text)
+        self.units = []  # the diagnostics' units, as reported
+        rospy.Subscriber('/long3r/odometry', Odometry, self._lookup, queue_size=100)
 
     def _tf(self, msg):
         caller = msg._connection_header.get('callerid', '?')
@@ -132,6 +153,7 @@ class Recorder:
                 if t.header.frame_id == 'map' and t.child_frame_id == ARGS.odom_frame:
                     r = t.transform.rotation
                     self.map_odom_rotations.append((r.x, r.y, r.z, r.w))
+                    self.map_odom_stamps.setdefault(caller, []).append(t.header.stamp.to_nsec())
                 self.parents.setdefault(t.child_frame_id, set()).add(t.header.frame_id)
                 self.publishers.setdefault(t.child_frame_id, set()).add(caller)
 
@@ -140,6 +162,17 @@ class Recorder:
             for st in msg.status:
                 if 'long3r' in st.name:
                     self.diagnostics.append(st.message)
+                    self.units.extend(kv.value for kv in st.values if kv.key == 'units')
+
+    def _lookup(self, msg):
+        try:
+            t = self.tf_buffer.lookup_transform('map', ARGS.base_frame, msg.header.stamp,
+                                                rospy.Duration(1.0))
+            found = transform_tuple(t.transform)
+        except tf2_ros.TransformException as e:
+            found = str(e)
+        with self.lock:
+            self.window_lookups.append((msg.header.stamp, found))
 
     def _add(self, name):
         def cb(msg):
@@ -159,28 +192,29 @@ class Recorder:
             return dict(value) if isinstance(value, dict) else list(value)
 
 
-def wait_until_quiet(rec, name):
-    """Until --min-frames messages of `name` arrived and none for 6 s (or --timeout)."""
-    last = [-1, time.time()]
+def bag_frames():
+    """The images of the bag: the sequence's frames (rgb.txt)."""
+    with open(os.path.join(ARGS.seq, 'rgb.txt')) as f:
+        return sum(1 for line in f if line.strip() and not line.startswith('#'))
 
-    def quiet():
-        n = len(rec.get(name))
-        if n != last[0]:
-            last[0], last[1] = n, time.time()
-        return n >= ARGS.min_frames and time.time() - last[1] > 6.0
-    deadline = time.time() + ARGS.timeout
-    while time.time() < deadline and not quiet():
-        time.sleep(0.2)
+
+def wait_for_every_frame(test, accounting):
+    """Until the node has accounted for every image of the bag (--timeout)."""
+    frames = bag_frames()
+    done = accounting.wait(frames, ARGS.timeout)
+    rospy.loginfo('frame accounting: %s', accounting.describe(frames))
+    test.assertTrue(done, 'the node did not account for every frame: ' + accounting.describe(frames))
 
 
 class RobotCheck(unittest.TestCase):
     def test_robot(self):
         rec = Recorder()
+        accounting = FrameAccounting()
         rospy.wait_for_service('/long3r/reset', timeout=120)
         if ARGS.placed_only:
-            self.check_placed_only(rec)
+            self.check_placed_only(rec, accounting)
             return
-        wait_until_quiet(rec, 'pointmaps')
+        wait_for_every_frame(self, accounting)
         pms = rec.get('pointmaps')
         self.assertGreaterEqual(len(pms), ARGS.min_frames, 'too few posed frames')
 
@@ -212,10 +246,30 @@ class RobotCheck(unittest.TestCase):
                             % sorted(set(rec.get('diagnostics')))[:5])
         else:
             self.assertEqual(len(publishers[ARGS.odom_frame]), 1)
+            self.check_tf_history(rec)
 
-        # ~odometry for every posed frame, with a PD covariance.
+        # ~odometry for every posed frame in metres, with a PD covariance;
+        # the model's poses in model units are held.
         odom = {o.header.stamp.to_nsec(): o for o in rec.get('odometry')}
+        held = [p for p in pms if ARGS.pose_source == 'model' and not p.metric]
+        rospy.loginfo('%d of %d posed frames before the metric scale', len(held), len(pms))
+        for p in held:
+            self.assertNotIn(p.header.stamp.to_nsec(), odom,
+                             '~odometry in model units at %.3f' % p.header.stamp.to_sec())
+        if held:
+            # Said in the diagnostics: their units (and their summary, unless
+            # something more urgent, the rival, takes it).
+            units = set(rec.get('units'))
+            self.assertIn('none yet: outputs in metres held until the metric scale is known', units)
+            said = [m for m in rec.get('diagnostics') if m.startswith('held until the metric scale is known')]
+            if not ARGS.rival:
+                self.assertTrue(said, 'the summary does not say the poses are held: %s'
+                                % sorted(set(rec.get('diagnostics')))[:5])
+            for m in said:
+                self.assertIn('TF, ~pose, ~odometry', m)
         for p in pms:
+            if p in held:
+                continue
             o = odom.get(p.header.stamp.to_nsec())
             self.assertIsNotNone(o, 'no ~odometry for the frame at %.3f' % p.header.stamp.to_sec())
             self.assertEqual(o.header.frame_id, 'map')
@@ -237,7 +291,7 @@ class RobotCheck(unittest.TestCase):
             self.check_grid(rec)
 
         # depth_image_proc's cloud of ~depth equals ~frame_cloud; with a scale
-        # source, neither goes out before the scale is metric (publish_unscaled_depth).
+        # source, neither goes out before the scale is metric (publish_unscaled).
         clouds, dip = rec.get('clouds'), rec.get('dip')
         if ARGS.expect_unscaled:
             self.assertEqual((len(clouds), len(dip)), (0, 0),
@@ -276,6 +330,25 @@ class RobotCheck(unittest.TestCase):
                 self.assertLess(abs(scale - 1.0), ARGS.max_scale_error,
                                 'the map is not metric: Sim(3) scale %.4f' % scale)
 
+    def check_tf_history(self, rec):
+        """map -> odom goes out with growing stamps only, and map -> base
+        resolves inside the latency window to what it resolves to later."""
+        for caller, stamps in rec.get('map_odom_stamps').items():
+            back = [(a, b) for a, b in zip(stamps, stamps[1:]) if b <= a]
+            rospy.loginfo('map -> odom from %s: %d transforms, %d not after the previous one',
+                          caller, len(stamps), len(back))
+            self.assertFalse(back, 'map -> odom from %s went back in time: %s'
+                             % (caller, ['%.3f after %.3f' % (b * 1e-9, a * 1e-9) for a, b in back[:5]]))
+        lookups = rec.get('window_lookups')
+        failed = [(s.to_sec(), f) for s, f in lookups if isinstance(f, str)]
+        self.assertFalse(failed, 'map -> %s not found at posed frames\' stamps: %s'
+                         % (ARGS.base_frame, failed[:3]))
+        self.assertGreaterEqual(len(lookups), ARGS.min_frames)
+        for stamp, found in lookups:
+            later = transform_tuple(rec.tf_buffer.lookup_transform('map', ARGS.base_frame, stamp).transform)
+            np.testing.assert_allclose(later, found, atol=1e-9,
+                                       err_msg='map -> base at %.3f changed' % stamp.to_sec())
+
     def expect_same_clouds(self, clouds, dip):
         common = sorted(set(clouds) & set(dip))
         self.assertGreaterEqual(len(common), min(5, ARGS.min_frames))
@@ -286,11 +359,11 @@ class RobotCheck(unittest.TestCase):
             ok = ~np.isnan(a)
             np.testing.assert_allclose(a[ok], b[ok], rtol=1e-6, atol=1e-7)
 
-    def check_placed_only(self, rec):
+    def check_placed_only(self, rec, accounting):
         """PnP fails on every frame after the first: the odometry places them all."""
         paths = []
         rospy.Subscriber('/long3r/path', Path, lambda m: paths.append(m), queue_size=100)
-        wait_until_quiet(rec, 'odometry')
+        wait_for_every_frame(self, accounting)
         odom = {o.header.stamp.to_nsec(): o for o in rec.get('odometry')}
         pms = rec.get('pointmaps')
         rospy.loginfo('placed only: %d ~odometry, %d ~pointmap', len(odom), len(pms))
@@ -410,6 +483,7 @@ if __name__ == '__main__':
     parser.add_argument('--odom-covariance', action='store_true')
     parser.add_argument('--placed-only', action='store_true')
     parser.add_argument('--rival', action='store_true')
+    parser.add_argument('--pose-source', default='model', choices=['model', 'odometry'])
     ARGS, rest = parser.parse_known_args(rospy.myargv()[1:])
     rospy.init_node('robot_check')
     rostest.rosrun('long3r_ros', 'robot_check', RobotCheck, [sys.argv[0]] + rest)

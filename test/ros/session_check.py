@@ -36,6 +36,7 @@ from map_checks import lost_points
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'support'))
 from cli_test import free_port  # noqa: E402
 
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DATA = os.environ.get('LONG3R_REPLAY_DATA', '/tmp/long3r_replay_data')
 SPLIT = 20  # images in part A
 RATE = 0.5  # bag playback rate: every frame gets processed on two cores
@@ -178,11 +179,19 @@ class Sessions(unittest.TestCase):
             env=self.env, stdout=log, stderr=subprocess.STDOUT)
         try:
             rospy.wait_for_service('/long3r/save_session', timeout=120)
+            sys.path.insert(0, os.path.join(ROOT, 'scripts'))
+            from demo_record import FrameAccounting
+            import rosbag
+            accounting = FrameAccounting()
             if before_play:
                 before_play(rospy.ServiceProxy('/long3r/load_session', LoadSession))
+            with rosbag.Bag(bag) as b:
+                frames = b.get_message_count('/camera/image_raw')
             subprocess.run(['rosbag', 'play', '--clock', '--rate', str(RATE), '--quiet', bag],
                            env=self.env, check=True, timeout=600)
-            time.sleep(4.0)  # the last frame after flush_after_s, in wall time
+            # Every frame of the part handled (the last one after
+            # flush_after_s), however loaded the machine.
+            self.assertTrue(accounting.wait(frames, 600), accounting.describe(frames))
             out = {}
             for what, srv, ext in (('session', SaveSession, 'l3s'), ('map', SaveMap, 'ply'),
                                    ('trajectory', SaveTrajectory, 'txt')):

@@ -6,6 +6,7 @@
 #include <string>
 
 #include "long3r_ros/node_status.hpp"
+#include "long3r_ros/output_units.hpp"
 
 using long3r_ros::fillDiagnostics;
 using long3r_ros::NodeStatus;
@@ -32,15 +33,32 @@ TEST(NodeStatus, SummaryTakesTheMostUrgentCondition) {
   NodeStatus n;
   n.input_seen = true;
   EXPECT_EQ(diagnose(n).level, S::OK);
+  EXPECT_EQ(diagnose(n).message, "running, in model units (scale_source none)");
+  n.scale_source = long3r::ScaleSource::kDepth;
+  n.session.scale_metric = true;
   EXPECT_EQ(diagnose(n).message, "running");
   n.window.dropped = 2;
   EXPECT_EQ(diagnose(n).message, "dropped 2 and failed 0 frame(s) in the window");
   n.session.calibration_refused = true;
   n.session.calibration = "camera_info refused: K is zero";
   EXPECT_EQ(diagnose(n).message, "camera_info refused: K is zero");
-  n.session.mapping_held = true;
+  // The scale pending: what is held says so, with the samples so far.
+  n.session.scale_metric = false;
   n.session.scale_estimate.samples = 3;
-  EXPECT_EQ(diagnose(n).message, "map held until the metric scale is known (3 samples so far)");
+  EXPECT_EQ(diagnose(n).level, S::WARN);
+  EXPECT_EQ(diagnose(n).message,
+            "held until the metric scale is known (scale_source depth, 3 samples so far): TF, "
+            "~pose, ~odometry, ~pose_with_covariance, ~path, ~depth, ~frame_cloud, ~map, ~grid");
+  n.pose_from_odometry = true;  // the odometry's poses are metres already
+  EXPECT_EQ(diagnose(n).message,
+            "held until the metric scale is known (scale_source depth, 3 samples so far): "
+            "~depth, ~frame_cloud, ~map, ~grid");
+  n.publish_unscaled = true;
+  EXPECT_EQ(diagnose(n).message,
+            "publishing in model units until the metric scale is known (scale_source depth, 3 "
+            "samples so far): publish_unscaled");
+  EXPECT_EQ(value(diagnose(n), "units"),
+            "model units until the metric scale is known (publish_unscaled)");
   n.session.lost_frames = 4;
   n.session.lost_for_s = 1.5;
   EXPECT_EQ(diagnose(n).message, "tracking lost for 4 frame(s) (1.5 s)");
@@ -79,4 +97,29 @@ TEST(NodeStatus, FiguresAreReported) {
   EXPECT_EQ(value(stat, "grid"), "20 x 30 cells, 5 occupied, 100 free");
   EXPECT_EQ(value(stat, "latency min / mean / max (s)"), "0.100 / 0.150 / 0.200");
   EXPECT_EQ(value(stat, "tf"), "publishing");
+}
+
+TEST(OutputUnits, MetresOrHeld) {
+  using long3r::ScaleSource;
+  using long3r_ros::outputUnits;
+  // scale_source none: model units by choice; ~depth alone is REP-118 metres.
+  auto u = outputUnits(ScaleSource::kNone, false, false, false);
+  EXPECT_TRUE(u.depth_held);
+  EXPECT_FALSE(u.frame_cloud_held || u.map_held || u.poses_held);
+  EXPECT_EQ(u.held(), "~depth");
+  EXPECT_FALSE(outputUnits(ScaleSource::kNone, false, false, true).anyHeld());
+  // A scale source, the scale pending: everything in metres is held, the
+  // odometry's own poses excepted; publish_unscaled sends it all.
+  for (ScaleSource s : {ScaleSource::kOdometry, ScaleSource::kDepth, ScaleSource::kFixed}) {
+    u = outputUnits(s, false, false, false);
+    EXPECT_TRUE(u.depth_held && u.frame_cloud_held && u.map_held && u.poses_held);
+    u = outputUnits(s, false, true, false);
+    EXPECT_TRUE(u.depth_held && u.frame_cloud_held && u.map_held);
+    EXPECT_FALSE(u.poses_held);
+    EXPECT_FALSE(outputUnits(s, false, false, true).anyHeld());
+    EXPECT_FALSE(outputUnits(s, true, false, false).anyHeld());  // metric: nothing held
+  }
+  EXPECT_EQ(long3r_ros::describeUnits(ScaleSource::kDepth, true, false), "metres");
+  EXPECT_EQ(long3r_ros::describeUnits(ScaleSource::kNone, false, false),
+            "model units (scale_source none; ~depth not published)");
 }

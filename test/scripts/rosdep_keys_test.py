@@ -7,7 +7,9 @@
     packages, and on a Debian machine each of those is a real, installed
     package (scripts/install_deps.sh installed them), so the mapping is not
     a guess;
-  * every key of the yaml file is used (no stale entries).
+  * every key of the yaml file is used (no stale entries);
+  * every rule has rosdep's form: a platform (debian or ubuntu) mapped to a
+    list of package names, or to codenames each mapped to such a list.
 """
 import os
 import re
@@ -48,7 +50,25 @@ def installed(package):
     return r.returncode == 0 and r.stdout.strip().endswith('installed')
 
 
+PLATFORMS = {'debian': {'bookworm', 'bullseye', 'buster'}, 'ubuntu': {'focal', 'jammy'}}
+PACKAGE_NAME = re.compile(r'^[a-z0-9][a-z0-9+.-]+$')
+
+
 class RosdepKeys(unittest.TestCase):
+    def test_every_rule_has_rosdeps_form(self):
+        for key, rule in rosdep_yaml().items():
+            self.assertIsInstance(rule, dict, key)
+            for platform, packages in rule.items():
+                self.assertIn(platform, PLATFORMS, '%s: platform %s' % (key, platform))
+                by_codename = packages if isinstance(packages, dict) else {None: packages}
+                for codename, names in by_codename.items():
+                    if codename is not None:
+                        self.assertIn(codename, PLATFORMS[platform], '%s: %s %s' % (key, platform, codename))
+                    self.assertIsInstance(names, list, '%s: %s' % (key, platform))
+                    self.assertTrue(names, '%s: %s lists no package' % (key, platform))
+                    for name in names:
+                        self.assertRegex(name, PACKAGE_NAME, '%s: %s' % (key, platform))
+
     def test_cmake_dependencies_are_declared(self):
         cmake = open(os.path.join(ROOT, 'CMakeLists.txt')).read()
         cmake += ''.join(open(os.path.join(ROOT, 'cmake', f)).read()

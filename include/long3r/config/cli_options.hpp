@@ -13,12 +13,14 @@
 
 #include <functional>
 #include <limits>
+#include <map>
 #include <memory>
 #include <optional>
 #include <sstream>
 #include <stdexcept>
 #include <string>
 #include <type_traits>
+#include <utility>
 #include <vector>
 
 #include "long3r/config/config_fields.hpp"
@@ -126,6 +128,12 @@ class CliOptions {
   // Rows added after this call are listed under `title` in --help.
   void section(std::string title);
 
+  // A value as --help shows defaults (enums by name, booleans true / false).
+  template <typename T>
+  static std::string format_value(const T& v) {
+    return format_default(v);
+  }
+
   // A switch: sets *target = value when given.
   Option& flag(const std::string& name, bool* target, std::string help, bool value = true);
 
@@ -135,11 +143,7 @@ class CliOptions {
   template <typename T>
   Option& option(const std::string& name, std::string placeholder, T* target, std::string help) {
     Option& o = add(name, {std::move(placeholder)}, std::move(help));
-    if constexpr (std::is_enum_v<T>) {
-      o.shown_default_ = config::enum_name(*target);
-    } else {
-      o.shown_default_ = format_default(*target);
-    }
+    o.shown_default_ = format_value(*target);
     o.apply_ = [target](const Option& self, const std::vector<std::string>& v) {
       *target = self.convert<T>(v[0]);
     };
@@ -192,7 +196,9 @@ class CliOptions {
 
   template <typename T>
   static std::string format_default(const T& v) {
-    if constexpr (std::is_same_v<T, std::string>) {
+    if constexpr (std::is_enum_v<T>) {
+      return config::enum_name(v);
+    } else if constexpr (std::is_same_v<T, std::string>) {
       return v;
     } else if constexpr (std::is_same_v<T, bool>) {
       return v ? "true" : "false";
@@ -212,10 +218,14 @@ class CliOptions {
 // field list (visit_fields): the flat names are the node's ROS parameter
 // names, '_' written '-' (scale_min_samples: --scale-min-samples), so the
 // tools and the node share every name and each is written once. Booleans
-// take true / false.
+// take true / false. The default shown is the tool's (the value the field
+// holds when the option is added); where that differs from the struct's
+// own default, which is the node's, the help says the node's too.
 class CliFieldOptions {
  public:
-  explicit CliFieldOptions(CliOptions* cli) : cli_(cli) {}
+  // node_defaults: each flat name's default as the node has it (format_value).
+  CliFieldOptions(CliOptions* cli, std::map<std::string, std::string> node_defaults)
+      : cli_(cli), node_defaults_(std::move(node_defaults)) {}
 
   template <class T>
   void operator()(const std::string& name, T& value, const char* log_note) {
@@ -223,6 +233,10 @@ class CliFieldOptions {
     for (char& c : flag) c = c == '_' ? '-' : c;
     std::string help = "the node's parameter " + name;
     if constexpr (std::is_enum_v<T>) help += ": " + config::enum_choices<T>();
+    const auto node = node_defaults_.find(name);
+    if (node != node_defaults_.end() && node->second != CliOptions::format_value(value)) {
+      help += "; the node's default is " + node->second + ", this tool's differs";
+    }
     CliOptions::Option& o = cli_->option(flag, placeholder<T>(), &value, help);
     if constexpr (!std::is_enum_v<T>) {
       if (log_note && value == T{}) o.shown_default(format_note(value, log_note));
@@ -252,11 +266,18 @@ class CliFieldOptions {
   }
 
   CliOptions* cli_;
+  std::map<std::string, std::string> node_defaults_;
 };
 
 template <class T>
 void add_config_options(CliOptions& cli, T* config) {
-  CliFieldOptions options(&cli);
+  const T defaults{};
+  std::map<std::string, std::string> node_defaults;
+  config::visit_flat(defaults,
+                     [&node_defaults](const std::string& name, const auto& value, const char*) {
+                       node_defaults[name] = CliOptions::format_value(value);
+                     });
+  CliFieldOptions options(&cli, std::move(node_defaults));
   config::visit_flat(*config, options);
 }
 
