@@ -122,6 +122,13 @@ if(LONG3R_WITH_ROS)
     COMMAND ${CATKIN_ENV} /usr/bin/python3 ${PROJECT_SOURCE_DIR}/test/ros/session_check.py)
   set_tests_properties(ros_sessions PROPERTIES FIXTURES_REQUIRED ros_replay_data
     ENVIRONMENT "LONG3R_REPLAY_DATA=${LONG3R_REPLAY_DATA}" TIMEOUT 900)
+  # Cold starts of a robot-like replay, each posing every frame (by hand:
+  # test/ros/replay_stress.py --runs 20).
+  add_test(NAME ros_replay_stress
+    COMMAND ${CATKIN_ENV} /usr/bin/python3 ${PROJECT_SOURCE_DIR}/test/ros/replay_stress.py
+            --bag ${LONG3R_REPLAY_DATA}/robot.bag --frames 40 --runs 3
+            --work ${PROJECT_BINARY_DIR}/test_tmp/replay_stress)
+  set_tests_properties(ros_replay_stress PROPERTIES FIXTURES_REQUIRED ros_replay_data TIMEOUT 1800)
   # The install space on its own: the package, its launch files and the demo.
   add_test(NAME ros_install_space
     COMMAND ${PROJECT_SOURCE_DIR}/test/ros/install_space_check.sh ${CMAKE_BINARY_DIR}

@@ -2,7 +2,8 @@
 """Demo helper node: waits until the node has accounted for every frame of
 the replay (~frames; FrameAccounting), saves the map through ~save_map and
 the trajectory (TUM format) through ~save_trajectory, writes summary.json
-(frames answered and posed, the first posed frame in metres, the scale),
+(frames answered, with points (~pointmap) and with a pose (~pose), the
+first frame in metres, the scale),
 then exits (ending roslaunch). With ~frames 0 it waits for quiet instead:
 no result for ~quiet_s after the first.
 
@@ -17,22 +18,25 @@ import time
 
 import rospy
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
 from long3r_ros.msg import Pointmap
 from long3r_ros.srv import SaveMap, SaveTrajectory
 from sensor_msgs.msg import CameraInfo
 
 # The node's totals (node_status.cpp): every image it receives ends in one.
+RECEIVED = 'frames received (total)'
 PROCESSED = 'frames processed (total)'
 NOT_PROCESSED = ('frames failed (total)', 'frames dropped: bad input (total)',
-                 'frames dropped: queue full (total)', 'frames dropped: paused (total)')
+                 'frames dropped: queue full or cleared (total)', 'frames dropped: paused (total)')
 
 
 class FrameAccounting:
     """What the node has done with the images it was sent, from its
     /diagnostics totals, and the results that reached us: each processed
     frame's ~camera_info goes out with its result, posed or not. complete(n)
-    holds once n images are accounted for (processed, failed or dropped) and
-    every processed frame's ~camera_info has arrived, as of a diagnostics
+    holds once n images are accounted for (processed, failed or dropped), as
+    many as the node received (none is pending: the last one goes out after
+    flush_after_s), and every processed frame's ~camera_info has arrived, as of a diagnostics
     report that came a full report after the one that first said so (the
     node's other topics of those frames went out before either)."""
 
@@ -40,6 +44,7 @@ class FrameAccounting:
         self._lock = threading.Lock()
         self.results = 0      # ~camera_info messages received
         self.processed = 0    # the node's totals, as last reported
+        self.received = 0
         self.accounted = 0
         self._reports = 0     # diagnostics reports with the node's totals
         self._complete_at = None  # the report at which complete() first held
@@ -58,12 +63,14 @@ class FrameAccounting:
                 continue
             with self._lock:
                 self.processed = int(values[PROCESSED])
+                self.received = int(values.get(RECEIVED, 0))
                 self.accounted = self.processed + sum(int(values.get(k, 0)) for k in NOT_PROCESSED)
                 self._reports += 1
 
     def complete(self, frames):
         with self._lock:
-            if self.accounted < frames or self.results < self.processed:
+            if (self.accounted < frames or self.accounted < self.received or
+                    self.results < self.processed):
                 self._complete_at = None
                 return False
             if self._complete_at is None:
@@ -81,8 +88,8 @@ class FrameAccounting:
 
     def describe(self, frames):
         with self._lock:
-            return '%d of %d frames accounted for, %d results of %d processed received' % (
-                self.accounted, frames, self.results, self.processed)
+            return ('%d of %d frames accounted for (%d received), %d results of %d processed '
+                    'received' % (self.accounted, frames, self.received, self.results, self.processed))
 
 
 def write_json(path, value):
@@ -100,7 +107,11 @@ def main():
     timeout_s = rospy.get_param('~timeout_s', 1800.0)
     os.makedirs(out_dir, exist_ok=True)
     lock = threading.Lock()
-    state = {'posed': 0, 'first_metric': None, 'scale': None, 'scale_stddev': None}
+    state = {'posed': 0, 'poses': 0, 'first_metric': None, 'scale': None, 'scale_stddev': None}
+
+    def on_pose(_):
+        with lock:
+            state['poses'] += 1
 
     def on_pointmap(p):
         with lock:
@@ -110,6 +121,7 @@ def main():
             state['scale'], state['scale_stddev'] = p.scale, p.scale_stddev
 
     rospy.Subscriber('/long3r/pointmap', Pointmap, on_pointmap, queue_size=1000)
+    rospy.Subscriber('/long3r/pose', PoseStamped, on_pose, queue_size=1000)
     accounting = FrameAccounting()
     if frames > 0:
         if not accounting.wait(frames, timeout_s):
@@ -133,7 +145,7 @@ def main():
         os.path.join(out_dir, 'trajectory.txt'))
     rospy.loginfo('save_trajectory: %s', traj.message)
     with lock:
-        summary = {'results': accounting.results, 'posed': state['posed'],
+        summary = {'results': accounting.results, 'posed': state['posed'], 'poses': state['poses'],
                    'first_metric_frame': state['first_metric'], 'scale': state['scale'],
                    'scale_stddev': state['scale_stddev']}
     write_json(os.path.join(out_dir, 'summary.json'), summary)

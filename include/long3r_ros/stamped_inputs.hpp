@@ -25,6 +25,12 @@
 
 namespace long3r_ros {
 
+// The camera_info of an image: the one of its stamp, else the nearest within
+// max_dt_s (the earlier one on a tie); null when there is none.
+sensor_msgs::CameraInfoConstPtr cameraInfoFor(
+    const message_filters::Cache<sensor_msgs::CameraInfo>& cache, const ros::Time& stamp,
+    double max_dt_s);
+
 class StampedInputs {
  public:
   // What arrives while the worker runs one frame.

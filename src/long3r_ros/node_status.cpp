@@ -89,7 +89,7 @@ void fillDiagnostics(const NodeStatus& n, diagnostic_updater::DiagnosticStatusWr
   stat.add("frames processed (total)", n.processed);
   stat.add("frames failed (total)", n.failed);
   stat.add("frames dropped: bad input (total)", n.dropped_input);
-  stat.add("frames dropped: queue full (total)", n.dropped_queue);
+  stat.add("frames dropped: queue full or cleared (total)", n.dropped_queue);
   stat.add("frames dropped: paused (total)", n.dropped_paused);
 }
 

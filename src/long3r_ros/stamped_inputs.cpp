@@ -72,14 +72,17 @@ void StampedInputs::shutdown() {
   odom_sub_.shutdown();
 }
 
+sensor_msgs::CameraInfoConstPtr cameraInfoFor(
+    const message_filters::Cache<sensor_msgs::CameraInfo>& cache, const ros::Time& stamp,
+    double max_dt_s) {
+  const auto exact = cache.getInterval(stamp, stamp);
+  if (!exact.empty()) return exact.back();
+  return nearestInCache(cache, stamp, max_dt_s);
+}
+
 std::optional<long3r::CameraModel> StampedInputs::camera(const ros::Time& stamp) {
-  sensor_msgs::CameraInfoConstPtr info;
-  const auto exact = camera_info_cache_.getInterval(stamp, stamp);
-  if (!exact.empty()) {
-    info = exact.back();
-  } else {
-    info = nearestInCache(camera_info_cache_, stamp, config_.camera_info_max_dt_s);
-  }
+  const sensor_msgs::CameraInfoConstPtr info =
+      cameraInfoFor(camera_info_cache_, stamp, config_.camera_info_max_dt_s);
   if (info) return toCameraModel(*info);
   if (camera_info_cache_.getLatestTime().isZero()) return std::nullopt;  // none published yet
   char bound[32];

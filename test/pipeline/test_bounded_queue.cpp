@@ -59,3 +59,13 @@ TEST(BoundedQueue, HandsItemsAcrossThreadsInOrder) {
   producer.join();
   EXPECT_EQ(q.dropped(), 0u);
 }
+
+TEST(BoundedQueue, ClearingCountsTheItemsAsDropped) {
+  BoundedQueue<int> q(4);
+  q.push(1);
+  q.push(2);
+  q.push(3);
+  q.clear();  // ~reset: the queued frames go, counted
+  EXPECT_EQ(q.size(), 0u);
+  EXPECT_EQ(q.dropped(), 3u);
+}

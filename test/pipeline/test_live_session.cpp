@@ -93,7 +93,11 @@ TEST(LiveSession, LostTrackingStartsANewStreamAfterLostResetFrames) {
   const LiveStatus st = s.session->status();
   EXPECT_EQ(st.lost_frames, 0);
   EXPECT_EQ(st.streams, 2u);
-  // Frame 5 went with the old stream; the new one starts with frame 6.
+  // Frame 5 went with the old stream, counted as dropped; the new one starts
+  // with frame 6.
+  const LiveEvent* dropped = s.client.event("dropped with the ended stream");
+  ASSERT_NE(dropped, nullptr);
+  EXPECT_TRUE(dropped->frame_dropped);
   s.push(6, 1.6);
   s.push(7, 1.7);
   s.session->flush();
@@ -282,6 +286,10 @@ TEST(LiveSession, ResetStartsOverAndAConfigIsChecked) {
   for (int k = 0; k < 3; ++k) s.push(k, 1.0 + 0.1 * k);
   s.session->reset("reset requested");
   EXPECT_EQ(s.client.log.back(), "new stream: reset requested");
+  // Frame 2 awaited its result: dropped, and said so.
+  std::size_t dropped = 0;
+  for (const LiveEvent& e : s.client.events) dropped += e.frame_dropped ? 1 : 0;
+  EXPECT_EQ(dropped, 1u);
   EXPECT_EQ(s.session->reconstruction().map().size(), 0u);
   s.push(3, 1.05);  // even an earlier stamp: the monitor starts over too
   s.push(0, 1.06);

@@ -36,6 +36,7 @@ from long3r_ros.srv import SaveTrajectory
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'scripts'))
 import tum_to_bag  # noqa: E402 (the project's PNG and calibration readers)
+from demo_record import FrameAccounting  # noqa: E402
 
 DATA = os.environ.get('LONG3R_REPLAY_DATA', '/tmp/long3r_replay_data')
 MODEL_SIZE = 224
@@ -111,10 +112,12 @@ class LiveInput(unittest.TestCase):
         # A ping-pong walk through the sequence: a plausible, endless video.
         self.order = list(range(len(self.frames))) + list(range(len(self.frames) - 2, 0, -1))
         self.k = 0
+        self.sent = 0  # images published, hostile ones included
         self.accepted = []  # stamps of frames the node should take
         self.image_pub = rospy.Publisher('/camera/image_raw', Image, queue_size=20)
         self.info_pub = rospy.Publisher('/camera/camera_info', CameraInfo, queue_size=20)
         self.mon = Monitor()
+        self.accounting = FrameAccounting()
         rospy.wait_for_service('/long3r/reset', timeout=120)
         self.assertTrue(wait_for(lambda: self.image_pub.get_num_connections() > 0
                                  and self.info_pub.get_num_connections() > 0, 30))
@@ -169,6 +172,7 @@ class LiveInput(unittest.TestCase):
         if info is not None:
             self.info_pub.publish(info)
         self.image_pub.publish(msg)
+        self.sent += 1
         time.sleep(pause_s)
 
     def good(self, n=1, info=True, encoding='rgb8', info_override=None, accepted=True,
@@ -183,19 +187,15 @@ class LiveInput(unittest.TestCase):
                 self.accepted.append(stamp.to_sec())
         return stamp
 
-    def settle(self, quiet_s=2.5, timeout_s=60):
-        """Waits until every accepted frame has its result (the last one after
-        flush_after_s) and nothing new came for quiet_s."""
-        last = [len(self.mon.get('results')), time.time()]
-
-        def quiet():
-            n = len(self.mon.get('results'))
-            if n != last[0]:
-                last[0], last[1] = n, time.time()
-            return n >= len(self.accepted) and time.time() - last[1] > quiet_s
-        ok = wait_for(quiet, timeout_s)
+    def settle(self, timeout_s=60):
+        """Waits until the node has accounted for every image sent so far (the
+        last one after flush_after_s) and their results have arrived; every
+        accepted frame must have one."""
+        accounted = self.accounting.wait(self.sent, timeout_s)
         results = {round(m.header.stamp.to_sec(), 6) for m in self.mon.get('results')}
-        self.assertTrue(ok, '%d results for %d accepted frames; without a result: %s; %s' % (
+        ok = accounted and len(self.mon.get('results')) >= len(self.accepted)
+        self.assertTrue(ok, '%s; %d results for %d accepted frames; without a result: %s; %s' % (
+            self.accounting.describe(self.sent),
             len(results), len(self.accepted),
             ['%.3f' % (t - self.accepted[0]) for t in self.accepted if round(t, 6) not in results],
             self.mon.get('diags')[-1][2] if self.mon.get('diags') else ''))

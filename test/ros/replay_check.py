@@ -41,6 +41,9 @@ from long3r_ros.msg import Pointmap
 from map_checks import cloud_points, lost_points
 from long3r_ros.srv import SaveMap, SaveTrajectory
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'scripts'))
+from demo_record import FrameAccounting  # noqa: E402
+
 ARGS = None
 
 
@@ -117,29 +120,23 @@ class ReplayCheck(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         cls.rec = Recorder()
+        cls.accounting = FrameAccounting()
         cls.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(600))
         cls.tf_listener = tf2_ros.TransformListener(cls.tf_buffer)
 
-    def _wait_until_quiet(self, timeout_s, what):
-        # The replay is over when no new result arrived for a few seconds
-        # (this includes the flush of the last frame).
-        last = [-1, time.time()]
-
-        # Across a pause in the bag the replay is only over once every frame came.
-        wanted = ARGS.frames if ARGS.mode in ('pause', 'slow') else 1
-        if ARGS.mode == 'lost':
-            wanted = ARGS.frames - 2  # a reset drops the frame the model holds
-
-        def quiet():
-            n = self.rec.count(what)
-            if n != last[0]:
-                last[0], last[1] = n, time.time()
-            return n >= wanted and time.time() - last[1] > 4.0
-        self.assertTrue(wait_for(quiet, timeout_s), 'no %s arrived' % what)
+    def _wait_for_every_frame(self, timeout_s):
+        # The replay is over when the node has accounted for every image of
+        # the bag (the last one after flush_after_s), never after a quiet spell.
+        import rosbag
+        with rosbag.Bag(ARGS.bag) as bag:
+            frames = sum(bag.get_message_count(t) for t in ('/camera/image_raw', '/camera/image_raw/compressed'))
+        done = self.accounting.wait(frames, timeout_s)
+        rospy.loginfo('frame accounting: %s', self.accounting.describe(frames))
+        self.assertTrue(done, 'the node did not account for every frame: ' + self.accounting.describe(frames))
 
     def test_replay(self):
         rospy.wait_for_service('/long3r/reset', timeout=60)
-        self._wait_until_quiet(240, 'infos' if ARGS.mode in ('bad', 'lost') else 'pointmaps')
+        self._wait_for_every_frame(240)
         pms = self.rec.get('pointmaps')
         stamps = [p.header.stamp.to_sec() for p in pms]
         rospy.loginfo('received %d pointmaps: %s', len(pms), ['%.2f' % s for s in stamps])
@@ -274,6 +271,7 @@ if __name__ == '__main__':
     parser.add_argument('--mode', choices=['normal', 'bad', 'pause', 'slow', 'lost'], default='normal')
     parser.add_argument('--pause-after', type=int, default=3)
     parser.add_argument('--frames', type=int, default=8)
+    parser.add_argument('--bag', required=True, help='the bag replayed (its images are counted)')
     parser.add_argument('--t0', type=float, default=1000.0)
     parser.add_argument('--out', default='/tmp')
     parser.add_argument('--expect-all-frames', action='store_true')

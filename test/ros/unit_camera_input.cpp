@@ -16,6 +16,7 @@
 #include "long3r_ros/conversions.hpp"
 #include "long3r_ros/image_input.hpp"
 #include "long3r_ros/log_throttle.hpp"
+#include "long3r_ros/stamped_inputs.hpp"
 #include "long3r_ros/window_stats.hpp"
 #include "support/cv_test_support.hpp"
 
@@ -68,6 +69,28 @@ TEST(CameraInfo, EveryFieldReachesTheCoreCalibration) {
   // A camera_info the core refuses is named in camera_info's terms.
   m.K[0] = std::numeric_limits<double>::quiet_NaN();
   EXPECT_EQ(long3r::CameraRectifier::problem(toCameraModel(m), 3, 2), "K[0] (fx) is nan");
+}
+
+TEST(CameraInfo, PairedByStampWithinTheBound) {
+  ros::Time::init();  // the cache reads the clock; no master here
+  message_filters::Cache<sensor_msgs::CameraInfo> cache(10);
+  for (double t : {10.0, 10.5, 11.0}) {
+    auto m = boost::make_shared<sensor_msgs::CameraInfo>(info(100.0 + t));
+    m->header.stamp = ros::Time(t);
+    cache.add(m);
+  }
+  auto fx = [&](double t, double max_dt_s) {
+    const auto m = cameraInfoFor(cache, ros::Time(t), max_dt_s);
+    return m ? m->K[0] : -1.0;
+  };
+  EXPECT_EQ(fx(10.5, 0.0), 110.5);   // its own stamp
+  EXPECT_EQ(fx(10.56, 0.1), 110.5);  // the nearest within the bound
+  EXPECT_EQ(fx(10.94, 0.1), 111.0);
+  EXPECT_EQ(fx(10.75, 0.25), 110.5);  // a tie: the earlier
+  EXPECT_EQ(fx(10.7, 0.1), -1.0);     // none within it: the last calibration stands
+  EXPECT_EQ(fx(10.56, 0.0), -1.0);
+  EXPECT_EQ(fx(12.0, 0.5), -1.0);  // no unbounded "latest before"
+  EXPECT_EQ(fx(9.0, 0.5), -1.0);   // nor "first after"
 }
 
 TEST(ImageInput, DecodesRawConvertibleAndCompressedImages) {

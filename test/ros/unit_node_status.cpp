@@ -93,7 +93,7 @@ TEST(NodeStatus, FiguresAreReported) {
   EXPECT_EQ(value(stat, "scale in use (m per model unit)"), "0.5");
   EXPECT_EQ(value(stat, "scale metric"), "True");
   EXPECT_EQ(value(stat, "map points"), "1234");
-  EXPECT_EQ(value(stat, "frames dropped: queue full (total)"), "7");
+  EXPECT_EQ(value(stat, "frames dropped: queue full or cleared (total)"), "7");
   EXPECT_EQ(value(stat, "grid"), "20 x 30 cells, 5 occupied, 100 free");
   EXPECT_EQ(value(stat, "latency min / mean / max (s)"), "0.100 / 0.150 / 0.200");
   EXPECT_EQ(value(stat, "tf"), "publishing");

@@ -66,8 +66,11 @@ class BoundedQueue {
     cv_.notify_all();
   }
 
+  // Drops every item, counted as dropped (so that every item pushed is
+  // either popped or counted).
   void clear() {
     std::lock_guard<std::mutex> lock(mutex_);
+    dropped_ += items_.size();
     items_.clear();
   }
 

@@ -230,6 +230,14 @@ void LiveSession::new_stream(const std::string& why, bool keep_map) {
   if (keep_map) keep_ended_map();
   client_.on_stream_ending(recon_);
   recon_.reset();
+  // Frames that went in and will never come out are counted as dropped, so
+  // that every frame pushed ends in a result or a drop.
+  const std::size_t unfinished = pending_.size() + (held_ ? 1 : 0);
+  for (std::size_t i = 0; i < unfinished; ++i) {
+    warn("dropped with the stream",
+         "a frame awaiting its result was dropped with the ended stream (" + why + ")",
+         /*dropped=*/true);
+  }
   pending_.clear();
   held_.reset();
   status_.lost_frames = 0;
