@@ -34,9 +34,8 @@ done
 
 "$LONG3R_ROOT/scripts/install_deps.sh"
 # Only what the demo runs: the nodelet, the generator, the scorer (no tests,
-# no trainer).
-"$LONG3R_ROOT/scripts/build.sh" --no-trainer long3r_node long3r_nodelet long3r_ros_generate_messages \
-  app_long3r_synth app_long3r_eval app_long3r_make_random_model
+# no trainer; the long3r_demo target).
+"$LONG3R_ROOT/scripts/build.sh" --no-trainer long3r_demo
 set +u; source "$LONG3R_WS/devel/setup.bash"; set -u
 bin="$LONG3R_WS/devel/lib/long3r_ros"
 
@@ -73,6 +72,7 @@ if [ -z "$model" ]; then
 #  to end, but the map and trajectory it writes are meaningless.     #
 ######################################################################
 WARN
+    "$LONG3R_ROOT/scripts/build.sh" --no-trainer app_long3r_make_random_model >/dev/null
     "$bin/long3r_make_random_model" --variant spann3r --size small --img-size 224 --seed 1 \
       --out "$model"
   fi
