@@ -114,8 +114,8 @@ class Long3rNodelet : public nodelet::Nodelet,
   long3r::MapSnapshot mapSnapshot() override;
 
   void publishOutputs(const long3r::FrameResult& r, const std_msgs::Header& header);
-  // What is held now, not in metres (output_units.hpp); session_mutex_ held.
-  OutputUnits outputUnits(bool pose_given);
+  // What is held, not in metres (output_units.hpp), under the node's settings.
+  OutputUnits outputUnits(bool scale_metric, bool pose_given) const;
   std::string heldWhy(const OutputUnits& units) const;
   nav_msgs::Path pathMessage();  // session_mutex_ held
   void shutdown();

@@ -224,8 +224,7 @@ void Long3rNodelet::mapTimerCallback(const ros::WallTimerEvent&) {
       cameras = state_.cameras_map;
       metric = state_.session.scale_metric;
     }
-    const OutputUnits units = long3r_ros::outputUnits(params_.session.scale.source, metric, false,
-                                                      params_.node.publish_unscaled);
+    const OutputUnits units = outputUnits(metric, /*pose_given=*/false);
     if (units.map_held) {
       map_pub_->hold("held until the metric scale is known");
     } else {
@@ -381,7 +380,9 @@ long3r::StateDict Long3rNodelet::session_state() { return placement_->sessionSta
 void Long3rNodelet::restore_session_state(const long3r::StateDict& state) {
   placement_->restoreSessionState(state);
   copyStatus();
-  if (!outputUnits(false).poses_held) path_pub_.publish(pathMessage());
+  if (!outputUnits(session_->status().scale_metric, false).poses_held) {
+    path_pub_.publish(pathMessage());
+  }
 }
 
 nav_msgs::Path Long3rNodelet::pathMessage() {
@@ -455,7 +456,7 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
   const long3r::LiveStatus status = session_->status();
   c.scale_metric = status.scale_metric;
   c.scale_stddev = status.scale_estimate.stddev;
-  c.units = outputUnits(r.pose_given);
+  c.units = outputUnits(status.scale_metric, r.pose_given);
   if (c.units.anyHeld()) c.held_why = heldWhy(c.units);
   c.conf_threshold = params_.reconstruction.conf_threshold;
   // A pose the odometry placed has the odometry's covariance.
@@ -469,9 +470,9 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
   tf_pub_->publish(*frames_, r.pose.T_W_C, header.stamp);
 }
 
-OutputUnits Long3rNodelet::outputUnits(bool pose_given) {
-  return long3r_ros::outputUnits(params_.session.scale.source, session_->status().scale_metric,
-                                 pose_given, params_.node.publish_unscaled);
+OutputUnits Long3rNodelet::outputUnits(bool scale_metric, bool pose_given) const {
+  return long3r_ros::outputUnits(params_.session.scale.source, scale_metric, pose_given,
+                                 params_.node.publish_unscaled);
 }
 
 std::string Long3rNodelet::heldWhy(const OutputUnits& units) const {
