@@ -30,6 +30,17 @@ NOT_PROCESSED = ('frames failed (total)', 'frames dropped: bad input (total)',
                  'frames dropped: queue full or cleared (total)', 'frames dropped: paused (total)')
 
 
+# Where our bags carry their images (tum_to_bag.py; the compressed transport).
+IMAGE_TOPICS = ('/camera/image_raw', '/camera/image_raw/compressed')
+
+
+def bag_images(path, topics=IMAGE_TOPICS):
+    """The images in a bag: what FrameAccounting.wait() is given to count."""
+    import rosbag
+    with rosbag.Bag(path) as bag:
+        return sum(bag.get_message_count(t) for t in topics)
+
+
 class FrameAccounting:
     """What the node has done with the images it was sent, from its
     /diagnostics totals, and the results that reached us: each processed

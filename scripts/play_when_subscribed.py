@@ -1,7 +1,8 @@
 #!/usr/bin/python3
-"""rosbag play, started once TOPIC has a subscriber: the bag begins when the
-node is ready to take it, however long its start takes (Long3rNodelet
-subscribes to its images last, after loading its model), rather than after a
+"""rosbag play, started once TOPIC (or one of its image_transport topics,
+TOPIC/compressed, ...) has a subscriber: the bag begins when the node is
+ready to take it, however long its start takes (Long3rNodelet subscribes
+to its images last, after loading its model), rather than after a
 fixed delay that a loaded machine can outlast (the first frames, or the whole
 bag, would then go unseen).
   play_when_subscribed.py TOPIC [--timeout-s S] -- ROSBAG_PLAY_ARGUMENTS...
@@ -15,8 +16,9 @@ import rospy
 
 
 def subscribed(master, topic):
+    """TOPIC, or one of its image_transport topics (TOPIC/compressed, ...), has a subscriber."""
     _, subscribers, _ = master.getSystemState()
-    return any(t == topic and nodes for t, nodes in subscribers)
+    return any((t == topic or t.startswith(topic + '/')) and nodes for t, nodes in subscribers)
 
 
 def main():

@@ -135,6 +135,10 @@ const std::vector<RenamedParam>& renamedParams();
 
 NodeParams readParams(const ros::NodeHandle& pnh);
 
+// The defaults that follow other parameters, as readParams leaves them:
+// map_frame empty -> map, or map_model_units with scale_source none.
+void resolveDefaults(NodeParams& params);
+
 // One "name: value" line per parameter, for the start-up log.
 std::string describe(const NodeParams& params);
 

@@ -35,8 +35,15 @@
 
 namespace long3r_ros {
 
+// map_frame's default names the unit of its lengths: metres (or held until
+// they are metres) with a scale source, the model's own unit without one.
+inline constexpr char kDefaultMapFrame[] = "map";
+inline constexpr char kDefaultModelUnitsMapFrame[] = "map_model_units";
+
 struct FramesConfig {
-  std::string map_frame = "map";
+  // Empty: kDefaultMapFrame, or kDefaultModelUnitsMapFrame with scale_source
+  // none (resolveMapFrame); the node always runs with it resolved.
+  std::string map_frame;
   std::string odom_frame;     // empty: no odometry
   std::string base_frame;     // empty: no robot base
   std::string camera_frame;   // empty: the image header's frame_id
@@ -46,13 +53,19 @@ struct FramesConfig {
   // odometry started over, map -> odom follows from the first placed frame.
   bool session_odometry_continues = false;
 
-  // Throws long3r::ConfigError naming the field.
+  // An empty map_frame becomes its default for these units.
+  void resolveMapFrame(bool lengths_in_model_units) {
+    if (map_frame.empty()) {
+      map_frame = lengths_in_model_units ? kDefaultModelUnitsMapFrame : kDefaultMapFrame;
+    }
+  }
+  // Throws long3r::ConfigError naming the field (map_frame resolved first).
   void validate(const long3r::config::FieldCheck& check) const;
 };
 
 template <class S, class V>
 long3r::config::FieldsOf<S, FramesConfig> visit_fields(S& s, V& v) {
-  v("map_frame", s.map_frame);
+  v("map_frame", s.map_frame, "(map; map_model_units with scale_source none)");
   v("odom_frame", s.odom_frame, "(none)");
   v("base_frame", s.base_frame, "(none)");
   v("camera_frame", s.camera_frame, "(from image header)");

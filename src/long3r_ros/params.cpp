@@ -154,12 +154,19 @@ NodeParams readParams(const ros::NodeHandle& pnh) {
   NodeParams p;
   RosReader reader(pnh);
   long3r::config::visit_flat(p, reader);
+  resolveDefaults(p);
   try {
     p.validate({"parameter", pnh.getNamespace() + "/", true});
   } catch (const long3r::ConfigError& e) {
     throw ParamError(e.what());
   }
   return p;
+}
+
+void resolveDefaults(NodeParams& params) {
+  // scale_source none: every length stays in model units, and the frame of
+  // the map, path and poses says so unless the user named it.
+  params.frames.resolveMapFrame(params.session.scale.source == long3r::ScaleSource::kNone);
 }
 
 std::string describe(const NodeParams& params) {

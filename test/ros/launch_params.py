@@ -130,6 +130,24 @@ class LaunchParams(unittest.TestCase):
             for param, value in PARAM_ARGS.items():
                 self.assertEqual(params.get(NODE + param), given.get(param, value), '%s: %s' % (name, param))
 
+    def test_rviz_fixed_frame_follows_the_units(self):
+        # The node's map_frame defaults to map_model_units with scale_source
+        # none (config/default.yaml), else map; rviz is started on it.
+        def fixed_frame(name, *args):
+            config = roslaunch.config.load_config_default(
+                [(os.path.join(LAUNCH, name), ['rviz:=true'] + list(args))], None)
+            rviz = [n for n in config.nodes if n.name == 'rviz']
+            self.assertEqual(len(rviz), 1, name)
+            words = rviz[0].args.split()
+            return words[words.index('-f') + 1]
+        self.assertEqual(fixed_frame('long3r.launch'), 'map_model_units')
+        self.assertEqual(fixed_frame('long3r.launch', 'scale_source:=depth'), 'map')
+        self.assertEqual(fixed_frame('long3r.launch', 'map_frame:=world'), 'world')
+        self.assertEqual(fixed_frame('usb_camera.launch'), 'map_model_units')
+        self.assertEqual(fixed_frame('replay.launch', 'bag:=/tmp/x.bag'), 'map_model_units')
+        self.assertEqual(fixed_frame('realsense.launch'), 'map')
+        self.assertEqual(fixed_frame('realsense.launch', 'scale_source:=none'), 'map_model_units')
+
     def test_topics_are_remapped(self):
         self.assertEqual(node_remaps('long3r.launch'), {
             'image': '/camera/image_raw', 'camera_info': '/camera/camera_info',

@@ -42,7 +42,7 @@ from map_checks import cloud_points, lost_points
 from long3r_ros.srv import SaveMap, SaveTrajectory
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'scripts'))
-from demo_record import FrameAccounting  # noqa: E402
+from demo_record import FrameAccounting, bag_images  # noqa: E402
 
 ARGS = None
 
@@ -127,9 +127,7 @@ class ReplayCheck(unittest.TestCase):
     def _wait_for_every_frame(self, timeout_s):
         # The replay is over when the node has accounted for every image of
         # the bag (the last one after flush_after_s), never after a quiet spell.
-        import rosbag
-        with rosbag.Bag(ARGS.bag) as bag:
-            frames = sum(bag.get_message_count(t) for t in ('/camera/image_raw', '/camera/image_raw/compressed'))
+        frames = bag_images(ARGS.bag)
         done = self.accounting.wait(frames, timeout_s)
         rospy.loginfo('frame accounting: %s', self.accounting.describe(frames))
         self.assertTrue(done, 'the node did not account for every frame: ' + self.accounting.describe(frames))
@@ -166,8 +164,12 @@ class ReplayCheck(unittest.TestCase):
         paths = self.rec.get('paths')
         self.assertTrue(paths)
         self.assertEqual(len(paths[-1].poses), n, 'one path pose per published frame')
+        # config/default.yaml: scale_source none, so the map frame's name says
+        # its lengths are model units.
+        self.assertEqual({p.map_frame_id for p in pms}, {'map_model_units'})
+        self.assertEqual(paths[-1].header.frame_id, 'map_model_units')
         for p in pms:  # TF resolves at every published stamp
-            self.tf_buffer.lookup_transform('map', p.header.frame_id, p.header.stamp,
+            self.tf_buffer.lookup_transform('map_model_units', p.header.frame_id, p.header.stamp,
                                             rospy.Duration(2.0))
         if ARGS.expect_all_frames:
             self.assertEqual(n, ARGS.frames, 'one pointmap per input frame')

@@ -61,7 +61,7 @@ from long3r_ros.msg import Pointmap
 from long3r_ros.srv import SaveMap, SaveTrajectory
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'scripts'))
-from demo_record import FrameAccounting  # noqa: E402
+from demo_record import FrameAccounting, bag_images  # noqa: E402
 
 ARGS = None
 
@@ -192,15 +192,9 @@ class Recorder:
             return dict(value) if isinstance(value, dict) else list(value)
 
 
-def bag_frames():
-    """The images of the bag: the sequence's frames (rgb.txt)."""
-    with open(os.path.join(ARGS.seq, 'rgb.txt')) as f:
-        return sum(1 for line in f if line.strip() and not line.startswith('#'))
-
-
 def wait_for_every_frame(test, accounting):
     """Until the node has accounted for every image of the bag (--timeout)."""
-    frames = bag_frames()
+    frames = bag_images(ARGS.bag)
     done = accounting.wait(frames, ARGS.timeout)
     rospy.loginfo('frame accounting: %s', accounting.describe(frames))
     test.assertTrue(done, 'the node did not account for every frame: ' + accounting.describe(frames))
@@ -469,6 +463,7 @@ if __name__ == '__main__':
     parser.add_argument('--timeout', type=float, default=400.0)
     parser.add_argument('--out', default='/tmp')
     parser.add_argument('--seq', default='')
+    parser.add_argument('--bag', required=True, help='the bag replayed (its images are counted)')
     parser.add_argument('--gt-traj', default='')
     parser.add_argument('--eval', default='', help='long3r_eval to score the map with')
     parser.add_argument('--time-offset', type=float, default=1000.0)

@@ -180,14 +180,15 @@ class Sessions(unittest.TestCase):
         try:
             rospy.wait_for_service('/long3r/save_session', timeout=120)
             sys.path.insert(0, os.path.join(ROOT, 'scripts'))
-            from demo_record import FrameAccounting
-            import rosbag
+            from demo_record import FrameAccounting, bag_images
             accounting = FrameAccounting()
             if before_play:
                 before_play(rospy.ServiceProxy('/long3r/load_session', LoadSession))
-            with rosbag.Bag(bag) as b:
-                frames = b.get_message_count('/camera/image_raw')
-            subprocess.run(['rosbag', 'play', '--clock', '--rate', str(RATE), '--quiet', bag],
+            frames = bag_images(bag)
+            # Once the node takes images, and after a delay that lets it
+            # connect to the player: rosbag sends to whoever is connected.
+            subprocess.run([os.path.join(ROOT, 'scripts', 'play_when_subscribed.py'), '/camera/image_raw',
+                            '--', '--clock', '--delay', '2', '--rate', str(RATE), '--quiet', bag],
                            env=self.env, check=True, timeout=600)
             # Every frame of the part handled (the last one after
             # flush_after_s), however loaded the machine.

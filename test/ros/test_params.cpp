@@ -33,7 +33,7 @@ class ParamsTest : public ::testing::Test {
 
 TEST_F(ParamsTest, DefaultsWhenUnset) {
   auto c = readParams(pnh_).node;
-  EXPECT_EQ(readParams(pnh_).frames.map_frame, "map");
+  EXPECT_EQ(readParams(pnh_).frames.map_frame, "map_model_units");  // scale_source none
   EXPECT_EQ(c.queue_size, 1);
   EXPECT_TRUE(c.publish_tf);
   EXPECT_EQ(readParams(pnh_).threads.torch_threads, 0);
@@ -148,13 +148,23 @@ TEST_F(ParamsTest, RejectsNonNumericFlush) {
   expectError("flush_after_s");
 }
 
-TEST_F(ParamsTest, RejectsEmptyMapFrame) {
-  pnh_.setParam("map_frame", "");
-  expectError("map_frame");
+TEST_F(ParamsTest, MapFrameDefaultSaysItsUnits) {
+  pnh_.setParam("map_frame", "");  // as default.yaml has it
+  EXPECT_EQ(readParams(pnh_).frames.map_frame, "map_model_units");
+  for (const char* source : {"depth", "fixed"}) {
+    pnh_.setParam("scale_source", source);
+    EXPECT_EQ(readParams(pnh_).frames.map_frame, "map") << source;
+  }
+  pnh_.setParam("scale_source", "none");
+  pnh_.setParam("map_frame", "map");  // named by the user: kept whatever the units
+  EXPECT_EQ(readParams(pnh_).frames.map_frame, "map");
 }
 
 TEST_F(ParamsTest, RejectsCameraFrameEqualToMap) {
-  pnh_.setParam("camera_frame", "map");
+  pnh_.setParam("camera_frame", "map_model_units");  // the default map_frame of scale_source none
+  expectError("map_frame");
+  pnh_.setParam("map_frame", "world");
+  pnh_.setParam("camera_frame", "world");
   expectError("map_frame");
 }
 
@@ -251,7 +261,9 @@ TEST(DefaultsFile, MatchesTheStructs) {
   }
   EXPECT_EQ(long3r_ros::unknownParams(defaults), std::vector<std::string>{});
   const long3r::config::Json read = long3r::config::to_json(readParams(defaults));
-  const long3r::config::Json expected = long3r::config::to_json(long3r_ros::NodeParams{});
+  long3r_ros::NodeParams structs;
+  long3r_ros::resolveDefaults(structs);
+  const long3r::config::Json expected = long3r::config::to_json(structs);
   EXPECT_EQ(read.dump(2), expected.dump(2));
 }
 

@@ -57,6 +57,7 @@ class FramesTest : public ::testing::Test {
 
 FramesConfig config(const std::string& odom, const std::string& base) {
   FramesConfig c;
+  c.map_frame = "map";
   c.odom_frame = odom;
   c.base_frame = base;
   c.tf_timeout_s = 0.0;
