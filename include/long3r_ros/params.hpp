@@ -35,10 +35,12 @@ class ParamError : public std::runtime_error {
 // Where the camera poses come from: PnP on LONG3R's pointmaps (the paper's
 // way), or the robot's odometry in TF, which then places LONG3R's per-frame
 // geometry (as voxblox and nvblox place depth).
-enum class PoseSource { kModel, kOdometry };
-inline const std::array<std::pair<PoseSource, const char*>, 2>& enum_names(PoseSource) {
-  static const std::array<std::pair<PoseSource, const char*>, 2> names{
-      {{PoseSource::kModel, "model"}, {PoseSource::kOdometry, "odometry"}}};
+enum class PoseSource { kModel, kKeyframes, kOdometry };
+inline const std::array<std::pair<PoseSource, const char*>, 3>& enum_names(PoseSource) {
+  static const std::array<std::pair<PoseSource, const char*>, 3> names{
+      {{PoseSource::kModel, "model"},
+       {PoseSource::kKeyframes, "keyframes"},
+       {PoseSource::kOdometry, "odometry"}}};
   return names;
 }
 
@@ -135,8 +137,9 @@ const std::vector<RenamedParam>& renamedParams();
 
 NodeParams readParams(const ros::NodeHandle& pnh);
 
-// The defaults that follow other parameters, as readParams leaves them:
-// map_frame empty -> map, or map_model_units with scale_source none.
+// What follows from other parameters, as readParams leaves it: map_frame
+// empty -> map, or map_model_units with scale_source none; the pipeline's
+// pose method from pose_source.
 void resolveDefaults(NodeParams& params);
 
 // One "name: value" line per parameter, for the start-up log.

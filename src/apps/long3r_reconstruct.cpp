@@ -174,6 +174,10 @@ int main(int argc, char** argv) {
   // The node's parameters of the pipeline and the session, by the same names
   // (README, Parameters). --scale-source: depth takes a TUM folder's depth
   // images, odometry its groundtruth.txt positions.
+  cli.option("--pose-source", "NAME", &cfg.pose_method,
+             "the node's parameter pose_source: model (PnP on the model's pointmap, the "
+             "paper's) or keyframes (image correspondences with keyframes, lifted by the "
+             "pointmaps)");
   cli.section("Pipeline and session (the node's parameters, README \"Parameters\")");
   add_config_options(cli, &cfg);
   add_config_options(cli, &session_cfg);
@@ -240,7 +244,8 @@ int main(int argc, char** argv) {
     csv.write(
         "frame,stamp,preprocess_ms,model_ms,encode_ms,decode_ms,memory_ms,intrinsics_ms,"
         "pose_ms,map_ms,total_ms,mem_short,mem_long,mem_relevant,pnp_status,pnp_inliers,"
-        "added_to_map,map_points,scale,rss_kb\n");
+        "added_to_map,map_points,scale,rss_kb,tracking,tracking_solver,tracking_matches,"
+        "tracking_inliers,tracking_parallax_deg,tracking_scale,keyframe,tracking_ms\n");
     const bool tty = isatty(fileno(stdout));
     std::vector<double> frame_ms;
     long peak_rss = 0;
@@ -250,16 +255,23 @@ int main(int argc, char** argv) {
       const long rss = rss_kb();
       peak_rss = std::max(peak_rss, rss);
       frame_ms.push_back(t.total_ms);
-      char line[512];
+      // pose_source keyframes: what the tracker made of the frame (else empty).
+      char tracking[192] = ",,,,,,,";
+      if (const auto& k = r.tracking) {
+        std::snprintf(tracking, sizeof tracking, "%s,%s,%d,%d,%.3f,%.6g,%d,%.3f",
+                      to_string(k->status), config::enum_name(k->solver), k->matches, k->inliers,
+                      k->parallax_deg, k->scale, k->new_keyframe ? 1 : 0, t.tracking_ms);
+      }
+      char line[768];
       std::snprintf(
           line, sizeof line,
           "%lld,%.6f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%lld,%lld,%lld,%s,%d,%d,"
-          "%zu,%.9g,%ld\n",
+          "%zu,%.9g,%ld,%s\n",
           static_cast<long long>(r.frame_index), r.stamp, t.preprocess_ms, t.model_ms, m.encode_ms,
           m.decode_ms, m.memory_ms, t.intrinsics_ms, t.pose_ms, t.map_ms, t.total_ms,
           static_cast<long long>(m.mem_short_tokens), static_cast<long long>(m.mem_long_tokens),
           static_cast<long long>(m.relevant_tokens), to_string(r.pose.status), r.pose.inliers,
-          r.added_to_map ? 1 : 0, r.map_points, r.scale, rss);
+          r.added_to_map ? 1 : 0, r.map_points, r.scale, rss, tracking);
       csv.write(line);
       const double fps = t.total_ms > 0 ? 1000.0 / t.total_ms : 0.0;
       if (tty) {

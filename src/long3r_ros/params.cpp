@@ -167,6 +167,9 @@ void resolveDefaults(NodeParams& params) {
   // scale_source none: every length stays in model units, and the frame of
   // the map, path and poses says so unless the user named it.
   params.frames.resolveMapFrame(params.session.scale.source == long3r::ScaleSource::kNone);
+  params.reconstruction.pose_method = params.node.pose_source == PoseSource::kKeyframes
+                                          ? long3r::PoseMethod::kKeyframes
+                                          : long3r::PoseMethod::kModel;
 }
 
 std::string describe(const NodeParams& params) {

@@ -56,6 +56,7 @@ def main():
     ap.add_argument('--work', default='/tmp/long3r_replay_stress')
     ap.add_argument('--timeout-s', type=float, default=900.0, help='per replay')
     args = ap.parse_args()
+    args.bag = os.path.abspath(args.bag)  # roslaunch runs its nodes in ROS_HOME
     failed = []
     for run in range(args.runs):
         rc, s, seconds, out = replay(args, run)

@@ -160,6 +160,18 @@ TEST_F(ParamsTest, MapFrameDefaultSaysItsUnits) {
   EXPECT_EQ(readParams(pnh_).frames.map_frame, "map");
 }
 
+TEST_F(ParamsTest, PoseSourceChoosesThePipelinesPoseMethod) {
+  EXPECT_EQ(readParams(pnh_).reconstruction.pose_method, long3r::PoseMethod::kModel);
+  pnh_.setParam("pose_source", "keyframes");
+  EXPECT_EQ(readParams(pnh_).reconstruction.pose_method, long3r::PoseMethod::kKeyframes);
+  pnh_.setParam("tracker_solver", "essential");
+  pnh_.setParam("tracker_fast_threshold", 0);
+  expectError("tracker_fast_threshold");
+  pnh_.setParam("tracker_fast_threshold", 12);
+  EXPECT_EQ(readParams(pnh_).reconstruction.tracker.fast_threshold, 12);
+  EXPECT_EQ(readParams(pnh_).reconstruction.tracker.solver, long3r::TrackingSolver::kEssential);
+}
+
 TEST_F(ParamsTest, RejectsCameraFrameEqualToMap) {
   pnh_.setParam("camera_frame", "map_model_units");  // the default map_frame of scale_source none
   expectError("map_frame");

@@ -88,7 +88,11 @@ TEST(NodeStatus, FiguresAreReported) {
   n.window.latency_sum_s = 0.3;
   n.window.latency_min_s = 0.1;
   n.window.latency_max_s = 0.2;
+  n.session.keyframe_tracked = 40;
+  n.session.keyframe_untracked = 3;
   const auto stat = diagnose(n);
+  EXPECT_EQ(value(stat, "frames tracked by keyframes (total)"), "40");
+  EXPECT_EQ(value(stat, "frames not tracked: the model's motion (total)"), "3");
   EXPECT_EQ(value(stat, "scale source"), "odometry");
   EXPECT_EQ(value(stat, "scale in use (m per model unit)"), "0.5");
   EXPECT_EQ(value(stat, "scale metric"), "True");

@@ -12,10 +12,12 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <optional>
 
 #include "long3r/model/network/streaming.hpp"
 #include "long3r/pipeline/intrinsics.hpp"
 #include "long3r/pipeline/pose.hpp"
+#include "long3r/tracking/keyframe_tracker.hpp"
 
 namespace long3r {
 
@@ -26,7 +28,8 @@ struct StageTimings {
   double preprocess_ms = 0.0;  // decode/convert, resize, crop, normalise
   double model_ms = 0.0;       // the whole model step (encode + decode + memory and overhead)
   double intrinsics_ms = 0.0;  // focal estimation (frame 0 without calibration)
-  double pose_ms = 0.0;        // PnP-RANSAC + refinement
+  double pose_ms = 0.0;        // PnP-RANSAC + refinement, and the keyframe tracker
+  double tracking_ms = 0.0;    // of it, the keyframe tracker (features, matches, solvers)
   double map_ms = 0.0;         // voxel map fusion (and eviction)
   double total_ms = 0.0;       // frame in to result out
 };
@@ -49,6 +52,11 @@ struct FrameResult {
   // T_W_C was given to push(): the frame is placed (in the path) even when
   // its PnP failed, though without points_C it is then not mapped.
   bool pose_given = false;
+  // pose_method keyframes: what the keyframe tracker made of the frame. When
+  // it posed it, T_W_C is its pose and points_C / points_W are in the
+  // stream's scale by its Sim(3) (model_T_W_C stays the pointmap's pose);
+  // otherwise the pointmap's pose stands. Empty without a tracker run.
+  std::optional<TrackResult> tracking;
   bool posed() const { return pose.ok() || pose_given; }
   double scale = 1.0;
   PinholeIntrinsics intrinsics;  // at model resolution

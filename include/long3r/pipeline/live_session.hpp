@@ -169,8 +169,11 @@ struct LiveStatus {
   double lost_for_s = 0.0;                    // stamps spanned by them
   std::uint64_t relocalisation_attempts = 0;  // frames tried while tracking was lost
   std::uint64_t relocalisations = 0;          // of them, the ones that found the pose again
-  std::string calibration = "none";           // the one in use, or why the latest was refused
-  bool calibration_refused = false;           // the latest calibration was not used
+  // pose_method keyframes: frames the keyframe tracker posed, and those it
+  // could not (placed by the model's motion since the last tracked frame).
+  std::uint64_t keyframe_tracked = 0, keyframe_untracked = 0;
+  std::string calibration = "none";  // the one in use, or why the latest was refused
+  bool calibration_refused = false;  // the latest calibration was not used
   ScaleEstimate scale_estimate;
   double scale = 1.0;  // metres per model unit in use
   bool scale_metric = false;

@@ -3,8 +3,11 @@
 //
 // Per frame: preprocess (resize + crop to the model size) -> model step ->
 // intrinsics (calibration scaled to model resolution, else estimated from
-// frame 0's pointmap and kept for the stream) -> pose by PnP-RANSAC
-// (PoseTracker) -> map fusion when the pose is good.
+// frame 0's pointmap and kept for the stream) -> pose by PnP-RANSAC on the
+// pointmap (PoseTracker, the paper's way), and with pose_method keyframes
+// then by image correspondences with keyframes (tracking/keyframe_tracker.hpp,
+// on the full-resolution image, its points the pointmap seen from the PnP
+// pose) -> map fusion when the pose is good.
 //
 // Frames: the world frame W is the camera optical frame of frame 0 of the
 // current stream (x right, y down, z forward); frame 0's pose is the identity.
@@ -16,6 +19,7 @@
 #include <Eigen/Geometry>
 #include <opencv2/core/mat.hpp>
 
+#include <array>
 #include <cstdint>
 #include <deque>
 #include <map>
@@ -32,10 +36,26 @@
 #include "long3r/pipeline/pose.hpp"
 #include "long3r/pipeline/preprocess.hpp"
 #include "long3r/pipeline/voxel_map.hpp"
+#include "long3r/tracking/keyframe_tracker.hpp"
 
 namespace long3r {
 
+// Where a frame's pose comes from (besides a pose given to push()).
+enum class PoseMethod {
+  kModel,      // PnP of the pixels against the model's own pointmap (the paper)
+  kKeyframes,  // KeyframeTracker; the model's pose where it cannot track
+};
+inline const std::array<std::pair<PoseMethod, const char*>, 2>& enum_names(PoseMethod) {
+  static const std::array<std::pair<PoseMethod, const char*>, 2> names{
+      {{PoseMethod::kModel, "model"}, {PoseMethod::kKeyframes, "keyframes"}}};
+  return names;
+}
+
 struct ReconstructionConfig {
+  // Chosen by the node's pose_source and long3r_reconstruct's --pose-source,
+  // not a parameter of its own.
+  PoseMethod pose_method = PoseMethod::kModel;
+  KeyframeTrackerConfig tracker;
   PreprocessConfig preprocess;  // model input size
   PnpConfig pnp;
   VoxelMapConfig map;
@@ -57,6 +77,7 @@ config::FieldsOf<S, ReconstructionConfig> visit_fields(S& s, V& v) {
   v.nested("preprocess", s.preprocess, "model_");
   v.nested("map", s.map, "");
   v.nested("pnp", s.pnp, "pnp_");
+  v.nested("tracker", s.tracker, "tracker_");
 }
 
 // Metadata key long3r_make_random_model writes ("true"): the weights are
@@ -152,8 +173,11 @@ class Reconstruction {
     PreprocessedImage image;  // chw moved into the model input
     double preprocess_ms = 0.0;
     std::optional<Eigen::Isometry3d> T_W_C;  // given to push()
+    cv::Mat gray;                            // source resolution, for the keyframe tracker
   };
   FrameResult finish(const StreamOutput& out, double call_start_ms, double model_ms);
+  // The camera matrix of the source image (the keyframe tracker's pixels).
+  Eigen::Matrix3d source_camera_matrix(const PixelMapping& model_to_source) const;
 
   std::unique_ptr<StreamingModel> model_;
   ReconstructionConfig config_;
@@ -161,6 +185,9 @@ class Reconstruction {
   std::optional<ResolvedIntrinsics> intrinsics_;
   bool intrinsics_failed_ = false;
   PoseTracker tracker_;
+  KeyframeTracker keyframes_;
+  // The last frame the keyframe tracker posed: (its T_W_C, the model's).
+  std::optional<std::pair<Eigen::Isometry3d, Eigen::Isometry3d>> last_tracked_;
   VoxelMap map_;
   std::deque<Pending> pending_;
   std::vector<std::pair<double, Eigen::Isometry3d>> trajectory_;

@@ -416,6 +416,18 @@ void LiveSession::deliver(FrameResult frame) {
     }
   }
   track_loss(f);
+  if (const auto& k = f.tracking) {
+    if (k->posed()) {
+      ++status_.keyframe_tracked;
+    } else {
+      ++status_.keyframe_untracked;
+      warn("keyframes", "frame " + std::to_string(f.frame_index) +
+                            ": not tracked against the keyframes (" + to_string(k->status) + ": " +
+                            k->message +
+                            "); placed by the model's motion since the last "
+                            "tracked frame");
+    }
+  }
   if (f.pose.ok()) update_scale(r);
   client_.on_result(r);
 }

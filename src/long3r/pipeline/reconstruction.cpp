@@ -3,6 +3,7 @@
 
 #include <ATen/ATen.h>
 #include <c10/core/InferenceMode.h>
+#include <opencv2/imgproc.hpp>
 
 #include <chrono>
 #include <cmath>
@@ -84,6 +85,7 @@ Reconstruction::Reconstruction(std::unique_ptr<StreamingModel> model,
     : model_(std::move(model)),
       config_(effective(config)),
       tracker_(config_.pnp),
+      keyframes_(config_.tracker),
       map_(config_.map) {
   if (!model_) throw std::invalid_argument("Reconstruction: null model");
   // A landscape-only Spann3R returns portrait maps transposed on a scrambled
@@ -115,6 +117,8 @@ void Reconstruction::reset() {
   intrinsics_.reset();
   intrinsics_failed_ = false;
   tracker_.reset();
+  keyframes_.reset();
+  last_tracked_.reset();
   map_.clear();
   trajectory_.clear();
   trajectory_given_.clear();
@@ -136,6 +140,11 @@ void Reconstruction::set_scale(double scale) {
     if (!trajectory_given_[i]) trajectory_[i].second.translation() *= factor;
   }
   tracker_.rescale(factor);
+  keyframes_.rescale(factor);
+  if (last_tracked_) {
+    last_tracked_->first.translation() *= factor;
+    last_tracked_->second.translation() *= factor;
+  }
   scale_ = scale;
 }
 
@@ -341,6 +350,13 @@ std::optional<FrameResult> Reconstruction::push(const cv::Mat& image, const std:
   p.index = frames_pushed_;
   p.stamp = stamp_s;
   p.T_W_C = T_W_C;
+  if (config_.pose_method == PoseMethod::kKeyframes) {
+    if (enc == ImageEncoding::kMono8) {
+      p.gray = image.clone();
+    } else {
+      cv::cvtColor(to_rgb8(image, enc, config_.preprocess.mono16), p.gray, cv::COLOR_RGB2GRAY);
+    }
+  }
   const int h = p.image.height, w = p.image.width;
   // The tensor takes over the chw buffer: no copy, and it lives as long as
   // the model keeps the input.
@@ -379,6 +395,19 @@ std::optional<FrameResult> Reconstruction::flush() {
   r.from_coarse_head = true;
   flushed_index_ = r.frame_index;
   return r;
+}
+
+Eigen::Matrix3d Reconstruction::source_camera_matrix(const PixelMapping& model_to_source) const {
+  // The calibration is the source image's own; an estimate is at model
+  // resolution and maps through the resize and crop.
+  Eigen::Matrix3d K = Eigen::Matrix3d::Identity();
+  if (calibration_) {
+    K << calibration_->fx, 0, calibration_->cx, 0, calibration_->fy, calibration_->cy, 0, 0, 1;
+    return K;
+  }
+  const PinholeIntrinsics& m = intrinsics_->intrinsics;
+  K << m.fx, 0, m.cx, 0, m.fy, m.cy, 0, 0, 1;
+  return model_to_source.matrix() * K;
 }
 
 FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms, double model_ms) {
@@ -432,6 +461,29 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
   }
   r.model_T_W_C = r.pose.T_W_C;
   if (r.pose.ok()) r.points_C = points_in_camera(r.points_W, r.pose.T_W_C);
+  // The keyframe tracker: the frame's shape as its PnP pose sees it, placed
+  // by the images' correspondences with the keyframe (a given pose wins).
+  if (config_.pose_method == PoseMethod::kKeyframes && !p.T_W_C && r.pose.ok() && intrinsics_) {
+    TrackerFrame frame;
+    frame.gray = p.gray;
+    frame.K = source_camera_matrix(p.image.model_to_source);
+    frame.points_C = r.points_C;
+    frame.model_to_image = p.image.model_to_source.matrix();
+    const double t_tracking = now_ms();
+    r.tracking = keyframes_.track(frame, r.pose.T_W_C);
+    r.timings.tracking_ms = now_ms() - t_tracking;
+    if (r.tracking->posed()) {
+      r.pose.T_W_C = r.tracking->T_W_C;
+      last_tracked_ = {r.tracking->T_W_C, r.model_T_W_C};
+    } else if (last_tracked_) {
+      // Not tracked: the model's motion since the last tracked frame, from
+      // where that frame was tracked (the model's own world would jump).
+      const auto& [T_W_tracked, T_W_model] = *last_tracked_;
+      r.pose.T_W_C = T_W_tracked * T_W_model.inverse() * r.model_T_W_C;
+    }
+    if (r.tracking->scale != 1.0) r.points_C *= r.tracking->scale;
+    r.points_W = transform_points(r.points_C, r.pose.T_W_C);
+  }
   if (p.T_W_C) {  // placed by the given pose, whether PnP found the model's or not
     r.pose_given = true;
     r.pose.T_W_C = *p.T_W_C;

@@ -1,0 +1,179 @@
+// KeyframeTracker: each frame's pose from image correspondences with a
+// keyframe, lifted to 3D by the model's pointmaps, rather than from the
+// model's own registration (pose.hpp's PnP on the world pointmap).
+//
+// Frames: W is the stream's world (camera 0's optical frame); C the frame's
+// camera optical frame (x right, y down, z forward), K the keyframe's.
+// Lengths are in the stream's scale: a keyframe's points are its own
+// pointmap times the scale that made it agree with the keyframe before it.
+//
+// Per frame (track()):
+//   1. ORB features on the full-resolution (rectified) grey image, matched
+//      to the keyframe's by Hamming distance with Lowe's ratio test;
+//   2. PnP-RANSAC (EPnP, then Levenberg-Marquardt on the inliers) of the
+//      keyframe's points, lifted by its pointmap, against the frame's
+//      matched features;
+//   3. with solver `essential`, also the relative rotation R_C_K and the
+//      translation's direction from the essential matrix of the 2-D
+//      matches (RANSAC, then the cheirality test), which needs no depth
+//      (on real footage the prototype found its rotation the better one),
+//      the length from the keyframe's points (each inlier gives the length
+//      that puts its point on the frame's ray; their weighted median); of
+//      the two poses, the one more matches agree with by their epipolar
+//      planes, which the depth cannot bias. Too little parallax (a still or
+//      turning camera): PnP's;
+//   4. the frame's own scale against the stream's: the median ratio of its
+//      matched points' predicted depth to its pointmap's depth (Sim(3)), so
+//      the map does not follow the model's per-frame scale;
+//   5. a new keyframe when the parallax, the share of the keyframe's
+//      features still matched, or the frames since the keyframe say so;
+//      a frame the keyframe no longer sees is tried against the last
+//      tracked frame, which then becomes the keyframe.
+// A frame with too few matches (a blank wall, a dark or blurred image, a cut
+// to another scene) is not posed: the caller falls back (the model's motion).
+// A pointmap that lies behind its camera never makes a keyframe.
+// Nothing here knows the model: the pointmap comes in as a CV_32FC3 in C.
+#pragma once
+
+#include <Eigen/Geometry>
+#include <opencv2/core/mat.hpp>
+#include <opencv2/core/types.hpp>
+
+#include <array>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "long3r/config/config_fields.hpp"
+
+namespace long3r {
+
+// How a frame's relative pose is found (the steps above).
+enum class TrackingSolver {
+  kEssential,  // 2 and 3, the pose the epipolar geometry agrees with
+  kPnp,        // 2 only: PnP on the lifted keyframe points
+};
+inline const std::array<std::pair<TrackingSolver, const char*>, 2>& enum_names(TrackingSolver) {
+  static const std::array<std::pair<TrackingSolver, const char*>, 2> names{
+      {{TrackingSolver::kEssential, "essential"}, {TrackingSolver::kPnp, "pnp"}}};
+  return names;
+}
+
+// Defaults by measurement on generated footage (docs/model_card.md,
+// "Poses from keyframes").
+struct KeyframeTrackerConfig {
+  TrackingSolver solver = TrackingSolver::kPnp;
+  int max_features = 1000;                 // ORB features per frame
+  int fast_threshold = 10;                 // ORB's FAST corner threshold (grey levels)
+  double ratio_test = 0.8;                 // Lowe's ratio of best to second-best distance
+  int min_matches = 30;                    // fewer (after RANSAC): the frame is not tracked
+  double ransac_threshold_px = 1.0;        // essential-matrix RANSAC, source pixels
+  double pnp_reprojection_error_px = 3.0;  // PnP-RANSAC fallback, source pixels
+  double min_parallax_deg = 0.5;  // less: the essential matrix's direction is noise, PnP instead
+  // A new keyframe when the median parallax passes this, or the inliers fall
+  // below keyframe_min_overlap of those of the first frame tracked against
+  // the keyframe, or keyframe_max_frames frames have passed.
+  double keyframe_parallax_deg = 4.0;
+  double keyframe_min_overlap = 0.4;
+  int keyframe_max_frames = 4;
+
+  // Throws ConfigError naming the field.
+  void validate(const config::FieldCheck& check) const;
+};
+
+template <class S, class V>
+config::FieldsOf<S, KeyframeTrackerConfig> visit_fields(S& s, V& v) {
+  v("solver", s.solver);
+  v("max_features", s.max_features);
+  v("fast_threshold", s.fast_threshold);
+  v("ratio_test", s.ratio_test);
+  v("min_matches", s.min_matches);
+  v("ransac_threshold_px", s.ransac_threshold_px);
+  v("pnp_reprojection_error_px", s.pnp_reprojection_error_px);
+  v("min_parallax_deg", s.min_parallax_deg);
+  v("keyframe_parallax_deg", s.keyframe_parallax_deg);
+  v("keyframe_min_overlap", s.keyframe_min_overlap);
+  v("keyframe_max_frames", s.keyframe_max_frames);
+}
+
+// One frame as the tracker sees it.
+struct TrackerFrame {
+  cv::Mat gray;       // CV_8UC1, full resolution, rectified
+  Eigen::Matrix3d K;  // its intrinsics (pixel centres at integers)
+  cv::Mat points_C;   // CV_32FC3 [h, w]: the model's pointmap in C, its own scale
+  Eigen::Matrix3d model_to_image = Eigen::Matrix3d::Identity();  // model pixel -> image pixel
+};
+
+enum class TrackStatus {
+  kKeyframe,        // the stream's first keyframe: posed as the caller said
+  kTracked,         // posed from the matches
+  kTooFewFeatures,  // the image has too few features (blank, dark, blurred)
+  kTooFewMatches,   // too few matches with the keyframe (or inliers after RANSAC)
+  kNoDepth,         // too few matched keyframe points with depth to give the length
+};
+const char* to_string(TrackStatus status);
+
+struct TrackResult {
+  TrackStatus status = TrackStatus::kTooFewFeatures;
+  std::string message;  // why not, with the numbers; empty when posed
+  bool posed() const { return status == TrackStatus::kKeyframe || status == TrackStatus::kTracked; }
+  Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
+  // The frame's pointmap times this is in the stream's scale: measured at
+  // its inliers (scale_measured), else the last posed frame's (also when the
+  // frame is not posed).
+  double scale = 1.0;
+  bool scale_measured = false;
+  TrackingSolver solver = TrackingSolver::kEssential;  // what gave the pose
+  int features = 0, matches = 0, inliers = 0;
+  double parallax_deg = 0.0;  // median over the inliers
+  bool new_keyframe = false;
+};
+
+class KeyframeTracker {
+ public:
+  explicit KeyframeTracker(const KeyframeTrackerConfig& config = {});
+
+  // The first frame of a stream (or the first after reset()) becomes the
+  // keyframe at T_W_C_first; later ones are tracked and T_W_C_first is not
+  // used. Throws std::invalid_argument for a frame of the wrong types.
+  TrackResult track(const TrackerFrame& frame,
+                    const Eigen::Isometry3d& T_W_C_first = Eigen::Isometry3d::Identity());
+
+  // The world's scale changed by `factor` (Reconstruction::set_scale).
+  void rescale(double factor);
+  void reset();
+  bool has_keyframe() const { return keyframe_.has_value(); }
+  int keyframes() const { return keyframes_; }  // made in this stream
+  const KeyframeTrackerConfig& config() const { return config_; }
+
+ private:
+  struct Keyframe {
+    std::vector<cv::Point2f> pixels;
+    cv::Mat descriptors;
+    std::vector<Eigen::Vector3d> bearings;               // unit, in K's frame
+    std::vector<std::optional<Eigen::Vector3d>> points;  // in K, stream scale
+    Eigen::Isometry3d T_W_K = Eigen::Isometry3d::Identity();
+    int64_t frames_since = 0;
+    int reference_inliers = 0;  // the first frame tracked against it
+  };
+  Keyframe make_keyframe(const TrackerFrame& frame, const std::vector<cv::KeyPoint>& keypoints,
+                         const cv::Mat& descriptors, const Eigen::Isometry3d& T_W_C,
+                         double scale) const;
+
+  // Steps 1-5 against one keyframe (no state changes).
+  TrackResult relative(const Keyframe& kf, const TrackerFrame& frame,
+                       const std::vector<cv::KeyPoint>& keypoints,
+                       const cv::Mat& descriptors) const;
+
+  KeyframeTrackerConfig config_;
+  std::optional<Keyframe> keyframe_;
+  // The last tracked frame as a keyframe would keep it: the next keyframe
+  // when the current one goes out of sight.
+  std::optional<Keyframe> last_;
+  double last_scale_ = 1.0;
+  int keyframes_ = 0;
+};
+
+}  // namespace long3r

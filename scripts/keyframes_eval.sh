@@ -1,0 +1,67 @@
+#!/usr/bin/env bash
+# The camera path of long3r_reconstruct with each pose source on the
+# held-out generated sequences at a camera's resolution (640 x 480): ATE
+# (long3r_eval, Sim(3)-aligned) and its ratio to a camera that never moves
+# (the RMS distance of the true positions from their mean), and the keyframe
+# tracker's time per frame (frames.csv's tracking_ms).
+#   bash scripts/keyframes_eval.sh [--stride N] [--frames N] [--model FILE] [--out DIR]
+# Defaults: stride 2, 60 frames, the shipped model, build/keyframes_eval.
+# Extra arguments after -- go to long3r_reconstruct (e.g. -- --tracker-solver essential).
+set -euo pipefail
+source "$(dirname "$0")/env.sh"
+root=$LONG3R_ROOT
+stride=2
+frames=60
+model="$root/models/default.safetensors"
+out="$root/build/keyframes_eval"
+extra=()
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --stride) stride=$2; shift 2 ;;
+    --frames) frames=$2; shift 2 ;;
+    --model) model=$2; shift 2 ;;
+    --out) out=$2; shift 2 ;;
+    --) shift; extra=("$@"); break ;;
+    *) echo "keyframes_eval.sh: unknown argument $1" >&2; exit 2 ;;
+  esac
+done
+bin="$root/build/core"
+cmake -S "$root" -B "$bin" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
+cmake --build "$bin" -j "$LONG3R_JOBS" --target app_long3r_synth app_long3r_reconstruct app_long3r_eval >/dev/null
+mkdir -p "$out"
+ratio() { /usr/bin/python3 -c "import sys; print('%.3f' % (float(sys.argv[1]) / 100 / float(sys.argv[2])))" "$1" "$2"; }
+for seed in 2000000 2000001 2000002; do
+  seq="$out/seq_${seed}_$((frames * stride))"
+  if [ ! -f "$seq/groundtruth.txt" ]; then
+    "$bin/long3r_synth" --out "$seq" --seed "$seed" --frames $((frames * stride)) --width 640 \
+      --height 480 --quiet >/dev/null
+  fi
+  # A camera that never moves: the true positions' RMS distance from their mean.
+  still=$(/usr/bin/python3 - "$seq/groundtruth.txt" "$stride" "$frames" <<'EOF'
+import math, sys
+rows = [l.split() for l in open(sys.argv[1]) if l.strip() and not l.startswith('#')]
+stride, frames = int(sys.argv[2]), int(sys.argv[3])
+p = [[float(v) for v in r[1:4]] for r in rows[::stride][:frames]]
+m = [sum(c) / len(p) for c in zip(*p)]
+print('%.4f' % math.sqrt(sum(sum((a - b) ** 2 for a, b in zip(q, m)) for q in p) / len(p)))
+EOF
+)
+  line="seed $seed (still camera $(ratio "$still" 0.0001) cm):"
+  for source in model keyframes; do
+    run="$out/${seed}_${source}_s${stride}"
+    "$bin/long3r_reconstruct" --model "$model" --out "$run" --stride "$stride" \
+      --max-frames "$frames" --pose-source "$source" "${extra[@]}" "$seq" > "$run.log" 2>&1
+    ate=$("$bin/long3r_eval" --gt "$seq" --est-traj "$run/trajectory.txt" | awk '/ATE RMSE/{print $4}')
+    line="$line  $source ATE $ate cm ($(ratio "$ate" "$still")x)"
+    if [ "$source" = keyframes ]; then
+      ms=$(/usr/bin/python3 - "$run/frames.csv" <<'EOF'
+import csv, statistics, sys
+t = [float(r['tracking_ms']) for r in csv.DictReader(open(sys.argv[1])) if r['tracking_ms']]
+print('%.1f' % statistics.median(t))
+EOF
+)
+      line="$line, tracking $ms ms median"
+    fi
+  done
+  echo "$line"
+done

@@ -1,0 +1,447 @@
+#include "long3r/tracking/keyframe_tracker.hpp"
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core/eigen.hpp>
+#include <opencv2/features2d.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+#include <sstream>
+#include <stdexcept>
+
+namespace long3r {
+
+namespace {
+
+constexpr double kRadToDeg = 180.0 / M_PI;
+// Fewer lifted inliers than this: the length (or PnP) is not trusted.
+constexpr int kMinLiftedInliers = 12;
+// A keyframe's pointmap must lie in front of its camera: this share of its
+// finite points at least.
+constexpr double kMinShareInFront = 0.9;
+constexpr int kRansacSeed = 7;
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+  std::nth_element(v.begin(), mid, v.end());
+  return *mid;
+}
+
+// The value at half the total weight.
+double weighted_median(std::vector<std::pair<double, double>> value_weight) {
+  std::sort(value_weight.begin(), value_weight.end());
+  double total = 0.0;
+  for (const auto& [v, w] : value_weight) total += w;
+  double acc = 0.0;
+  for (const auto& [v, w] : value_weight) {
+    acc += w;
+    if (acc >= 0.5 * total) return v;
+  }
+  return value_weight.empty() ? 0.0 : value_weight.back().first;
+}
+
+// The pointmap's point under an image pixel (nearest model pixel), if finite.
+std::optional<Eigen::Vector3d> point_at(const TrackerFrame& f,
+                                        const Eigen::Matrix3d& image_to_model,
+                                        const cv::Point2f& px) {
+  const Eigen::Vector3d m = image_to_model * Eigen::Vector3d(px.x, px.y, 1.0);
+  const int u = static_cast<int>(std::lround(m.x() / m.z()));
+  const int v = static_cast<int>(std::lround(m.y() / m.z()));
+  if (u < 0 || v < 0 || u >= f.points_C.cols || v >= f.points_C.rows) return std::nullopt;
+  const cv::Vec3f p = f.points_C.at<cv::Vec3f>(v, u);
+  if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) return std::nullopt;
+  return Eigen::Vector3d(p[0], p[1], p[2]);
+}
+
+// Share of the pointmap's finite points in front of the camera (z > 0).
+double share_in_front(const cv::Mat& points_C) {
+  std::size_t finite = 0, front = 0;
+  for (int v = 0; v < points_C.rows; ++v) {
+    const auto* row = points_C.ptr<cv::Vec3f>(v);
+    for (int u = 0; u < points_C.cols; ++u) {
+      if (!std::isfinite(row[u][2])) continue;
+      ++finite;
+      front += row[u][2] > 0.0f ? 1 : 0;
+    }
+  }
+  return finite == 0 ? 0.0 : static_cast<double>(front) / static_cast<double>(finite);
+}
+
+Eigen::Isometry3d isometry(const cv::Mat& R, const cv::Mat& t) {
+  Eigen::Matrix3d r;
+  Eigen::Vector3d v;
+  cv::cv2eigen(R, r);
+  cv::cv2eigen(t, v);
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = r;
+  T.translation() = v;
+  return T;
+}
+
+}  // namespace
+
+void KeyframeTrackerConfig::validate(const config::FieldCheck& check) const {
+  check.require(max_features >= 50 && max_features <= 100000, "max_features",
+                "must be in [50, 100000]");
+  check.require(fast_threshold >= 1 && fast_threshold <= 255, "fast_threshold",
+                "must be in [1, 255]");
+  check.require(ratio_test > 0.0 && ratio_test <= 1.0, "ratio_test", "must be in (0, 1]");
+  check.require(min_matches >= 8, "min_matches",
+                "must be >= 8 (the essential matrix needs 5, PnP 6)");
+  check.require(ransac_threshold_px > 0.0 && std::isfinite(ransac_threshold_px),
+                "ransac_threshold_px", "must be > 0");
+  check.require(pnp_reprojection_error_px > 0.0 && std::isfinite(pnp_reprojection_error_px),
+                "pnp_reprojection_error_px", "must be > 0");
+  check.require(min_parallax_deg >= 0.0 && min_parallax_deg < 90.0, "min_parallax_deg",
+                "must be in [0, 90)");
+  check.require(keyframe_parallax_deg > 0.0 && keyframe_parallax_deg < 90.0,
+                "keyframe_parallax_deg", "must be in (0, 90)");
+  check.require(keyframe_min_overlap >= 0.0 && keyframe_min_overlap <= 1.0, "keyframe_min_overlap",
+                "must be in [0, 1]");
+  check.require(keyframe_max_frames >= 1, "keyframe_max_frames", "must be >= 1");
+}
+
+const char* to_string(TrackStatus status) {
+  switch (status) {
+    case TrackStatus::kKeyframe:
+      return "keyframe";
+    case TrackStatus::kTracked:
+      return "tracked";
+    case TrackStatus::kTooFewFeatures:
+      return "too few features";
+    case TrackStatus::kTooFewMatches:
+      return "too few matches";
+    case TrackStatus::kNoDepth:
+      return "no depth";
+  }
+  return "?";
+}
+
+KeyframeTracker::KeyframeTracker(const KeyframeTrackerConfig& config) : config_(config) {
+  config_.validate({"tracker config", ""});
+}
+
+void KeyframeTracker::reset() {
+  keyframe_.reset();
+  last_.reset();
+  last_scale_ = 1.0;
+  keyframes_ = 0;
+}
+
+void KeyframeTracker::rescale(double factor) {
+  for (std::optional<Keyframe>* k : {&keyframe_, &last_}) {
+    if (!*k) continue;
+    (*k)->T_W_K.translation() *= factor;
+    for (auto& p : (*k)->points) {
+      if (p) *p *= factor;
+    }
+  }
+}
+
+KeyframeTracker::Keyframe KeyframeTracker::make_keyframe(const TrackerFrame& frame,
+                                                         const std::vector<cv::KeyPoint>& keypoints,
+                                                         const cv::Mat& descriptors,
+                                                         const Eigen::Isometry3d& T_W_C,
+                                                         double scale) const {
+  Keyframe k;
+  k.T_W_K = T_W_C;
+  k.descriptors = descriptors.clone();
+  const Eigen::Matrix3d K_inv = frame.K.inverse();
+  const Eigen::Matrix3d image_to_model = frame.model_to_image.inverse();
+  k.pixels.reserve(keypoints.size());
+  for (const cv::KeyPoint& kp : keypoints) {
+    k.pixels.push_back(kp.pt);
+    const Eigen::Vector3d ray = K_inv * Eigen::Vector3d(kp.pt.x, kp.pt.y, 1.0);  // z = 1
+    k.bearings.push_back(ray.normalized());
+    // The model's depth along the image's own ray: the full-resolution
+    // feature keeps its position, the coarse pointmap gives the distance.
+    const std::optional<Eigen::Vector3d> p = point_at(frame, image_to_model, kp.pt);
+    if (p && p->z() > 0.0) {
+      k.points.emplace_back(ray * (p->z() * scale));
+    } else {
+      k.points.emplace_back(std::nullopt);
+    }
+  }
+  return k;
+}
+
+TrackResult KeyframeTracker::track(const TrackerFrame& frame,
+                                   const Eigen::Isometry3d& T_W_C_first) {
+  if (frame.gray.empty() || frame.gray.type() != CV_8UC1) {
+    throw std::invalid_argument("KeyframeTracker::track: the image must be CV_8UC1");
+  }
+  if (frame.points_C.empty() || frame.points_C.type() != CV_32FC3) {
+    throw std::invalid_argument("KeyframeTracker::track: the pointmap must be CV_32FC3");
+  }
+  TrackResult r;
+  r.scale = last_scale_;  // unless this frame measures its own
+  std::vector<cv::KeyPoint> keypoints;
+  cv::Mat descriptors;
+  // OpenCV's ORB defaults but the FAST threshold (theirs: 20).
+  cv::ORB::create(config_.max_features, 1.2f, 8, 31, 0, 2, cv::ORB::HARRIS_SCORE, 31,
+                  config_.fast_threshold)
+      ->detectAndCompute(frame.gray, cv::noArray(), keypoints, descriptors);
+  r.features = static_cast<int>(keypoints.size());
+  std::ostringstream why;
+  if (r.features < config_.min_matches) {
+    r.status = TrackStatus::kTooFewFeatures;
+    why << r.features << " features in the image (at least " << config_.min_matches << " needed)";
+    r.message = why.str();
+    return r;
+  }
+  const bool in_front = share_in_front(frame.points_C) >= kMinShareInFront;
+
+  if (!keyframe_) {
+    if (!in_front) {
+      r.status = TrackStatus::kNoDepth;
+      r.message = "the pointmap lies behind the camera: not a keyframe";
+      return r;
+    }
+    keyframe_ = make_keyframe(frame, keypoints, descriptors, T_W_C_first, 1.0);
+    ++keyframes_;
+    last_scale_ = 1.0;
+    r.status = TrackStatus::kKeyframe;
+    r.T_W_C = T_W_C_first;
+    r.new_keyframe = true;
+    return r;
+  }
+  TrackResult r_kf = relative(*keyframe_, frame, keypoints, descriptors);
+  if (!r_kf.posed() && last_) {
+    // The keyframe is out of sight: the last tracked frame may still see
+    // this one; it becomes the keyframe then.
+    TrackResult r_last = relative(*last_, frame, keypoints, descriptors);
+    if (r_last.posed()) {
+      keyframe_ = std::move(*last_);
+      ++keyframes_;
+      r_kf = r_last;
+    }
+  }
+  last_.reset();
+  r = r_kf;
+  r.features = static_cast<int>(keypoints.size());
+  if (!r.posed()) {
+    r.scale = last_scale_;  // for the caller's fallback pose
+    return r;
+  }
+  Keyframe& kf = *keyframe_;
+  if (!r.scale_measured) r.scale = last_scale_;
+  last_scale_ = r.scale;
+
+  // 5. A new keyframe?
+  ++kf.frames_since;
+  if (kf.reference_inliers == 0) kf.reference_inliers = r.inliers;
+  const double overlap = static_cast<double>(r.inliers) / static_cast<double>(kf.reference_inliers);
+  const bool due = kf.frames_since >= config_.keyframe_max_frames ||
+                   r.parallax_deg >= config_.keyframe_parallax_deg ||
+                   overlap < config_.keyframe_min_overlap;
+  if (in_front && r.scale_measured) {
+    Keyframe next = make_keyframe(frame, keypoints, descriptors, r.T_W_C, r.scale);
+    if (due) {
+      keyframe_ = std::move(next);
+      ++keyframes_;
+      r.new_keyframe = true;
+    } else {
+      last_ = std::move(next);
+    }
+  }
+  return r;
+}
+
+TrackResult KeyframeTracker::relative(const Keyframe& kf, const TrackerFrame& frame,
+                                      const std::vector<cv::KeyPoint>& keypoints,
+                                      const cv::Mat& descriptors) const {
+  TrackResult r;
+  std::ostringstream why;
+  // 1. Matches frame -> keyframe, ratio test, one frame feature per keyframe feature.
+  std::vector<std::vector<cv::DMatch>> knn;
+  cv::BFMatcher(cv::NORM_HAMMING).knnMatch(descriptors, kf.descriptors, knn, 2);
+  std::vector<int> best_for_kf(kf.pixels.size(), -1);
+  std::vector<float> best_distance(kf.pixels.size(), 1e30f);
+  for (const auto& m : knn) {
+    if (m.empty()) continue;
+    if (m.size() == 2 && m[0].distance > config_.ratio_test * m[1].distance) continue;
+    const int k = m[0].trainIdx;
+    if (m[0].distance < best_distance[k]) {
+      best_distance[k] = m[0].distance;
+      best_for_kf[k] = m[0].queryIdx;
+    }
+  }
+  std::vector<cv::Point2f> px_k, px_f;
+  std::vector<int> idx_k, idx_f;
+  for (std::size_t k = 0; k < best_for_kf.size(); ++k) {
+    if (best_for_kf[k] < 0) continue;
+    idx_k.push_back(static_cast<int>(k));
+    idx_f.push_back(best_for_kf[k]);
+    px_k.push_back(kf.pixels[k]);
+    px_f.push_back(keypoints[static_cast<std::size_t>(best_for_kf[k])].pt);
+  }
+  r.matches = static_cast<int>(px_k.size());
+  if (r.matches < config_.min_matches) {
+    r.status = TrackStatus::kTooFewMatches;
+    why << r.matches << " matches with the keyframe (at least " << config_.min_matches << ")";
+    r.message = why.str();
+    return r;
+  }
+
+  cv::Mat K_cv;
+  cv::eigen2cv(frame.K, K_cv);
+  const Eigen::Matrix3d K_inv = frame.K.inverse();
+  auto bearing_f = [&](int i) {
+    return (K_inv * Eigen::Vector3d(px_f[i].x, px_f[i].y, 1.0)).normalized();
+  };
+
+  // A candidate relative pose T_C_K and the matches it explains.
+  struct Candidate {
+    Eigen::Isometry3d T_C_K = Eigen::Isometry3d::Identity();
+    std::vector<int> inliers;  // indices into the matches
+    TrackingSolver solver = TrackingSolver::kEssential;
+  };
+  auto parallax_of = [&](const Eigen::Matrix3d& R_C_K, const std::vector<int>& which) {
+    std::vector<double> parallax;
+    for (int i : which) {
+      const Eigen::Vector3d rb = R_C_K * kf.bearings[static_cast<std::size_t>(idx_k[i])];
+      parallax.push_back(std::acos(std::clamp(rb.dot(bearing_f(i)), -1.0, 1.0)) * kRadToDeg);
+    }
+    return median(parallax);
+  };
+
+  // 3. Rotation and direction from the essential matrix, the length from
+  // the keyframe's points.
+  std::optional<Candidate> essential;
+  if (config_.solver == TrackingSolver::kEssential) {
+    cv::theRNG().state = kRansacSeed;
+    cv::Mat mask;
+    const cv::Mat E = cv::findEssentialMat(px_k, px_f, K_cv, cv::RANSAC, 0.999,
+                                           config_.ransac_threshold_px, mask);
+    if (E.rows == 3 && E.cols == 3) {
+      cv::Mat R, t;
+      cv::recoverPose(E, px_k, px_f, K_cv, R, t, mask);
+      Candidate c;
+      c.T_C_K = isometry(R, t);
+      const Eigen::Vector3d dir = c.T_C_K.translation().normalized();
+      std::vector<std::pair<double, double>> lengths;
+      for (int i = 0; i < r.matches; ++i) {
+        if (!mask.at<uchar>(i)) continue;
+        c.inliers.push_back(i);
+        const auto& X = kf.points[static_cast<std::size_t>(idx_k[i])];
+        if (!X) continue;
+        // The length L with b x (R X + L dir) = 0, least squares per match.
+        const Eigen::Vector3d b = bearing_f(i);
+        const Eigen::Vector3d c_point = b.cross(c.T_C_K.linear() * *X);
+        const Eigen::Vector3d c_dir = b.cross(dir);
+        const double w = c_dir.squaredNorm();
+        if (w < 1e-12) continue;
+        lengths.emplace_back(-c_dir.dot(c_point) / w, w);
+      }
+      const double length = weighted_median(lengths);
+      if (static_cast<int>(c.inliers.size()) >= config_.min_matches &&
+          static_cast<int>(lengths.size()) >= kMinLiftedInliers &&
+          parallax_of(c.T_C_K.linear(), c.inliers) >= config_.min_parallax_deg && length > 0.0 &&
+          std::isfinite(length)) {
+        c.T_C_K.translation() = dir * length;
+        essential = c;
+      }
+    }
+  }
+
+  // 2. PnP of the lifted keyframe points.
+  std::optional<Candidate> pnp;
+  std::vector<cv::Point3f> object;
+  std::vector<cv::Point2f> image;
+  std::vector<int> which;
+  for (int i = 0; i < r.matches; ++i) {
+    const auto& X = kf.points[static_cast<std::size_t>(idx_k[i])];
+    if (!X) continue;
+    object.emplace_back(static_cast<float>(X->x()), static_cast<float>(X->y()),
+                        static_cast<float>(X->z()));
+    image.push_back(px_f[i]);
+    which.push_back(i);
+  }
+  int pnp_inliers_found = 0;
+  if (static_cast<int>(object.size()) >= kMinLiftedInliers) {
+    cv::theRNG().state = kRansacSeed;
+    cv::Mat rvec, tvec;
+    std::vector<int> pnp_inliers;
+    const bool ok = cv::solvePnPRansac(object, image, K_cv, cv::noArray(), rvec, tvec, false, 200,
+                                       static_cast<float>(config_.pnp_reprojection_error_px), 0.999,
+                                       pnp_inliers, cv::SOLVEPNP_EPNP);
+    pnp_inliers_found = ok ? static_cast<int>(pnp_inliers.size()) : 0;
+    if (pnp_inliers_found >= config_.min_matches) {
+      Candidate c;
+      c.solver = TrackingSolver::kPnp;
+      std::vector<cv::Point3f> in_obj;
+      std::vector<cv::Point2f> in_img;
+      for (int j : pnp_inliers) {
+        in_obj.push_back(object[static_cast<std::size_t>(j)]);
+        in_img.push_back(image[static_cast<std::size_t>(j)]);
+        c.inliers.push_back(which[static_cast<std::size_t>(j)]);
+      }
+      cv::solvePnPRefineLM(in_obj, in_img, K_cv, cv::noArray(), rvec, tvec);
+      cv::Mat R;
+      cv::Rodrigues(rvec, R);
+      c.T_C_K = isometry(R, tvec);
+      pnp = c;
+    }
+  }
+
+  // Both: the one the images agree with, by the matches within the RANSAC
+  // threshold of their epipolar plane (of the rotated ray, for a camera
+  // that only turned). The depth cannot bias this choice.
+  const double threshold_rad = config_.ransac_threshold_px / frame.K(0, 0);
+  auto epipolar_inliers = [&](const Eigen::Isometry3d& T) {
+    const double length = T.translation().norm();
+    const Eigen::Vector3d dir =
+        length > 1e-12 ? Eigen::Vector3d(T.translation() / length) : Eigen::Vector3d::Zero();
+    int n = 0;
+    for (int i = 0; i < r.matches; ++i) {
+      const Eigen::Vector3d rb = T.linear() * kf.bearings[static_cast<std::size_t>(idx_k[i])];
+      const Eigen::Vector3d b = bearing_f(i);
+      const Eigen::Vector3d normal = dir.cross(rb);
+      const double err =
+          normal.norm() > 1e-9 ? std::abs(b.dot(normal.normalized())) : (b - rb).norm();
+      n += err < threshold_rad ? 1 : 0;
+    }
+    return n;
+  };
+  std::optional<Candidate> chosen = essential ? essential : pnp;
+  if (essential && pnp && epipolar_inliers(pnp->T_C_K) > epipolar_inliers(essential->T_C_K)) {
+    chosen = pnp;
+  }
+  if (!chosen) {
+    if (static_cast<int>(object.size()) < kMinLiftedInliers) {
+      r.status = TrackStatus::kNoDepth;
+      why << object.size() << " of " << r.matches << " matches have keyframe depth";
+    } else {
+      r.status = TrackStatus::kTooFewMatches;
+      why << pnp_inliers_found << " PnP inliers of " << object.size()
+          << " lifted matches (at least " << config_.min_matches << ")";
+    }
+    r.message = why.str();
+    return r;
+  }
+  const std::optional<Eigen::Isometry3d> T_C_K = chosen->T_C_K;
+  const std::vector<int>& inliers = chosen->inliers;
+  r.solver = chosen->solver;
+  r.parallax_deg = parallax_of(T_C_K->linear(), inliers);
+  r.inliers = static_cast<int>(inliers.size());
+  r.T_W_C = kf.T_W_K * T_C_K->inverse();
+  r.status = TrackStatus::kTracked;
+
+  // 4. The frame's scale: predicted over its own depth at the inliers.
+  const Eigen::Matrix3d image_to_model = frame.model_to_image.inverse();
+  std::vector<double> ratios;
+  for (int i : inliers) {
+    const auto& X = kf.points[static_cast<std::size_t>(idx_k[i])];
+    if (!X) continue;
+    const std::optional<Eigen::Vector3d> own = point_at(frame, image_to_model, px_f[i]);
+    const double predicted = (*T_C_K * *X).z();
+    if (own && own->z() > 0.0 && predicted > 0.0) ratios.push_back(predicted / own->z());
+  }
+  r.scale_measured = !ratios.empty();
+  r.scale = r.scale_measured ? median(ratios) : 1.0;
+  return r;
+}
+
+}  // namespace long3r
