@@ -23,8 +23,10 @@ for _ in $(seq "$busy"); do
   (while :; do :; done) &
   loops+=($!)
 done
+set +u  # catkin's setup reads unset variables
 # shellcheck disable=SC1091
 source "$LONG3R_WS/devel/setup.bash"
+set -u
 cd "$LONG3R_WS/build"
 for run in $(seq "$runs"); do
   start=$(date +%s)

@@ -13,6 +13,7 @@ import argparse
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -35,8 +36,21 @@ def replay(args, run):
         cmd.append('model_path:=' + args.model)
     start = time.time()
     with open(os.path.join(out, 'roslaunch.log'), 'w') as log:
-        rc = subprocess.run(cmd, env=env, stdout=log, stderr=subprocess.STDOUT,
-                            timeout=args.timeout_s).returncode
+        # Its own process group: a replay that overruns ends with all its
+        # nodes (roslaunch first, as Ctrl-C would; then the whole group).
+        launch = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT,
+                                  start_new_session=True)
+        try:
+            rc = launch.wait(timeout=args.timeout_s)
+        except subprocess.TimeoutExpired:
+            launch.send_signal(signal.SIGINT)
+            try:
+                launch.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                pass
+            os.killpg(launch.pid, signal.SIGKILL)
+            launch.wait()
+            rc = 'timed out after %.0f s' % args.timeout_s
     seconds = time.time() - start
     try:
         with open(os.path.join(out, 'summary.json')) as f:
@@ -62,7 +76,8 @@ def main():
         rc, s, seconds, out = replay(args, run)
         ok = rc == 0 and s.get('results') == args.frames and s.get('poses') == args.frames
         print('replay %d of %d: %s in %.0f s: %s of %d frames answered, %s posed (%s)'
-              % (run + 1, args.runs, 'ok' if ok else 'FAILED', seconds, s.get('results'), args.frames,
+              % (run + 1, args.runs, 'ok' if ok else 'FAILED (roslaunch: %s)' % rc, seconds,
+                 s.get('results'), args.frames,
                  s.get('poses'), out), flush=True)
         if not ok:
             failed.append(run + 1)

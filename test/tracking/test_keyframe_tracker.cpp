@@ -159,10 +159,28 @@ TEST(KeyframeTracker, HostileFramesAreNotPosed) {
   blurred.gray = cv::Mat();  // blurred into a new image, not the footage's
   cv::GaussianBlur(f.gray[0], blurred.gray, cv::Size(0, 0), 25.0);
   EXPECT_FALSE(tracker.track(blurred).posed());
-  const TrackResult cut = tracker.track(frame(other, 0));  // another room
+  EXPECT_EQ(tracker.track(frame(f, 0)).status, TrackStatus::kTracked);  // the keyframe stayed
+  const TrackResult cut = tracker.track(frame(other, 0));               // another room
   EXPECT_FALSE(cut.posed()) << cut.inliers << " inliers";
-  // The keyframe survived them all.
+  EXPECT_FALSE(cut.new_keyframe);  // one frame does not replace the keyframe
   EXPECT_EQ(tracker.track(frame(f, 0)).status, TrackStatus::kTracked);
+}
+
+TEST(KeyframeTracker, LostForFramesInARowStartsAgainWhereTheCallerPutsTheFrame) {
+  const Footage f = render(synth::TrajectoryType::kWalk, 1, 15);
+  const Footage other = render(synth::TrajectoryType::kWalk, 2, 99);
+  KeyframeTracker tracker;
+  tracker.track(frame(f, 0));
+  const Eigen::Isometry3d there = Eigen::Translation3d(0, 0, 1) * Eigen::Isometry3d::Identity();
+  EXPECT_FALSE(tracker.track(frame(other, 0), there).new_keyframe);
+  const TrackResult second = tracker.track(frame(other, 0), there);  // the second in a row
+  EXPECT_FALSE(second.posed());
+  EXPECT_TRUE(second.new_keyframe);
+  const TrackResult next = tracker.track(frame(other, 1));
+  ASSERT_EQ(next.status, TrackStatus::kTracked) << next.message;
+  const Eigen::Isometry3d truth =
+      there * other.seq.poses[0].inverse() * other.seq.poses[1];  // from where it started again
+  EXPECT_LT((next.T_W_C.translation() - truth.translation()).norm(), 0.01);
 }
 
 TEST(KeyframeTracker, APointmapBehindTheCameraIsNeverAKeyframe) {

@@ -186,7 +186,8 @@ class Reconstruction {
   bool intrinsics_failed_ = false;
   PoseTracker tracker_;
   KeyframeTracker keyframes_;
-  // The last frame the keyframe tracker posed: (its T_W_C, the model's).
+  // The last frame the keyframe tracker saw: (its T_W_C, tracked or placed
+  // by the model's motion; the model's own).
   std::optional<std::pair<Eigen::Isometry3d, Eigen::Isometry3d>> last_tracked_;
   VoxelMap map_;
   std::deque<Pending> pending_;

@@ -28,7 +28,9 @@
 //   5. a new keyframe when the parallax, the share of the keyframe's
 //      features still matched, or the frames since the keyframe say so;
 //      a frame the keyframe no longer sees is tried against the last
-//      tracked frame, which then becomes the keyframe.
+//      tracked frame, which then becomes the keyframe; after untracked
+//      frames in a row, the frame becomes the keyframe where the caller
+//      placed it.
 // A frame with too few matches (a blank wall, a dark or blurred image, a cut
 // to another scene) is not posed: the caller falls back (the model's motion).
 // A pointmap that lies behind its camera never makes a keyframe.
@@ -135,11 +137,14 @@ class KeyframeTracker {
  public:
   explicit KeyframeTracker(const KeyframeTrackerConfig& config = {});
 
+  // T_W_C_prior: the caller's pose for the frame should it not be tracked.
   // The first frame of a stream (or the first after reset()) becomes the
-  // keyframe at T_W_C_first; later ones are tracked and T_W_C_first is not
-  // used. Throws std::invalid_argument for a frame of the wrong types.
+  // keyframe there; later ones are tracked, and the second untracked frame
+  // in a row becomes the keyframe at its prior (one bad frame does not
+  // replace the keyframe). Throws std::invalid_argument
+  // for a frame of the wrong types.
   TrackResult track(const TrackerFrame& frame,
-                    const Eigen::Isometry3d& T_W_C_first = Eigen::Isometry3d::Identity());
+                    const Eigen::Isometry3d& T_W_C_prior = Eigen::Isometry3d::Identity());
 
   // The world's scale changed by `factor` (Reconstruction::set_scale).
   void rescale(double factor);
@@ -173,6 +178,7 @@ class KeyframeTracker {
   // when the current one goes out of sight.
   std::optional<Keyframe> last_;
   double last_scale_ = 1.0;
+  int lost_ = 0;  // untracked frames in a row
   int keyframes_ = 0;
 };
 

@@ -469,18 +469,17 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
     frame.K = source_camera_matrix(p.image.model_to_source);
     frame.points_C = r.points_C;
     frame.model_to_image = p.image.model_to_source.matrix();
+    // Where the frame goes should it not be tracked: the model's motion
+    // since the last frame, from where that frame went (the model's own
+    // world would jump).
+    const Eigen::Isometry3d prior =
+        last_tracked_ ? last_tracked_->first * last_tracked_->second.inverse() * r.model_T_W_C
+                      : r.model_T_W_C;
     const double t_tracking = now_ms();
-    r.tracking = keyframes_.track(frame, r.pose.T_W_C);
+    r.tracking = keyframes_.track(frame, prior);
     r.timings.tracking_ms = now_ms() - t_tracking;
-    if (r.tracking->posed()) {
-      r.pose.T_W_C = r.tracking->T_W_C;
-      last_tracked_ = {r.tracking->T_W_C, r.model_T_W_C};
-    } else if (last_tracked_) {
-      // Not tracked: the model's motion since the last tracked frame, from
-      // where that frame was tracked (the model's own world would jump).
-      const auto& [T_W_tracked, T_W_model] = *last_tracked_;
-      r.pose.T_W_C = T_W_tracked * T_W_model.inverse() * r.model_T_W_C;
-    }
+    r.pose.T_W_C = r.tracking->posed() ? r.tracking->T_W_C : prior;
+    last_tracked_ = {r.pose.T_W_C, r.model_T_W_C};
     if (r.tracking->scale != 1.0) r.points_C *= r.tracking->scale;
     r.points_W = transform_points(r.points_C, r.pose.T_W_C);
   }

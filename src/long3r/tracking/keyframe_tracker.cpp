@@ -21,6 +21,8 @@ constexpr int kMinLiftedInliers = 12;
 // finite points at least.
 constexpr double kMinShareInFront = 0.9;
 constexpr int kRansacSeed = 7;
+// Untracked frames in a row after which the last becomes the keyframe.
+constexpr int kKeyframeAfterLostFrames = 2;
 
 double median(std::vector<double> v) {
   if (v.empty()) return 0.0;
@@ -126,6 +128,7 @@ KeyframeTracker::KeyframeTracker(const KeyframeTrackerConfig& config) : config_(
 void KeyframeTracker::reset() {
   keyframe_.reset();
   last_.reset();
+  lost_ = 0;
   last_scale_ = 1.0;
   keyframes_ = 0;
 }
@@ -168,7 +171,7 @@ KeyframeTracker::Keyframe KeyframeTracker::make_keyframe(const TrackerFrame& fra
 }
 
 TrackResult KeyframeTracker::track(const TrackerFrame& frame,
-                                   const Eigen::Isometry3d& T_W_C_first) {
+                                   const Eigen::Isometry3d& T_W_C_prior) {
   if (frame.gray.empty() || frame.gray.type() != CV_8UC1) {
     throw std::invalid_argument("KeyframeTracker::track: the image must be CV_8UC1");
   }
@@ -199,11 +202,11 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
       r.message = "the pointmap lies behind the camera: not a keyframe";
       return r;
     }
-    keyframe_ = make_keyframe(frame, keypoints, descriptors, T_W_C_first, 1.0);
+    keyframe_ = make_keyframe(frame, keypoints, descriptors, T_W_C_prior, 1.0);
     ++keyframes_;
     last_scale_ = 1.0;
     r.status = TrackStatus::kKeyframe;
-    r.T_W_C = T_W_C_first;
+    r.T_W_C = T_W_C_prior;
     r.new_keyframe = true;
     return r;
   }
@@ -214,17 +217,28 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
     TrackResult r_last = relative(*last_, frame, keypoints, descriptors);
     if (r_last.posed()) {
       keyframe_ = std::move(*last_);
+      last_.reset();
       ++keyframes_;
       r_kf = r_last;
     }
   }
-  last_.reset();
   r = r_kf;
   r.features = static_cast<int>(keypoints.size());
   if (!r.posed()) {
     r.scale = last_scale_;  // for the caller's fallback pose
+    // Lost for a while (fast motion, a new scene): start again from here, at
+    // the caller's pose for the frame, rather than wait for the old view.
+    if (++lost_ >= kKeyframeAfterLostFrames && in_front) {
+      keyframe_ = make_keyframe(frame, keypoints, descriptors, T_W_C_prior, last_scale_);
+      last_.reset();
+      ++keyframes_;
+      lost_ = 0;
+      r.new_keyframe = true;
+    }
     return r;
   }
+  lost_ = 0;
+  last_.reset();
   Keyframe& kf = *keyframe_;
   if (!r.scale_measured) r.scale = last_scale_;
   last_scale_ = r.scale;
