@@ -170,7 +170,7 @@ struct LiveStatus {
   std::uint64_t relocalisation_attempts = 0;  // frames tried while tracking was lost
   std::uint64_t relocalisations = 0;          // of them, the ones that found the pose again
   // pose_method keyframes: frames the keyframe tracker posed, and those it
-  // could not (placed by the model's motion since the last tracked frame).
+  // could not (placed by the model's motion since the last frame).
   std::uint64_t keyframe_tracked = 0, keyframe_untracked = 0;
   std::string calibration = "none";  // the one in use, or why the latest was refused
   bool calibration_refused = false;  // the latest calibration was not used

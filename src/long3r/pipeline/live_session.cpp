@@ -425,7 +425,7 @@ void LiveSession::deliver(FrameResult frame) {
                             ": not tracked against the keyframes (" + to_string(k->status) + ": " +
                             k->message +
                             "); placed by the model's motion since the last "
-                            "tracked frame");
+                            "frame");
     }
   }
   if (f.pose.ok()) update_scale(r);
