@@ -225,7 +225,6 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
   r = r_kf;
   r.features = static_cast<int>(keypoints.size());
   if (!r.posed()) {
-    r.scale = last_scale_;  // for the caller's fallback pose
     // Lost for a while (fast motion, a new scene): start again from here, at
     // the caller's pose for the frame, rather than wait for the old view.
     if (++lost_ >= kKeyframeAfterLostFrames && in_front) {
@@ -240,7 +239,6 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
   lost_ = 0;
   last_.reset();
   Keyframe& kf = *keyframe_;
-  if (!r.scale_measured) r.scale = last_scale_;
   last_scale_ = r.scale;
 
   // 5. A new keyframe?
@@ -267,6 +265,7 @@ TrackResult KeyframeTracker::relative(const Keyframe& kf, const TrackerFrame& fr
                                       const std::vector<cv::KeyPoint>& keypoints,
                                       const cv::Mat& descriptors) const {
   TrackResult r;
+  r.scale = last_scale_;  // unless the frame measures its own (4.)
   std::ostringstream why;
   // 1. Matches frame -> keyframe, ratio test, one frame feature per keyframe feature.
   std::vector<std::vector<cv::DMatch>> knn;
@@ -283,11 +282,10 @@ TrackResult KeyframeTracker::relative(const Keyframe& kf, const TrackerFrame& fr
     }
   }
   std::vector<cv::Point2f> px_k, px_f;
-  std::vector<int> idx_k, idx_f;
+  std::vector<int> idx_k;
   for (std::size_t k = 0; k < best_for_kf.size(); ++k) {
     if (best_for_kf[k] < 0) continue;
     idx_k.push_back(static_cast<int>(k));
-    idx_f.push_back(best_for_kf[k]);
     px_k.push_back(kf.pixels[k]);
     px_f.push_back(keypoints[static_cast<std::size_t>(best_for_kf[k])].pt);
   }
@@ -454,7 +452,7 @@ TrackResult KeyframeTracker::relative(const Keyframe& kf, const TrackerFrame& fr
     if (own && own->z() > 0.0 && predicted > 0.0) ratios.push_back(predicted / own->z());
   }
   r.scale_measured = !ratios.empty();
-  r.scale = r.scale_measured ? median(ratios) : 1.0;
+  if (r.scale_measured) r.scale = median(ratios);
   return r;
 }
 
