@@ -9,7 +9,7 @@ include(GoogleTest)
 # gtest binaries, by what they need:
 #   long3r_model_tests  test/{config,io,model,memory}: libtorch only (builds
 #                       wherever the model does, CUDA libtorch included);
-#   long3r_cv_tests     test/{geometry,pipeline,tracking,dataset,eval,synth,train}: the
+#   long3r_cv_tests     test/{geometry,mapping,pipeline,tracking,dataset,eval,synth,train}: the
 #                       Eigen, OpenCV and PCL side.
 # Each gtest case becomes its own ctest entry, so ctest's summary counts
 # individual tests.
@@ -62,8 +62,8 @@ long3r_add_gtest_binary(long3r_model_tests FOLDERS config io model memory
   LIBS long3r_network long3r_test_support)
 if(LONG3R_HAVE_CV)
   long3r_add_gtest_binary(long3r_cv_tests
-    FOLDERS geometry pipeline tracking dataset eval synth train
-    LIBS long3r_train_cv long3r_synth_cv long3r_tracking long3r_cv_test_support)
+    FOLDERS geometry mapping pipeline tracking dataset eval synth train
+    LIBS long3r_train_cv long3r_synth_cv long3r_tracking long3r_mapping long3r_cv_test_support)
 endif()
 
 # Extra test registrations owned by each module (golden parity, fuzz corpus,

@@ -25,12 +25,14 @@ PACKAGES=(
   python3-rosbag python3-rospy python3-rosservice python3-rostest python3-rosnode
   python3-rostopic python3-roslaunch
   # message and TF bindings the Python test and demo nodes import
-  python3-tf2-ros python3-nav-msgs python3-sensor-msgs python3-std-srvs python3-diagnostic-msgs
+  python3-tf2-ros python3-nav-msgs python3-sensor-msgs python3-visualization-msgs python3-std-srvs python3-diagnostic-msgs
   python3-genmsg python3-gencpp python3-genpy python3-catkin-pkg python3-empy python3-nose
   image-transport-tools rviz libnodeletlib-tools rosbash rosout ros-core
   # core libraries
   libtorch-dev libopenblas0-openmp libopenblas0-pthread libopencv-dev libpcl-dev libeigen3-dev
   nlohmann-json3-dev libnanoflann-dev googletest libgtest-dev libgmock-dev
+  # the TSDF surface and mesh (optional: without it the rest builds)
+  libopen3d-dev
   # the Gloo headers of libtorch's c10d (data-parallel training)
   libgloo-dev
   # python side (checkpoint converter)

@@ -11,6 +11,7 @@
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/PointCloud2.h>
 #include <std_msgs/Header.h>
+#include <visualization_msgs/Marker.h>
 
 #include <Eigen/Geometry>
 #include <array>
@@ -21,10 +22,11 @@
 #include <vector>
 
 #include "long3r/geometry/cv/pcl_cloud.hpp"
+#include "long3r/mapping/occupancy_grid.hpp"
+#include "long3r/mapping/tsdf_volume.hpp"
+#include "long3r/mapping/voxel_map.hpp"
 #include "long3r/pipeline/camera_rectifier.hpp"
 #include "long3r/pipeline/frame_result.hpp"
-#include "long3r/pipeline/occupancy_grid.hpp"
-#include "long3r/pipeline/voxel_map.hpp"
 #include "long3r_ros/Pointmap.h"
 
 namespace long3r_ros {
@@ -86,6 +88,12 @@ std::array<double, 36> poseCovarianceInMap(const Eigen::Matrix<double, 6, 6>& co
 std::optional<Eigen::Matrix<double, 6, 6>> poseCovarianceOfOdometry(
     const nav_msgs::Odometry& odom, const std::string& odom_frame, const std::string& base_frame,
     const Eigen::Matrix3d& R_map_odom, std::string* why);
+
+// ~mesh: the surface's triangles as rviz draws them, a TRIANGLE_LIST marker
+// (three points per triangle, a colour per point, scale 1, opaque), namespace
+// "long3r_surface", id 0, in header's frame.
+visualization_msgs::Marker toMeshMarker(const long3r::ColoredMesh& mesh,
+                                        const std_msgs::Header& header);
 
 // Pinhole camera_info without distortion (the model works on undistorted
 // pixels at model resolution).

@@ -112,6 +112,7 @@ class Long3rNodelet : public nodelet::Nodelet,
   // without odom_frame each stream's map frame starts at its own first
   // frame, so those are not registered to the current one). Locks itself.
   long3r::MapSnapshot mapSnapshot() override;
+  long3r::ColoredMesh surfaceMesh() override;
 
   void publishOutputs(const long3r::FrameResult& r, const std_msgs::Header& header);
   // What is held, not in metres (output_units.hpp), under the node's settings.

@@ -1,5 +1,7 @@
 // ~map (the accumulated map, thinned for display) and ~grid (its occupancy
-// grid), both in map_frame and latched. ~map goes out as PCL's coloured cloud
+// grid), both in map_frame and latched; with surface_enabled also ~surface
+// (the fused surface's coloured points) and ~mesh (its triangles, an rviz
+// marker), latched too. ~map goes out as PCL's coloured cloud
 // (pcl::PointXYZRGB, through pcl_conversions), filtered by PCL for display. Each is built only
 // while subscribed and only when the map changed since it was last sent.
 //
@@ -16,8 +18,9 @@
 #include <string>
 #include <vector>
 
-#include "long3r/pipeline/occupancy_grid.hpp"
-#include "long3r/pipeline/voxel_map.hpp"
+#include "long3r/mapping/occupancy_grid.hpp"
+#include "long3r/mapping/tsdf_volume.hpp"
+#include "long3r/mapping/voxel_map.hpp"
 #include "long3r_ros/log_throttle.hpp"
 
 namespace long3r_ros {
@@ -31,6 +34,7 @@ class MapPublisher {
     double display_outlier_stddev = 1.0;
     bool z_up = false;  // base_frame is set
     long3r::OccupancyGridConfig grid;
+    bool surface = false;  // surface_enabled: ~surface and ~mesh
   };
 
   MapPublisher(ros::NodeHandle& pnh, Config config, Warn warn);
@@ -42,6 +46,10 @@ class MapPublisher {
   // (the grid's rays start there).
   void publish(long3r::MapSnapshot map, const std::vector<Eigen::Vector3d>& cameras_map,
                bool metric, std::uint64_t revision);
+  // ~surface and ~mesh at the surface's `revision`: each taken (by its
+  // function) and sent only while subscribed and changed since last sent.
+  void publishSurface(std::uint64_t revision, const std::function<long3r::ColoredPoints()>& points,
+                      const std::function<long3r::ColoredMesh()>& mesh);
   // Publishes nothing while the map is not in metres (output_units.hpp);
   // the grid's status says why.
   void hold(const std::string& why);
@@ -55,8 +63,9 @@ class MapPublisher {
 
   Config config_;
   Warn warn_;
-  ros::Publisher map_pub_, grid_pub_;
+  ros::Publisher map_pub_, grid_pub_, surface_pub_, mesh_pub_;
   std::uint64_t map_revision_ = 0, grid_revision_ = 0;
+  std::uint64_t surface_revision_ = 0, mesh_revision_ = 0;
   std::string grid_status_ = "not subscribed";
 };
 

@@ -17,11 +17,11 @@
 #include <string>
 #include <vector>
 
+#include "long3r/mapping/occupancy_grid.hpp"
 #include "long3r/model/runtime/inference_config.hpp"
 #include "long3r/model/runtime/threads.hpp"
 #include "long3r/pipeline/live_session.hpp"
 #include "long3r/pipeline/metric_scale.hpp"
-#include "long3r/pipeline/occupancy_grid.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 #include "long3r_ros/robot_frames.hpp"
 

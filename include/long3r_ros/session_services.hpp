@@ -16,10 +16,11 @@
 #include <functional>
 #include <string>
 
+#include "long3r/mapping/voxel_map.hpp"
 #include "long3r/pipeline/live_session.hpp"
-#include "long3r/pipeline/voxel_map.hpp"
 #include "long3r_ros/LoadSession.h"
 #include "long3r_ros/SaveMap.h"
+#include "long3r_ros/SaveMesh.h"
 #include "long3r_ros/SaveSession.h"
 #include "long3r_ros/SaveTrajectory.h"
 #include "long3r_ros/robot_frames.hpp"
@@ -50,10 +51,15 @@ class SessionServices {
     virtual std::uint64_t pausedDrops() const = 0;  // frames dropped while paused, in all
     // The whole map as ~map shows it, in map_frame (locks itself).
     virtual long3r::MapSnapshot mapSnapshot() = 0;
+    // The fused surface's mesh as ~mesh shows it, in map_frame (empty
+    // without surface_enabled).
+    virtual long3r::ColoredMesh surfaceMesh() = 0;
   };
 
   // Advertises on pnh; `log_name`: the nodelet's logger.
-  SessionServices(ros::NodeHandle& pnh, std::string map_frame, std::string log_name, Node& node);
+  // surface: surface_enabled, which adds ~save_mesh.
+  SessionServices(ros::NodeHandle& pnh, std::string map_frame, std::string log_name, Node& node,
+                  bool surface);
   void shutdown();  // no callback runs after it returns
 
  private:
@@ -61,6 +67,7 @@ class SessionServices {
   bool pause(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
   bool resume(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
   bool saveMap(SaveMap::Request& req, SaveMap::Response& res);
+  bool saveMesh(SaveMesh::Request& req, SaveMesh::Response& res);
   bool saveSession(SaveSession::Request& req, SaveSession::Response& res);
   bool loadSession(LoadSession::Request& req, LoadSession::Response& res);
   bool saveTrajectory(SaveTrajectory::Request& req, SaveTrajectory::Response& res);
@@ -68,6 +75,7 @@ class SessionServices {
   const std::string map_frame_, log_name_;
   Node& node_;
   ros::ServiceServer reset_srv_, pause_srv_, resume_srv_, save_map_srv_, save_trajectory_srv_;
+  ros::ServiceServer save_mesh_srv_;
   ros::ServiceServer save_session_srv_, load_session_srv_;
 };
 

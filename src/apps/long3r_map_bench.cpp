@@ -25,8 +25,8 @@
 
 #include "long3r/config/cli_options.hpp"
 #include "long3r/geometry/cv/pcl_cloud.hpp"
+#include "long3r/mapping/voxel_map.hpp"
 #include "long3r/model/runtime/inference.hpp"
-#include "long3r/pipeline/voxel_map.hpp"
 
 namespace {
 

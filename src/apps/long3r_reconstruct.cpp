@@ -11,17 +11,27 @@
 // input (--first-frame): the map and trajectory then hold both parts, in the
 // saved session's world frame.
 //
-// Outputs in --out: map.ply (fused voxel map, world = camera 0), trajectory.txt
+// Outputs in --out: map.ply (fused voxel map, world = camera 0), with
+// --surface-enabled true surface.ply and mesh.ply (the TSDF's), trajectory.txt
 // (TUM "t tx ty tz qx qy qz qw", frames with a good pose), frames.csv (per
 // frame timings, memory tokens, PnP status, scale, RSS); a summary on stdout.
 // Lengths in metres once a metric scale is known, else in model units.
 // Calibration: --calib fx fy cx cy (source pixels) wins; else a TUM folder's
 // calibration.txt (lens distortion included: the images are rectified);
 // else the focal length is estimated from frame 0.
+//
+// --poses places the frames by a known trajectory (a TUM folder's
+// groundtruth.txt, or a TUM trajectory file) as the node's pose_source
+// odometry places them by odometry: W is the first frame's camera, lengths in
+// metres, so the map waits for a metric --scale-source. --fusion-split then
+// measures what fusing the views could remove from the map's error
+// (eval/fusion_bound.hpp): averaged.ply, averaged_rescaled.ply and
+// fusion_split.json in --out.
 #include <unistd.h>
 
 #include <algorithm>
 #include <any>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -29,6 +39,7 @@
 #include <fstream>
 #include <functional>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/videoio.hpp>
 #include <string>
@@ -36,6 +47,8 @@
 
 #include "long3r/config/cli_options.hpp"
 #include "long3r/dataset/tum_dataset.hpp"
+#include "long3r/eval/fusion_bound.hpp"
+#include "long3r/geometry/cv/point_cloud_io.hpp"
 #include "long3r/io/atomic_file.hpp"
 #include "long3r/model/loading/safetensors.hpp"
 #include "long3r/model/runtime/inference_config.hpp"
@@ -65,7 +78,35 @@ struct Source {
   double fps = 30.0;
   std::optional<TumDataset> tum;
   std::optional<CameraModel> camera;  // calibration.txt or --calib
+  // --poses: each frame's T_ref_C by its index (nullopt: none near its stamp).
+  std::vector<std::optional<Eigen::Isometry3d>> poses;
 };
+
+// The pose of each frame of `src` from --poses: "groundtruth" (the TUM
+// folder's, associated by its reader) or a TUM trajectory file, the pose
+// nearest each frame's stamp within max_diff_s.
+void read_poses(const std::string& spec, Source& src, double max_diff_s) {
+  if (spec == "groundtruth") {
+    if (!src.tum) throw std::runtime_error("--poses groundtruth needs a TUM folder");
+    for (const TumFrame& f : src.tum->frames()) src.poses.push_back(f.pose);
+    return;
+  }
+  const PoseTrajectory traj = read_tum_trajectory(spec);
+  if (traj.size() == 0) throw std::runtime_error("--poses " + spec + ": no poses");
+  for (double t : src.stamps) {
+    const auto it = std::lower_bound(traj.stamps.begin(), traj.stamps.end(), t);
+    std::optional<Eigen::Isometry3d> best;
+    double best_diff = max_diff_s;
+    for (auto c = it == traj.stamps.begin() ? it : it - 1; c != traj.stamps.end() && c <= it; ++c) {
+      const double diff = std::abs(*c - t);
+      if (diff <= best_diff) {
+        best_diff = diff;
+        best = traj.poses[static_cast<std::size_t>(c - traj.stamps.begin())];
+      }
+    }
+    src.poses.push_back(best);
+  }
+}
 
 // The dataset's answers to the session, and the session's outputs: results
 // to `record`, messages to stderr (each kind of warning at most
@@ -75,6 +116,28 @@ class Client : public LiveSessionClient {
   static constexpr int kWarningsPerKind = 3;
   Client(const Source& src, std::function<void(const FrameResult&)> record)
       : src_(src), record_(std::move(record)) {}
+
+  // --poses: the frame's pose relative to the stream's first placed frame
+  // (W is its camera, as the session's is).
+  std::optional<Eigen::Isometry3d> place(const LiveFrame& frame) override {
+    if (src_.poses.empty()) return std::nullopt;
+    const std::size_t i = std::any_cast<std::size_t>(frame.tag);
+    if (!src_.poses[i]) {
+      throw Unavailable("pose missing",
+                        "frame " + std::to_string(i) + " has no --poses pose near its stamp");
+    }
+    if (!T_ref_W_) T_ref_W_ = *src_.poses[i];
+    return T_ref_W_->inverse() * *src_.poses[i];
+  }
+  void on_new_stream(const std::string& why) override {
+    (void)why;
+    T_ref_W_.reset();
+  }
+  // T_W_C of frame i by --poses (set once its stream is placed).
+  std::optional<Eigen::Isometry3d> given_pose(std::size_t i) const {
+    if (!T_ref_W_ || i >= src_.poses.size() || !src_.poses[i]) return std::nullopt;
+    return T_ref_W_->inverse() * *src_.poses[i];
+  }
 
   Eigen::Vector3d odometry_camera_position_m(const LiveResult& r) override {
     const std::size_t i = std::any_cast<std::size_t>(r.tag);
@@ -97,7 +160,12 @@ class Client : public LiveSessionClient {
       throw Unavailable("depth unreadable", e.what());
     }
   }
-  void on_result(LiveResult& r) override { record_(r.frame); }
+  void on_result(LiveResult& r) override {
+    record_(r.frame);
+    if (keep_) keep_(r);
+  }
+  // Also called with each result (--fusion-split).
+  void keep_results(std::function<void(const LiveResult&)> keep) { keep_ = std::move(keep); }
   void on_event(const LiveEvent& e) override {
     if (e.level == LiveEvent::Level::kInfo) {
       std::fprintf(stderr, "\nlong3r_reconstruct: %s\n", e.message.c_str());
@@ -119,13 +187,16 @@ class Client : public LiveSessionClient {
  private:
   const Source& src_;
   std::function<void(const FrameResult&)> record_;
+  std::function<void(const LiveResult&)> keep_;
   std::map<std::string, int> warnings_;
+  std::optional<Eigen::Isometry3d> T_ref_W_;
 };
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string model_path, out_dir, input, load_session, save_session;
+  std::string model_path, out_dir, input, load_session, save_session, poses_spec;
+  bool fusion_split = false;
   int stride = 1;
   long first_frame = 0;
   ThreadConfig threads;
@@ -140,7 +211,10 @@ int main(int argc, char** argv) {
                  "a folder of images (name order), a video file, or a TUM folder (rgb.txt)")
       .required();
   cli.option("--model", "FILE", &model_path, "LONG3R or Spann3R safetensors checkpoint").required();
-  cli.option("--out", "DIR", &out_dir, "map.ply, trajectory.txt, frames.csv").required();
+  cli.option("--out", "DIR", &out_dir,
+             "map.ply, trajectory.txt, frames.csv (surface.ply, mesh.ply with "
+             "--surface-enabled true)")
+      .required();
   cli.option("--stride", "N", &stride, "use every N-th frame").min(1);
   cli.option("--max-frames", "N", &max_frames, "stop after N used frames").shown_default("all");
   cli.option("--first-frame", "N", &first_frame, "start at the input's N-th frame (0-based)")
@@ -149,6 +223,12 @@ int main(int argc, char** argv) {
              "continue a session saved by --save-session or the node's ~save_session");
   cli.option("--save-session", "FILE", &save_session,
              "save the session (memory, map, path, scale) at the end, to continue it later");
+  cli.option("--poses", "SOURCE", &poses_spec,
+             "place the frames by known poses: groundtruth (a TUM folder's) or a TUM "
+             "trajectory file (metres; the map waits for a metric --scale-source)");
+  cli.flag("--fusion-split", &fusion_split,
+           "with --poses groundtruth and depth: what fusing views could remove from the map's "
+           "error (averaged.ply, averaged_rescaled.ply, fusion_split.json)");
   cli.custom(
          "--img-size", {"N"},
          [&](const std::vector<std::string>& v) {
@@ -222,6 +302,25 @@ int main(int argc, char** argv) {
       src.camera = camera_model(*calib);
       session_cfg.calibration_source = "--calib";
     }
+    if (!poses_spec.empty()) {
+      if (src.is_video) throw std::runtime_error("--poses needs images with stamps, not a video");
+      if (!load_session.empty()) {
+        throw std::runtime_error(
+            "--poses places frames in a new stream's world; it cannot "
+            "continue --load-session's");
+      }
+      read_poses(poses_spec, src, 0.02);
+    }
+    if (fusion_split) {
+      if (poses_spec != "groundtruth") {
+        throw std::runtime_error("--fusion-split needs --poses groundtruth");
+      }
+      const auto& camera = src.tum->camera();
+      if (calib || !camera || camera->distorted()) {
+        throw std::runtime_error(
+            "--fusion-split needs the TUM folder's own undistorted calibration.txt");
+      }
+    }
     const ScaleSource scale_source = session_cfg.scale.source;
     if ((scale_source == ScaleSource::kDepth || scale_source == ScaleSource::kOdometry) &&
         !src.tum) {
@@ -286,6 +385,23 @@ int main(int argc, char** argv) {
       }
     };
     Client client(src, record);
+    // --fusion-split: the mapped frames' camera-frame points, brought to the
+    // final scale at the end.
+    struct Kept {
+      std::size_t index;
+      cv::Mat points_C;
+      double scale;
+      PinholeIntrinsics K;
+    };
+    std::vector<Kept> kept;
+    if (fusion_split) {
+      client.keep_results([&](const LiveResult& r) {
+        if (r.frame.added_to_map && !r.frame.points_C.empty()) {
+          kept.push_back({std::any_cast<std::size_t>(r.tag), r.frame.points_C.clone(),
+                          r.frame.scale, r.frame.intrinsics});
+        }
+      });
+    }
     LiveSession session(make_streaming_model(model_path, inference), cfg, session_cfg, client);
     if (!load_session.empty()) session.load(load_session);
 
@@ -346,6 +462,68 @@ int main(int argc, char** argv) {
     write_tum_trajectory((fs::path(out_dir) / "trajectory.txt").string(), traj,
                          std::string("long3r_reconstruct: T_W_C, world = camera 0, ") +
                              (status.scale_metric ? "metres" : "model units"));
+
+    if (fusion_split) {
+      if (!status.scale_metric) {
+        throw std::runtime_error("--fusion-split: the scale never became metric (--scale-source)");
+      }
+      FusionBound bound(cfg.map.voxel_size_m);
+      for (const Kept& k : kept) {
+        const auto T_W_C = client.given_pose(k.index);
+        if (!T_W_C) continue;
+        const cv::Mat truth = true_points_at_pixels(
+            src.tum->load_depth(k.index), src.tum->camera()->intrinsics, k.K, k.points_C.size());
+        bound.add(k.points_C * (status.scale / k.scale), truth, *T_W_C);
+      }
+      save_point_cloud((fs::path(out_dir) / "averaged.ply").string(), bound.averaged_points());
+      save_point_cloud((fs::path(out_dir) / "averaged_rescaled.ply").string(),
+                       bound.averaged_points(true));
+      const FusionBoundSummary b = bound.summary();
+      auto stats = [](const ErrorStatistics& e) {
+        return nlohmann::json{{"mean", e.mean}, {"median", e.median}, {"rmse", e.rmse},
+                              {"std", e.std},   {"max", e.max},       {"count", e.count}};
+      };
+      const nlohmann::json j{{"frames", b.frames},
+                             {"pairs", b.pairs},
+                             {"voxel_size_m", cfg.map.voxel_size_m},
+                             {"voxels", b.voxels},
+                             {"mean_views", b.mean_views},
+                             {"single_view_error_m", stats(b.single_view_m)},
+                             {"averaged_error_m", stats(b.averaged_m)},
+                             {"averaged_rescaled_error_m", stats(b.averaged_rescaled_m)},
+                             {"depth_ratio_median", b.depth_ratio_median},
+                             {"depth_ratio_mad", b.depth_ratio_mad},
+                             {"depth_ratio", b.depth_ratio}};
+      AtomicFile json((fs::path(out_dir) / "fusion_split.json").string());
+      json.write(j.dump(2) + "\n");
+      json.commit();
+      std::printf(
+          "fusion split: %zu frames, %zu voxels seen by %.1f frames on average; per voxel, the "
+          "error of one view %.4f m mean (median %.4f), of the views averaged %.4f m (median "
+          "%.4f), averaged with each frame's depth ratio divided out %.4f m (median %.4f); depth "
+          "ratio over frames median %.4f, MAD %.4f\n",
+          b.frames, b.voxels, b.mean_views, b.single_view_m.mean, b.single_view_m.median,
+          b.averaged_m.mean, b.averaged_m.median, b.averaged_rescaled_m.mean,
+          b.averaged_rescaled_m.median, b.depth_ratio_median, b.depth_ratio_mad);
+    }
+
+    if (cfg.surface.enabled) {
+      const auto t0 = std::chrono::steady_clock::now();
+      const ColoredPoints surface = rec.surface().points();
+      const auto t1 = std::chrono::steady_clock::now();
+      const ColoredMesh mesh = rec.surface().mesh();
+      const auto t2 = std::chrono::steady_clock::now();
+      using ms = std::chrono::duration<double, std::milli>;
+      save_point_cloud((fs::path(out_dir) / "surface.ply").string(), surface.points,
+                       &surface.colors);
+      save_mesh_ply((fs::path(out_dir) / "mesh.ply").string(), mesh.vertices, &mesh.colors,
+                    mesh.triangles);
+      std::printf(
+          "surface: %zu points (extracted in %.1f ms), mesh of %zu triangles (%.1f ms), "
+          "from %zu frames (%zu no longer kept for rebuilds)\n",
+          surface.points.size(), ms(t1 - t0).count(), mesh.triangles.size(), ms(t2 - t1).count(),
+          rec.surface().frames_kept(), rec.surface().frames_dropped());
+    }
 
     std::vector<double> sorted = frame_ms;
     std::sort(sorted.begin(), sorted.end());

@@ -93,6 +93,39 @@ sensor_msgs::PointCloud2 toFrameCloud(const sensor_msgs::ImageConstPtr& depth,
   return *cloud;
 }
 
+visualization_msgs::Marker toMeshMarker(const long3r::ColoredMesh& mesh,
+                                        const std_msgs::Header& header) {
+  visualization_msgs::Marker m;
+  m.header = header;
+  m.ns = "long3r_surface";
+  m.id = 0;
+  m.type = visualization_msgs::Marker::TRIANGLE_LIST;
+  m.action = visualization_msgs::Marker::ADD;
+  m.pose.orientation.w = 1.0;
+  m.scale.x = m.scale.y = m.scale.z = 1.0;
+  m.color.a = 1.0f;
+  m.points.reserve(3 * mesh.triangles.size());
+  m.colors.reserve(3 * mesh.triangles.size());
+  for (const long3r::Triangle& t : mesh.triangles) {
+    for (const std::int32_t i : t) {
+      const Eigen::Vector3f& v = mesh.vertices[static_cast<std::size_t>(i)];
+      geometry_msgs::Point p;
+      p.x = v.x();
+      p.y = v.y();
+      p.z = v.z();
+      m.points.push_back(p);
+      const long3r::Rgb8& c = mesh.colors[static_cast<std::size_t>(i)];
+      std_msgs::ColorRGBA rgba;
+      rgba.r = c[0] / 255.0f;
+      rgba.g = c[1] / 255.0f;
+      rgba.b = c[2] / 255.0f;
+      rgba.a = 1.0f;
+      m.colors.push_back(rgba);
+    }
+  }
+  return m;
+}
+
 MapCloud toPclCloud(const long3r::MapSnapshot& map) {
   return long3r::to_pcl_cloud(map.points, map.colors);
 }

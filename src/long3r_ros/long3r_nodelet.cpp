@@ -140,14 +140,15 @@ void Long3rNodelet::advertise() {
   frame_pub_ = std::make_unique<FramePublisher>(pnh, warner());
   map_pub_ = std::make_unique<MapPublisher>(
       pnh,
-      MapPublisher::Config{params_.frames.map_frame, params_.node.map_display_voxel_m,
-                           params_.node.map_display_outlier_neighbours,
-                           params_.node.map_display_outlier_stddev,
-                           !params_.frames.base_frame.empty(), params_.grid},
+      MapPublisher::Config{
+          params_.frames.map_frame, params_.node.map_display_voxel_m,
+          params_.node.map_display_outlier_neighbours, params_.node.map_display_outlier_stddev,
+          !params_.frames.base_frame.empty(), params_.grid, params_.reconstruction.surface.enabled},
       warner());
   path_pub_ = pnh.advertise<nav_msgs::Path>("path", 1, /*latch=*/true);  // latched, newest only
   SessionServices::Node& node = *this;
-  services_ = std::make_unique<SessionServices>(pnh, params_.frames.map_frame, getName(), node);
+  services_ = std::make_unique<SessionServices>(pnh, params_.frames.map_frame, getName(), node,
+                                                params_.reconstruction.surface.enabled);
   map_timer_ = nh.createWallTimer(ros::WallDuration(params_.node.map_publish_period_s),
                                   &Long3rNodelet::mapTimerCallback, this);
   tf_pub_ = std::make_unique<TransformPublisher>(
@@ -229,6 +230,21 @@ void Long3rNodelet::mapTimerCallback(const ros::WallTimerEvent&) {
       map_pub_->hold("held until the metric scale is known");
     } else {
       map_pub_->publish(mapSnapshot(), cameras, metric, revision);
+    }
+  }
+  if (params_.reconstruction.surface.enabled) {
+    bool metric = false;
+    Eigen::Isometry3d T_map_W;
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      metric = state_.session.scale_metric;
+      T_map_W = state_.T_map_W;
+    }
+    // As ~map: not sent while it is not in metres.
+    if (!outputUnits(metric, /*pose_given=*/false).map_held) {
+      map_pub_->publishSurface(
+          session_->surface_revision(), [&] { return session_->surface_points(T_map_W); },
+          [&] { return session_->surface_mesh(T_map_W); });
     }
   }
   std::lock_guard<std::mutex> lock(state_mutex_);
@@ -422,6 +438,15 @@ void Long3rNodelet::clearQueue() { queue_->clear(); }
 bool Long3rNodelet::setPaused(bool paused) { return paused_.exchange(paused); }
 
 std::uint64_t Long3rNodelet::pausedDrops() const { return diagnostics_->pausedDrops(); }
+
+long3r::ColoredMesh Long3rNodelet::surfaceMesh() {
+  Eigen::Isometry3d T_map_W;
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    T_map_W = state_.T_map_W;
+  }
+  return session_->surface_mesh(T_map_W);
+}
 
 long3r::MapSnapshot Long3rNodelet::mapSnapshot() {
   Eigen::Isometry3d T_map_W;

@@ -3,6 +3,7 @@
 #include <nav_msgs/OccupancyGrid.h>
 #include <pcl_conversions/pcl_conversions.h>
 #include <sensor_msgs/PointCloud2.h>
+#include <visualization_msgs/Marker.h>
 #include <boost/make_shared.hpp>
 
 #include <exception>
@@ -16,6 +17,30 @@ MapPublisher::MapPublisher(ros::NodeHandle& pnh, Config config, Warn warn)
     : config_(std::move(config)), warn_(std::move(warn)) {
   map_pub_ = pnh.advertise<sensor_msgs::PointCloud2>("map", 1, /*latch=*/true);
   grid_pub_ = pnh.advertise<nav_msgs::OccupancyGrid>("grid", 1, /*latch=*/true);
+  if (config_.surface) {
+    surface_pub_ = pnh.advertise<sensor_msgs::PointCloud2>("surface", 1, /*latch=*/true);
+    mesh_pub_ = pnh.advertise<visualization_msgs::Marker>("mesh", 1, /*latch=*/true);
+  }
+}
+
+void MapPublisher::publishSurface(std::uint64_t revision,
+                                  const std::function<long3r::ColoredPoints()>& points,
+                                  const std::function<long3r::ColoredMesh()>& mesh) {
+  if (!config_.surface) return;
+  std_msgs::Header header;
+  header.stamp = ros::Time::now();
+  header.frame_id = config_.map_frame;
+  if (surface_pub_.getNumSubscribers() > 0 && revision != surface_revision_) {
+    surface_revision_ = revision;
+    auto msg = boost::make_shared<sensor_msgs::PointCloud2>();
+    pcl::toROSMsg(toPclCloud(points()), *msg);
+    msg->header = header;
+    surface_pub_.publish(msg);
+  }
+  if (mesh_pub_.getNumSubscribers() > 0 && revision != mesh_revision_) {
+    mesh_revision_ = revision;
+    mesh_pub_.publish(boost::make_shared<visualization_msgs::Marker>(toMeshMarker(mesh(), header)));
+  }
 }
 
 bool MapPublisher::gridWanted(std::uint64_t revision) const {

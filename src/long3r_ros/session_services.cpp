@@ -5,12 +5,13 @@
 namespace long3r_ros {
 
 SessionServices::SessionServices(ros::NodeHandle& pnh, std::string map_frame, std::string log_name,
-                                 Node& node)
+                                 Node& node, bool surface)
     : map_frame_(std::move(map_frame)), log_name_(std::move(log_name)), node_(node) {
   reset_srv_ = pnh.advertiseService("reset", &SessionServices::reset, this);
   pause_srv_ = pnh.advertiseService("pause", &SessionServices::pause, this);
   resume_srv_ = pnh.advertiseService("resume", &SessionServices::resume, this);
   save_map_srv_ = pnh.advertiseService("save_map", &SessionServices::saveMap, this);
+  if (surface) save_mesh_srv_ = pnh.advertiseService("save_mesh", &SessionServices::saveMesh, this);
   save_trajectory_srv_ =
       pnh.advertiseService("save_trajectory", &SessionServices::saveTrajectory, this);
   save_session_srv_ = pnh.advertiseService("save_session", &SessionServices::saveSession, this);
@@ -22,6 +23,7 @@ void SessionServices::shutdown() {
   pause_srv_.shutdown();
   resume_srv_.shutdown();
   save_map_srv_.shutdown();
+  save_mesh_srv_.shutdown();
   save_session_srv_.shutdown();
   load_session_srv_.shutdown();
   save_trajectory_srv_.shutdown();
@@ -52,6 +54,20 @@ bool SessionServices::resume(std_srvs::Trigger::Request&, std_srvs::Trigger::Res
                           " frame(s) dropped while paused so far"
                     : "not paused";
   if (was) ROS_INFO_NAMED(log_name_, "%s", res.message.c_str());
+  return true;
+}
+
+bool SessionServices::saveMesh(SaveMesh::Request& req, SaveMesh::Response& res) {
+  try {
+    const long3r::ColoredMesh mesh = node_.surfaceMesh();  // as ~mesh shows it
+    long3r::save_mesh_ply(req.path, mesh.vertices, &mesh.colors, mesh.triangles);  // atomic
+    res.success = true;
+    res.message = "wrote " + std::to_string(mesh.triangles.size()) + " triangles (" + map_frame_ +
+                  ") to " + req.path;
+  } catch (const std::exception& e) {
+    res.success = false;
+    res.message = e.what();
+  }
   return true;
 }
 

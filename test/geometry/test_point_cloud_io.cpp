@@ -222,5 +222,50 @@ TEST(PointCloudIo, Errors) {
   EXPECT_EQ(static_cast<int>(std::distance(fs::directory_iterator(dir), {})), 2);
 }
 
+// A mesh's PLY: PCL reads it back as a polygon mesh with the same vertices,
+// colours and triangles (binary and ascii), and our reader takes its vertices.
+TEST(PointCloudIo, MeshPlyIsReadByPcl) {
+  const std::string dir = temp_dir("point_cloud_io_mesh");
+  const std::vector<Eigen::Vector3f> vertices{{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {1, 1, 0.5f}};
+  const std::vector<Rgb8> colors{{255, 0, 0}, {0, 255, 0}, {0, 0, 255}, {10, 20, 30}};
+  const std::vector<Triangle> triangles{{0, 1, 2}, {1, 3, 2}};
+  for (const bool ascii : {false, true}) {
+    SCOPED_TRACE(ascii ? "ascii" : "binary");
+    PointCloudWriteOptions options;
+    options.ascii = ascii;
+    const std::string path = dir + (ascii ? "/a.ply" : "/b.ply");
+    save_mesh_ply(path, vertices, &colors, triangles, options);
+    EXPECT_EQ(load_point_cloud(path), vertices);
+    pcl::PolygonMesh mesh;
+    ASSERT_EQ(pcl::io::loadPLYFile(path, mesh), 0);
+    ASSERT_EQ(mesh.polygons.size(), triangles.size());
+    for (std::size_t i = 0; i < triangles.size(); ++i) {
+      ASSERT_EQ(mesh.polygons[i].vertices.size(), 3u);
+      for (int a = 0; a < 3; ++a) {
+        EXPECT_EQ(mesh.polygons[i].vertices[a], static_cast<std::uint32_t>(triangles[i][a]));
+      }
+    }
+    pcl::PointCloud<pcl::PointXYZRGB> cloud;
+    pcl::fromPCLPointCloud2(mesh.cloud, cloud);
+    ASSERT_EQ(cloud.size(), vertices.size());
+    for (std::size_t i = 0; i < vertices.size(); ++i) {
+      EXPECT_EQ(cloud[i].getVector3fMap(), vertices[i]);
+      EXPECT_EQ(cloud[i].r, colors[i][0]);
+      EXPECT_EQ(cloud[i].g, colors[i][1]);
+      EXPECT_EQ(cloud[i].b, colors[i][2]);
+    }
+  }
+  // A triangle naming a vertex that is not there, colours of another
+  // length, another extension: refused, nothing written.
+  EXPECT_THROW(save_mesh_ply(dir + "/c.ply", vertices, &colors, {{0, 1, 4}}),
+               std::invalid_argument);
+  EXPECT_THROW(save_mesh_ply(dir + "/c.ply", vertices, &colors, {{0, -1, 2}}),
+               std::invalid_argument);
+  const std::vector<Rgb8> two(2);
+  EXPECT_THROW(save_mesh_ply(dir + "/c.ply", vertices, &two, triangles), std::invalid_argument);
+  EXPECT_THROW(save_mesh_ply(dir + "/c.pcd", vertices, &colors, triangles), std::invalid_argument);
+  EXPECT_FALSE(fs::exists(dir + "/c.ply"));
+}
+
 }  // namespace
 }  // namespace long3r

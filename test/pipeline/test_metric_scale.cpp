@@ -7,9 +7,9 @@
 #include <cmath>
 #include <random>
 
+#include "long3r/mapping/voxel_map.hpp"
 #include "long3r/pipeline/metric_scale.hpp"
 #include "long3r/pipeline/pose.hpp"
-#include "long3r/pipeline/voxel_map.hpp"
 
 namespace long3r {
 namespace {

@@ -9,6 +9,7 @@
 #include <deque>
 #include <opencv2/imgproc.hpp>
 
+#include "long3r/eval/eval.hpp"
 #include "long3r/io/safetensors_header.hpp"
 #include "long3r/model/network/model_config.hpp"
 #include "long3r/model/network/spann3r_model.hpp"
@@ -130,6 +131,48 @@ TEST(Reconstruction, SetScaleRescalesTheStream) {
   EXPECT_THROW(rec.set_scale(-1.0), std::invalid_argument);
   rec.reset();
   EXPECT_DOUBLE_EQ(rec.scale(), 1.0);
+}
+
+// surface.enabled: every mapped frame goes into the fused surface too, in the
+// stream's world; set_scale() rebuilds it at the new scale, reset() clears it.
+TEST(Reconstruction, FusesMappedFramesIntoTheSurface) {
+  if (!TsdfVolume::available()) GTEST_SKIP() << "built without Open3D";
+  const GtSequence g = make_sequence(8);
+  ReconstructionConfig config = test::gt_reconstruction_config();
+  config.surface.enabled = true;
+  config.surface.tsdf.voxel_size_m = 0.05;
+  config.surface.tsdf.truncation_m = 0.2;
+  config.surface.tsdf.min_weight = 2.0f;
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), config);
+  rec.set_calibration(g.seq.config.intrinsics);
+  for (size_t k = 0; k < g.bgr.size(); ++k) rec.push(g.bgr[k], "bgr8", 0.1 * k);
+  ASSERT_TRUE(rec.flush().has_value());
+  EXPECT_EQ(rec.surface().frames_kept(), g.bgr.size());
+  // Within a voxel of the true points (camera 0's frame).
+  std::vector<Eigen::Vector3f> truth;
+  for (const cv::Mat& pts : g.pts_W0) {
+    for (auto it = pts.begin<cv::Vec3f>(); it != pts.end<cv::Vec3f>(); ++it) {
+      if (std::isfinite((*it)[0])) truth.emplace_back((*it)[0], (*it)[1], (*it)[2]);
+    }
+  }
+  auto accuracy = [&](const std::vector<Eigen::Vector3f>& points) {
+    ReconstructionMetricsOptions o;
+    o.normals = false;
+    return reconstruction_metrics(points, truth, o).accuracy_mean;
+  };
+  const ColoredPoints surface = rec.surface().points();
+  ASSERT_GT(surface.points.size(), 100u);
+  EXPECT_LT(accuracy(surface.points), 0.05);
+  // Twice the scale: the surface is rebuilt twice as large (and as accurate
+  // against the doubled truth).
+  rec.set_scale(2.0);
+  for (Eigen::Vector3f& p : truth) p *= 2.0f;
+  const ColoredPoints doubled = rec.surface().points();
+  ASSERT_GT(doubled.points.size(), surface.points.size());
+  EXPECT_LT(accuracy(doubled.points), 0.05);
+  rec.reset();
+  EXPECT_TRUE(rec.surface().points().points.empty());
+  EXPECT_EQ(rec.surface().frames_kept(), 0u);
 }
 
 // rescale() brings one result to a scale as set_scale() brings the stream.

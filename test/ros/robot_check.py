@@ -56,9 +56,10 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import OccupancyGrid, Odometry, Path
 from sensor_msgs.msg import PointCloud2
 from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import Marker
 
 from long3r_ros.msg import Pointmap
-from long3r_ros.srv import SaveMap, SaveTrajectory
+from long3r_ros.srv import SaveMap, SaveMesh, SaveTrajectory
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'scripts'))
 from demo_record import FrameAccounting, bag_images  # noqa: E402
@@ -135,6 +136,9 @@ class Recorder:
         rospy.Subscriber('/dip_points', PointCloud2, self._cloud('dip'), queue_size=100)
         self.grids = []
         rospy.Subscriber('/long3r/grid', OccupancyGrid, self._add('grids'), queue_size=10)
+        self.surfaces, self.meshes = [], []  # surface_enabled: ~surface and ~mesh
+        rospy.Subscriber('/long3r/surface', PointCloud2, self._add('surfaces'), queue_size=10)
+        rospy.Subscriber('/long3r/mesh', Marker, self._add('meshes'), queue_size=10)
         self.wheel = []  # the bag's odometry messages
         rospy.Subscriber('/odom', Odometry, self._add('wheel'), queue_size=1000)
         self.map_odom_rotations = []  # map -> odom as published, (x, y, z, w)
@@ -283,6 +287,8 @@ class RobotCheck(unittest.TestCase):
             self.check_odometry_covariance(rec, odom)
         if ARGS.grid:
             self.check_grid(rec)
+        if ARGS.surface:
+            self.check_surface(rec)
 
         # depth_image_proc's cloud of ~depth equals ~frame_cloud; with a scale
         # source, neither goes out before the scale is metric (publish_unscaled).
@@ -323,6 +329,51 @@ class RobotCheck(unittest.TestCase):
             if ARGS.max_scale_error > 0:
                 self.assertLess(abs(scale - 1.0), ARGS.max_scale_error,
                                 'the map is not metric: Sim(3) scale %.4f' % scale)
+
+    def check_surface(self, rec):
+        """~surface and ~mesh in map, latched, coloured, on the map's points;
+        ~save_mesh writes the mesh as a PLY with its triangles."""
+        deadline = time.time() + 30.0
+        while time.time() < deadline and not (rec.get('surfaces') and rec.get('meshes')):
+            time.sleep(0.5)
+        surfaces, meshes = rec.get('surfaces'), rec.get('meshes')
+        self.assertTrue(surfaces, 'no ~surface')
+        self.assertTrue(meshes, 'no ~mesh')
+        surface, mesh = surfaces[-1], meshes[-1]
+        self.assertEqual(surface.header.frame_id, 'map')
+        self.assertEqual([f.name for f in surface.fields][:3], ['x', 'y', 'z'])
+        self.assertIn('rgb', [f.name for f in surface.fields])
+        points = cloud_xyz(surface)
+        self.assertGreater(len(points), 1000)
+        self.assertTrue(np.isfinite(points).all())
+        self.assertEqual(mesh.header.frame_id, 'map')
+        self.assertEqual(mesh.type, Marker.TRIANGLE_LIST)
+        self.assertGreater(len(mesh.points), 0)
+        self.assertEqual(len(mesh.points) % 3, 0)
+        self.assertEqual(len(mesh.colors), len(mesh.points))
+        # On the map: most surface points have map points within 10 cm (the
+        # surface is the views' consensus, the map every view's points).
+        map_path = os.path.join(ARGS.out, 'robot_%s_surface_map.ply' % ARGS.mode)
+        self.assertTrue(rospy.ServiceProxy('/long3r/save_map', SaveMap)(map_path).success)
+        ply = read_ply_xyz(map_path)
+        cells = set(map(tuple, np.floor(np.stack([ply['x'], ply['y'], ply['z']], axis=1) / 0.1)
+                        .astype(np.int64)))
+        sample = points[::max(1, len(points) // 2000)]
+        near = sum(any((c[0] + dx, c[1] + dy, c[2] + dz) in cells
+                       for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1))
+                   for c in np.floor(sample / 0.1).astype(np.int64))
+        rospy.loginfo('~surface: %d points, %.1f %% beside the map; ~mesh: %d triangles',
+                      len(points), 100.0 * near / len(sample), len(mesh.points) // 3)
+        self.assertGreater(near, 0.9 * len(sample))
+        mesh_path = os.path.join(ARGS.out, 'robot_%s_mesh.ply' % ARGS.mode)
+        res = rospy.ServiceProxy('/long3r/save_mesh', SaveMesh)(mesh_path)
+        self.assertTrue(res.success, res.message)
+        with open(mesh_path, 'rb') as f:
+            header = f.read(400).split(b'end_header')[0].decode()
+        faces = [int(line.split()[2]) for line in header.splitlines()
+                 if line.startswith('element face')]
+        self.assertEqual(len(faces), 1, header)
+        self.assertGreater(faces[0], 0)
 
     def check_tf_history(self, rec):
         """map -> odom goes out with growing stamps only, and map -> base
@@ -475,6 +526,8 @@ if __name__ == '__main__':
     parser.add_argument('--expect-metric', action='store_true')
     parser.add_argument('--expect-unscaled', action='store_true')
     parser.add_argument('--grid', action='store_true')
+    parser.add_argument('--surface', action='store_true',
+                        help='surface_enabled: check ~surface, ~mesh and ~save_mesh')
     parser.add_argument('--odom-covariance', action='store_true')
     parser.add_argument('--placed-only', action='store_true')
     parser.add_argument('--rival', action='store_true')

@@ -28,7 +28,8 @@ CMAKE_KEYS = {'Torch': 'libtorch-dev', 'nlohmann_json': 'nlohmann-json-dev', 'Ei
               'OpenCV': 'libopencv-dev', 'PCL': 'libpcl-all-dev',
               'LONG3R_NANOFLANN_DIR': 'libnanoflann-dev', 'LONG3R_EIGEN_DIR': 'eigen',
               'LONG3R_NLOHMANN_JSON_DIR': 'nlohmann-json-dev', 'catkin': 'catkin', 'rostest': 'rostest',
-              'roslaunch': 'roslaunch', 'LONG3R_GLOO_INCLUDE_DIR': 'libgloo-dev'}
+              'roslaunch': 'roslaunch', 'LONG3R_GLOO_INCLUDE_DIR': 'libgloo-dev',
+              'Open3D': 'libopen3d-dev'}
 # CMake's own modules: nothing to install. NCCL's header comes with a CUDA
 # libtorch (its NCCL), never from Debian's packages.
 CMAKE_BUILTIN = {'Threads', 'Python3', 'GTest', 'LONG3R_NCCL_INCLUDE_DIR'}

@@ -26,6 +26,16 @@ std::string scratch_dir(const std::string& name) {
   return d.string();
 }
 
+void expect_throw_naming(const std::function<void()>& act, const std::string& text) {
+  try {
+    act();
+  } catch (const std::exception& e) {
+    EXPECT_NE(std::string(e.what()).find(text), std::string::npos) << e.what();
+    return;
+  }
+  ADD_FAILURE() << "no exception naming " << text;
+}
+
 std::string read_file(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   return std::string(std::istreambuf_iterator<char>(in), {});

@@ -8,6 +8,7 @@
 #include <ATen/core/Tensor.h>
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -27,6 +28,9 @@ std::string read_file(const std::string& path);  // all bytes; "" when unreadabl
 void write_file(const std::string& path, const std::string& bytes);
 // Names of a folder's entries, sorted (e.g. to see that no temporary is left).
 std::vector<std::string> folder_entries(const std::string& dir);
+
+// `act` throws a std::exception whose message contains `text`.
+void expect_throw_naming(const std::function<void()>& act, const std::string& text);
 
 // While alive, files this process writes are limited to `bytes` (RLIMIT_FSIZE,
 // SIGXFSZ ignored), so a write past it fails with EFBIG as on a full disk.

@@ -224,6 +224,12 @@ class LiveSession {
   // map does.
   MapSnapshot map_snapshot(const Eigen::Isometry3d& T_map_W) const;
   std::uint64_t map_revision() const;
+  // The current stream's fused surface (surface_enabled) and its mesh in the
+  // client's map frame, placed by T_map_W; ended streams keep no surface.
+  // Callable from any thread, as is surface_revision().
+  ColoredPoints surface_points(const Eigen::Isometry3d& T_map_W) const;
+  ColoredMesh surface_mesh(const Eigen::Isometry3d& T_map_W) const;
+  std::uint64_t surface_revision() const;
   const Reconstruction& reconstruction() const { return recon_; }
   Reconstruction& reconstruction() { return recon_; }
   const LiveSessionConfig& config() const { return config_; }

@@ -29,13 +29,14 @@
 #include <utility>
 #include <vector>
 
+#include "long3r/mapping/surface_map.hpp"
+#include "long3r/mapping/voxel_map.hpp"
 #include "long3r/model/loading/state_dict.hpp"
 #include "long3r/model/network/streaming.hpp"
 #include "long3r/pipeline/frame_result.hpp"
 #include "long3r/pipeline/intrinsics.hpp"
 #include "long3r/pipeline/pose.hpp"
 #include "long3r/pipeline/preprocess.hpp"
-#include "long3r/pipeline/voxel_map.hpp"
 #include "long3r/tracking/keyframe_tracker.hpp"
 
 namespace long3r {
@@ -59,6 +60,9 @@ struct ReconstructionConfig {
   PreprocessConfig preprocess;  // model input size
   PnpConfig pnp;
   VoxelMapConfig map;
+  // The fused surface beside the voxel map (off by default: docs/performance.md,
+  // "Fused surface").
+  SurfaceMapConfig surface;
   FocalEstimationOptions focal;  // its own conf_threshold (default 0: all pixels, as DUSt3R)
   // When >= 0, replaces pnp.conf_threshold and map.conf_threshold; set it
   // negative to use theirs as given. The default 1 keeps every pixel: the
@@ -78,6 +82,7 @@ config::FieldsOf<S, ReconstructionConfig> visit_fields(S& s, V& v) {
   v.nested("map", s.map, "");
   v.nested("pnp", s.pnp, "pnp_");
   v.nested("tracker", s.tracker, "tracker_");
+  v.nested("surface", s.surface, "surface_");
 }
 
 // Metadata key long3r_make_random_model writes ("true"): the weights are
@@ -142,6 +147,9 @@ class Reconstruction {
 
   const VoxelMap& map() const { return map_; }
   VoxelMap& map() { return map_; }
+  // The fused surface of the mapped frames (empty unless surface.enabled).
+  // Not in sessions yet: after restore() it holds the frames mapped since.
+  const SurfaceMap& surface() const { return surface_; }
   // (stamp, T_W_C) of the frames with a good pose or a given one, in order.
   std::vector<std::pair<double, Eigen::Isometry3d>> trajectory() const { return trajectory_; }
   // Frames pushed in the current stream.
@@ -190,6 +198,7 @@ class Reconstruction {
   // by the model's motion; the model's own).
   std::optional<std::pair<Eigen::Isometry3d, Eigen::Isometry3d>> last_tracked_;
   VoxelMap map_;
+  SurfaceMap surface_;
   std::deque<Pending> pending_;
   std::vector<std::pair<double, Eigen::Isometry3d>> trajectory_;
   std::vector<bool> trajectory_given_;  // per entry: the pose was given to push()

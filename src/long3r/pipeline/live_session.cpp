@@ -276,6 +276,16 @@ std::uint64_t LiveSession::map_revision() const {
   return recon_.map().revision() + ended_maps_.revision();
 }
 
+ColoredPoints LiveSession::surface_points(const Eigen::Isometry3d& T_map_W) const {
+  return transformed(recon_.surface().points(), T_map_W);
+}
+
+ColoredMesh LiveSession::surface_mesh(const Eigen::Isometry3d& T_map_W) const {
+  return transformed(recon_.surface().mesh(), T_map_W);
+}
+
+std::uint64_t LiveSession::surface_revision() const { return recon_.surface().revision(); }
+
 void LiveSession::start_stream_scale() {
   scale_policy_.reset();
   scale_sampler_.reset();

@@ -86,7 +86,8 @@ Reconstruction::Reconstruction(std::unique_ptr<StreamingModel> model,
       config_(effective(config)),
       tracker_(config_.pnp),
       keyframes_(config_.tracker),
-      map_(config_.map) {
+      map_(config_.map),
+      surface_(config_.surface) {
   if (!model_) throw std::invalid_argument("Reconstruction: null model");
   // A landscape-only Spann3R returns portrait maps transposed on a scrambled
   // token grid (as the official model does); refuse rather than mislead.
@@ -120,6 +121,7 @@ void Reconstruction::reset() {
   keyframes_.reset();
   last_tracked_.reset();
   map_.clear();
+  surface_.clear();
   trajectory_.clear();
   trajectory_given_.clear();
   frames_pushed_ = 0;
@@ -135,6 +137,7 @@ void Reconstruction::set_scale(double scale) {
   const double factor = scale / scale_;
   if (factor == 1.0) return;
   map_.rescale(factor);
+  surface_.rescale(factor);
   // Given poses are the caller's (odometry: metres), not the model's.
   for (std::size_t i = 0; i < trajectory_.size(); ++i) {
     if (!trajectory_given_[i]) trajectory_[i].second.translation() *= factor;
@@ -331,6 +334,7 @@ void Reconstruction::restore(const StateDict& state) {
   tracker_.restore(tracker);
   trajectory_ = std::move(trajectory);
   trajectory_given_ = std::move(trajectory_given);
+  surface_.clear();  // not in sessions yet: the surface starts again here
 }
 
 std::optional<FrameResult> Reconstruction::push(const cv::Mat& image, const std::string& encoding,
@@ -493,6 +497,8 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
   t = now_ms();
   if (r.pose.ok() && mapping_) {  // only with points_C, which PnP's pose gives
     map_.integrate(r.points_W, r.conf, r.rgb, r.frame_index);
+    surface_.integrate(r.points_C, r.rgb, r.conf, config_.map.conf_threshold, r.intrinsics,
+                       r.pose.T_W_C);
     r.added_to_map = true;
   }
   if (r.posed()) {

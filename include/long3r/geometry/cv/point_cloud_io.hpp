@@ -31,6 +31,13 @@ namespace long3r {
 
 using Rgb8 = std::array<std::uint8_t, 3>;  // red, green, blue
 
+// Points and their colours, index-aligned (RGB), in no particular order:
+// a map's or a surface's.
+struct ColoredPoints {
+  std::vector<Eigen::Vector3f> points;
+  std::vector<Rgb8> colors;
+};
+
 enum class PointCloudFormat { kPly, kPcd, kXyz };
 
 // The format of a path's extension; nullopt for any other.
@@ -48,7 +55,19 @@ void save_point_cloud(const std::string& path, const std::vector<Eigen::Vector3f
                       const std::vector<Rgb8>* colors = nullptr,
                       const PointCloudWriteOptions& options = {});
 
-// The points of a .ply, .pcd, .xyz or .txt file. Throws std::runtime_error.
+// A triangle mesh as .ply (the only mesh format): the vertices as
+// save_point_cloud writes them, then element face with "property list uchar
+// int vertex_indices" (rviz, MeshLab, Open3D and PCL read it). Triangles are
+// vertex indices. Throws std::invalid_argument for another extension, colours
+// of another length or an index outside the vertices, AtomicWriteError when
+// the write fails.
+using Triangle = std::array<std::int32_t, 3>;
+void save_mesh_ply(const std::string& path, const std::vector<Eigen::Vector3f>& vertices,
+                   const std::vector<Rgb8>* colors, const std::vector<Triangle>& triangles,
+                   const PointCloudWriteOptions& options = {});
+
+// The points of a .ply, .pcd, .xyz or .txt file (a mesh's vertices). Throws
+// std::runtime_error.
 std::vector<Eigen::Vector3f> load_point_cloud(const std::string& path);
 
 }  // namespace long3r

@@ -56,17 +56,29 @@ void write_text_points(AtomicFile& f, const std::vector<Eigen::Vector3f>& points
 }
 
 void write_ply(AtomicFile& f, const std::vector<Eigen::Vector3f>& points,
-               const std::vector<Rgb8>* colors, const PointCloudWriteOptions& o) {
+               const std::vector<Rgb8>* colors, const PointCloudWriteOptions& o,
+               const std::vector<Triangle>* faces = nullptr) {
   std::string header =
       std::string("ply\nformat ") + (o.ascii ? "ascii" : "binary_little_endian") + " 1.0\n";
   if (!o.comment.empty()) header += "comment " + o.comment + "\n";
   header += "element vertex " + std::to_string(points.size()) +
             "\nproperty float x\nproperty float y\nproperty float z\n";
   if (colors) header += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+  if (faces) {
+    header += "element face " + std::to_string(faces->size()) +
+              "\nproperty list uchar int vertex_indices\n";
+  }
   header += "end_header\n";
   f.write(header);
   if (o.ascii) {
     write_text_points(f, points, colors);
+    if (faces) {
+      char line[64];
+      for (const Triangle& t : *faces) {
+        const int n = std::snprintf(line, sizeof line, "3 %d %d %d\n", t[0], t[1], t[2]);
+        f.write(line, static_cast<std::size_t>(n));
+      }
+    }
     return;
   }
   unsigned char rec[15];
@@ -75,6 +87,13 @@ void write_ply(AtomicFile& f, const std::vector<Eigen::Vector3f>& points,
     for (int a = 0; a < 3; ++a) put_le32(rec + 4 * a, float_bits(points[i][a]));
     if (colors) std::memcpy(rec + 12, (*colors)[i].data(), 3);
     f.write(rec, rec_size);
+  }
+  if (faces) {
+    rec[0] = 3;
+    for (const Triangle& t : *faces) {
+      for (int a = 0; a < 3; ++a) put_le32(rec + 1 + 4 * a, static_cast<std::uint32_t>(t[a]));
+      f.write(rec, 13);
+    }
   }
 }
 
@@ -311,6 +330,30 @@ void save_point_cloud(const std::string& path, const std::vector<Eigen::Vector3f
       write_text_points(file, points, colors);
       break;
   }
+  file.commit();
+}
+
+void save_mesh_ply(const std::string& path, const std::vector<Eigen::Vector3f>& vertices,
+                   const std::vector<Rgb8>* colors, const std::vector<Triangle>& triangles,
+                   const PointCloudWriteOptions& options) {
+  if (point_cloud_format(path) != PointCloudFormat::kPly) {
+    throw std::invalid_argument("save_mesh_ply: '" + path + "' is not a .ply file");
+  }
+  if (colors && colors->size() != vertices.size()) {
+    throw std::invalid_argument("save_mesh_ply: vertices and colors differ in length");
+  }
+  const auto n = static_cast<std::int64_t>(vertices.size());
+  for (std::size_t i = 0; i < triangles.size(); ++i) {
+    for (std::int32_t v : triangles[i]) {
+      if (v < 0 || v >= n) {
+        throw std::invalid_argument("save_mesh_ply: triangle " + std::to_string(i) +
+                                    " names vertex " + std::to_string(v) + " of " +
+                                    std::to_string(n));
+      }
+    }
+  }
+  AtomicFile file(path);
+  write_ply(file, vertices, colors, options, &triangles);
   file.commit();
 }
 

@@ -23,7 +23,7 @@
 #include <string>
 #include <vector>
 
-#include "long3r/pipeline/voxel_map.hpp"
+#include "long3r/mapping/voxel_map.hpp"
 #include "support/test_support.hpp"
 
 namespace long3r {

@@ -7,7 +7,7 @@
 #include <unordered_map>
 #include <vector>
 
-#include "long3r/pipeline/voxel_key_index.hpp"
+#include "long3r/mapping/voxel_key_index.hpp"
 
 namespace long3r {
 namespace {

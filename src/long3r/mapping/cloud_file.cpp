@@ -5,7 +5,7 @@
 #include <string>
 
 #include "long3r/geometry/cv/point_cloud_io.hpp"
-#include "long3r/pipeline/voxel_map.hpp"
+#include "long3r/mapping/voxel_map.hpp"
 
 namespace long3r {
 

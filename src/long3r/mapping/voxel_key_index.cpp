@@ -1,4 +1,4 @@
-#include "long3r/pipeline/voxel_key_index.hpp"
+#include "long3r/mapping/voxel_key_index.hpp"
 
 #include <stdexcept>
 

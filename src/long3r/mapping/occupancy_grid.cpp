@@ -1,5 +1,5 @@
 // 2D occupancy grid of a z-up map; see occupancy_grid.hpp.
-#include "long3r/pipeline/occupancy_grid.hpp"
+#include "long3r/mapping/occupancy_grid.hpp"
 
 #include <algorithm>
 #include <cmath>

@@ -34,8 +34,8 @@
 
 #include "long3r/config/config_fields.hpp"
 #include "long3r/geometry/cv/point_cloud_io.hpp"
+#include "long3r/mapping/voxel_key_index.hpp"
 #include "long3r/model/loading/state_dict.hpp"
-#include "long3r/pipeline/voxel_key_index.hpp"
 
 namespace long3r {
 
@@ -56,10 +56,7 @@ config::FieldsOf<S, VoxelMapConfig> visit_fields(S& s, V& v) {
 }
 
 // Points and colours of the map, index-aligned (RGB), in unspecified order.
-struct MapSnapshot {
-  std::vector<Eigen::Vector3f> points;
-  std::vector<Rgb8> colors;
-};
+using MapSnapshot = ColoredPoints;
 
 // One voxel as the map keeps it.
 struct VoxelInfo {

@@ -9,7 +9,7 @@
 #include <vector>
 
 #include "long3r/config/config_fields.hpp"
-#include "long3r/pipeline/occupancy_grid.hpp"
+#include "long3r/mapping/occupancy_grid.hpp"
 
 namespace long3r {
 namespace {

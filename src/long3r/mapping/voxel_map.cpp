@@ -1,4 +1,4 @@
-#include "long3r/pipeline/voxel_map.hpp"
+#include "long3r/mapping/voxel_map.hpp"
 
 #include <ATen/ATen.h>
 

@@ -1,0 +1,84 @@
+#!/usr/bin/env bash
+# What fusing the views does to the map's error, on generated sequences with
+# ground truth, all through long3r_eval with the same options:
+#   map        the voxel map (one point per voxel, the mean of what fell in it)
+#   averaged   each true surface voxel's predictions averaged over the frames
+#              that saw it (long3r_reconstruct --fusion-split): what an ideal
+#              average of the views reaches; its error is the part every view
+#              shares
+#   rescaled   the same with each frame's own depth ratio divided out: shape
+#              error alone
+#   surface    the TSDF's surface (surface_enabled), and its mesh's vertices
+# Frames are placed by the ground truth (--poses groundtruth) with the scale
+# from the depth images, so that only the pointmaps' own error is measured;
+# --model-poses places them by the model's pointmaps instead (no split then).
+#   bash scripts/surface_eval.sh [--frames N] [--model FILE] [--img-size N] [--out DIR]
+#        [--model-poses] [-- extra long3r_reconstruct options, e.g. --surface-min-weight 5]
+# Defaults: 60 frames of the demo's two sequences (seed 7: hand-held and the
+# robot's), the shipped model at 224, build/surface_eval.
+set -euo pipefail
+source "$(dirname "$0")/env.sh"
+root=$LONG3R_ROOT
+frames=60
+model="$root/models/default.safetensors"
+img_size=224
+out="$root/build/surface_eval"
+model_poses=0
+extra=()
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --frames) frames=$2; shift 2 ;;
+    --model) model=$2; shift 2 ;;
+    --img-size) img_size=$2; shift 2 ;;
+    --out) out=$2; shift 2 ;;
+    --model-poses) model_poses=1; shift ;;
+    --) shift; extra=("$@"); break ;;
+    *) echo "surface_eval.sh: unknown argument $1" >&2; exit 2 ;;
+  esac
+done
+bin="$root/build/core"
+cmake -S "$root" -B "$bin" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
+cmake --build "$bin" -j "$LONG3R_JOBS" --target app_long3r_synth app_long3r_reconstruct app_long3r_eval >/dev/null
+mkdir -p "$out"
+field() { grep -m1 "$1" "$2" | awk '{print $4}'; }
+printf "%-10s %-10s %9s %9s %9s %9s\n" sequence cloud "Acc cm" "Acc med" "Comp cm" "points"
+for kind in handheld robot; do
+  seq="$out/seq_${kind}_$frames"
+  if [ ! -f "$seq/groundtruth.txt" ]; then
+    args=()
+    [ "$kind" = robot ] && args=(--trajectory robot)
+    "$bin/long3r_synth" --out "$seq" --frames "$frames" --seed 7 --width "$img_size" \
+      --height "$img_size" "${args[@]}" --quiet >/dev/null
+  fi
+  run="$out/run_${kind}_$frames"
+  placement=(--poses groundtruth)
+  [ "$model_poses" = 1 ] && placement=()
+  split=(--fusion-split)
+  [ "$model_poses" = 1 ] && split=()
+  "$bin/long3r_reconstruct" "$seq" --model "$model" --out "$run" --img-size "$img_size" \
+    --scale-source depth --surface-enabled true "${placement[@]}" "${split[@]}" "${extra[@]}" >"$run.log" 2>&1 ||
+    { echo "long3r_reconstruct failed: see $run.log" >&2; exit 1; }
+  clouds=(map surface mesh)
+  [ "$model_poses" = 0 ] && clouds=(map averaged averaged_rescaled surface mesh)
+  for cloud in "${clouds[@]}"; do
+    "$bin/long3r_eval" --gt "$seq" --est-traj "$run/trajectory.txt" --est-map "$run/$cloud.ply" \
+      --out "$run/eval_$cloud" >"$run/eval_$cloud.log" 2>&1
+    m="$run/eval_$cloud.log"
+    printf "%-10s %-10s %9s %9s %9s %9s\n" "$kind" "$cloud" "$(field 'Acc mean' "$m")" \
+      "$(field 'Acc median' "$m")" "$(field 'Comp mean' "$m")" \
+      "$(grep -m1 'points pred' "$m" | awk '{print $5}')"
+  done
+  grep -h "fusion split:\|surface:" "$run.log" | sed "s/^/  $kind: /"
+  # The map stage's time a frame (frames.csv map_ms: voxel map, and surface
+  # when on), median over the mapped frames, with the surface and without.
+  "$bin/long3r_reconstruct" "$seq" --model "$model" --out "$run.nosurface" --img-size "$img_size" \
+    --scale-source depth "${placement[@]}" "${extra[@]}" >"$run.nosurface.log" 2>&1
+  median_map_ms() {
+    /usr/bin/python3 -c "
+import csv, statistics, sys
+rows = [r for r in csv.DictReader(open(sys.argv[1])) if r['added_to_map'] == '1']
+print('%.2f' % statistics.median(float(r['map_ms']) for r in rows))" "$1/frames.csv"
+  }
+  echo "  $kind: map stage median $(median_map_ms "$run") ms a frame with the surface," \
+    "$(median_map_ms "$run.nosurface") ms without"
+done
