@@ -31,8 +31,8 @@ PACKAGES=(
   # core libraries
   libtorch-dev libopenblas0-openmp libopenblas0-pthread libopencv-dev libpcl-dev libeigen3-dev
   nlohmann-json3-dev libnanoflann-dev googletest libgtest-dev libgmock-dev
-  # the TSDF surface and mesh (optional: without it the rest builds)
-  libopen3d-dev
+  # 3-D occupancy; the TSDF surface and mesh (optional: without it the rest builds)
+  liboctomap-dev libopen3d-dev
   # the Gloo headers of libtorch's c10d (data-parallel training)
   libgloo-dev
   # python side (checkpoint converter)

@@ -29,7 +29,7 @@ CMAKE_KEYS = {'Torch': 'libtorch-dev', 'nlohmann_json': 'nlohmann-json-dev', 'Ei
               'LONG3R_NANOFLANN_DIR': 'libnanoflann-dev', 'LONG3R_EIGEN_DIR': 'eigen',
               'LONG3R_NLOHMANN_JSON_DIR': 'nlohmann-json-dev', 'catkin': 'catkin', 'rostest': 'rostest',
               'roslaunch': 'roslaunch', 'LONG3R_GLOO_INCLUDE_DIR': 'libgloo-dev',
-              'Open3D': 'libopen3d-dev'}
+              'Open3D': 'libopen3d-dev', 'octomap': 'liboctomap-dev'}
 # CMake's own modules: nothing to install. NCCL's header comes with a CUDA
 # libtorch (its NCCL), never from Debian's packages.
 CMAKE_BUILTIN = {'Threads', 'Python3', 'GTest', 'LONG3R_NCCL_INCLUDE_DIR'}

@@ -1,0 +1,166 @@
+// OccupancyMap on a generated room driven through by a robot: the grid of its
+// band is right cell for cell within one cell of the room's walls and
+// furniture, the driven path is free, the floor is found; an obstacle that
+// moves away is cleared by the views that see through where it was; the map
+// round-trips through OctoMap's file exactly.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <set>
+#include <utility>
+#include <vector>
+
+#include "long3r/mapping/occupancy_map.hpp"
+#include "long3r/synth/cv/sensor_image.hpp"
+#include "long3r/synth/render.hpp"
+#include "support/cv_test_support.hpp"
+#include "support/test_support.hpp"
+
+namespace long3r {
+namespace {
+
+using Cell = std::pair<int, int>;
+
+Cell cell_of(const OccupancyGrid& g, double x, double y) {
+  return {static_cast<int>(std::floor((x - g.origin_x_m) / g.resolution_m)),
+          static_cast<int>(std::floor((y - g.origin_y_m) / g.resolution_m))};
+}
+
+bool near(const std::set<Cell>& cells, const Cell& c) {
+  for (int dy = -1; dy <= 1; ++dy) {
+    for (int dx = -1; dx <= 1; ++dx) {
+      if (cells.count({c.first + dx, c.second + dy})) return true;
+    }
+  }
+  return false;
+}
+
+TEST(OccupancyMap, GridOfAGeneratedRoomIsRightWithinOneCell) {
+  const synth::SequenceConfig c =
+      test::sequence_config(21, synth::TrajectoryType::kRobot, 40, 96, 72);
+  const synth::Sequence seq = synth::generate_sequence(c);
+  OccupancyMap map;
+  const GridBand band;  // 0.10-1.80 m above z = 0, the generated room's floor
+  // The room's surfaces well inside the band (a voxel from its edges: what
+  // must be occupied), and within a voxel of it (what may be).
+  std::vector<Eigen::Vector3f> must, may;
+  for (int k = 0; k < c.trajectory.frames; ++k) {
+    const synth::RenderedFrame f = synth::render_frame(seq.scene, seq.poses[k], c.intrinsics);
+    const cv::Mat depth = synth::depth_image(f);
+    const cv::Mat pts = test::pointmap_from_depth(
+        c.intrinsics, seq.poses[k], [&](int u, int v) { return depth.at<float>(v, u); });
+    std::vector<Eigen::Vector3f> points;
+    for (auto it = pts.begin<cv::Vec3f>(); it != pts.end<cv::Vec3f>(); ++it) {
+      if (!std::isfinite((*it)[0])) continue;
+      points.emplace_back((*it)[0], (*it)[1], (*it)[2]);
+      const double h = (*it)[2] - band.floor_z_m;
+      if (h > band.min_height_m + 0.05 && h < band.max_height_m - 0.05) {
+        must.push_back(points.back());
+      }
+      if (h > band.min_height_m - 0.05 && h < band.max_height_m + 0.05) {
+        may.push_back(points.back());
+      }
+    }
+    EXPECT_EQ(map.insert(points, seq.poses[k].translation()), points.size());
+  }
+  const OccupancyGrid g = map.project(band);
+  ASSERT_GT(g.width, 0);
+  std::set<Cell> truth, allowed, occupied;
+  for (const Eigen::Vector3f& p : must) truth.insert(cell_of(g, p.x(), p.y()));
+  for (const Eigen::Vector3f& p : may) allowed.insert(cell_of(g, p.x(), p.y()));
+  for (int y = 0; y < g.height; ++y) {
+    for (int x = 0; x < g.width; ++x) {
+      if (g.cells[static_cast<std::size_t>(y) * g.width + x] == OccupancyGrid::kOccupied) {
+        occupied.insert({x, y});
+      }
+    }
+  }
+  ASSERT_FALSE(truth.empty());
+  std::size_t wrong = 0, missed = 0;
+  for (const Cell& o : occupied) wrong += near(allowed, o) ? 0 : 1;
+  for (const Cell& t : truth) missed += near(occupied, t) ? 0 : 1;
+  RecordProperty("occupied", static_cast<int>(occupied.size()));
+  EXPECT_EQ(wrong, 0u) << "occupied cells not within one cell of the room's surfaces";
+  EXPECT_LT(missed, truth.size() / 50) << missed << " of " << truth.size() << " surface cells";
+  EXPECT_EQ(g.occupied, occupied.size());
+  // The driven path: free.
+  for (const Eigen::Isometry3d& T : seq.poses) {
+    const Eigen::Vector3d p = T.translation();
+    EXPECT_EQ(g.at(p.x(), p.y()), OccupancyGrid::kFree) << p.transpose();
+  }
+  EXPECT_GT(g.free, occupied.size());
+  const std::optional<double> floor = map.floor_z();
+  ASSERT_TRUE(floor.has_value());
+  EXPECT_NEAR(*floor, 0.0, map.config().resolution_m);
+}
+
+// A wall 3 m ahead, and a box in front of it that then goes away: the views
+// that see the wall through where the box was clear it.
+TEST(OccupancyMap, AnObstacleThatMovesAwayIsCleared) {
+  OccupancyMap map;
+  const Eigen::Vector3d camera(0.0, 0.0, 0.5);
+  auto view = [&](bool box) {
+    std::vector<Eigen::Vector3f> points;
+    for (int i = -20; i <= 20; ++i) {
+      for (int j = -10; j <= 10; ++j) {
+        const Eigen::Vector3d dir = Eigen::Vector3d(1.0, 0.02 * i, 0.02 * j).normalized();
+        // The box: the face x = 1.5 for |y| < 0.15.
+        const double to_box = 1.5 / dir.x();
+        const Eigen::Vector3d at_box = camera + to_box * dir;
+        const bool hits_box = box && std::abs(at_box.y()) < 0.15;
+        const double range = hits_box ? to_box : 3.0 / dir.x();
+        points.push_back((camera + range * dir).cast<float>());
+      }
+    }
+    return points;
+  };
+  const Eigen::Vector3d box_face(1.52, 0.0, 0.5), wall(3.02, 0.0, 0.5);
+  for (int k = 0; k < 5; ++k) map.insert(view(true), camera);
+  ASSERT_EQ(map.occupied(box_face), std::optional<bool>(true));
+  EXPECT_EQ(map.occupied(wall), std::nullopt);  // hidden behind the box
+  for (int k = 0; k < 20; ++k) map.insert(view(false), camera);
+  EXPECT_EQ(map.occupied(box_face), std::optional<bool>(false));
+  EXPECT_EQ(map.occupied(wall), std::optional<bool>(true));
+  GridBand band;
+  band.floor_z_m = 0.0;
+  const OccupancyGrid g = map.project(band);
+  EXPECT_EQ(g.at(box_face.x(), box_face.y()), OccupancyGrid::kFree);
+  EXPECT_EQ(g.at(wall.x(), wall.y()), OccupancyGrid::kOccupied);
+}
+
+TEST(OccupancyMap, RoundTripsThroughOctoMapsFile) {
+  OccupancyMap map;
+  std::vector<Eigen::Vector3f> points;
+  for (int i = 0; i < 50; ++i) points.emplace_back(2.0f, 0.02f * i - 0.5f, 0.3f);
+  map.insert(points, Eigen::Vector3d::Zero());
+  const std::string bytes = map.write();
+  OccupancyMap copy;
+  copy.read(bytes);
+  EXPECT_EQ(copy.voxels(), map.voxels());
+  EXPECT_EQ(copy.write(), bytes);
+  GridBand band;
+  band.floor_z_m = 0.0;
+  const OccupancyGrid a = map.project(band), b = copy.project(band);
+  EXPECT_EQ(a.cells, b.cells);
+  // Another resolution, or not an OctoMap file: refused, the map unchanged.
+  OccupancyMapConfig coarse;
+  coarse.resolution_m = 0.1;
+  OccupancyMap other(coarse);
+  test::expect_throw_naming([&] { other.read(bytes); }, "resolution");
+  test::expect_throw_naming([&] { copy.read("not an octree"); }, "not an OctoMap");
+  EXPECT_EQ(copy.voxels(), map.voxels());
+  // Bad input.
+  const double nan = std::nan("");
+  test::expect_throw_naming([&] { map.insert(points, Eigen::Vector3d(nan, 0, 0)); }, "not finite");
+  EXPECT_EQ(map.insert({Eigen::Vector3f(nan, 0, 0)}, Eigen::Vector3d::Zero()), 0u);
+  OccupancyMapConfig bad;
+  bad.prob_hit = 0.4;
+  test::expect_throw_naming([&] { OccupancyMap{bad}; }, "prob_hit");
+  map.clear();
+  EXPECT_EQ(map.voxels(), 0u);
+  EXPECT_EQ(map.project(band).width, 0);
+  EXPECT_FALSE(map.floor_z().has_value());
+}
+
+}  // namespace
+}  // namespace long3r
