@@ -157,8 +157,6 @@ class Long3rNodelet : public nodelet::Nodelet,
     std::string frames = "not started";
     Eigen::Isometry3d T_map_W = Eigen::Isometry3d::Identity();
     std::string session_file = "none";  // the last session saved or loaded, for diagnostics
-    // Camera positions of the path in map (for ~grid).
-    std::vector<Eigen::Vector3d> cameras_map;
     std::string grid = "not subscribed";
   };
   std::mutex state_mutex_;

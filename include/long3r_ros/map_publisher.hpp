@@ -5,9 +5,10 @@
 // (pcl::PointXYZRGB, through pcl_conversions), filtered by PCL for display. Each is built only
 // while subscribed and only when the map changed since it was last sent.
 //
-// Only a z-up map (with base_frame: its floor at z = 0) has a floor to stand
-// on, so ~grid needs base_frame; gridStatus() says why there is no grid, or
-// that it is not in metres yet, for the diagnostics.
+// ~grid is the session's 3-D occupancy (OctoMap) projected in the band above
+// the floor. Only a z-up map (with base_frame) has a floor to stand on, so
+// ~grid needs base_frame; gridStatus() says why there is no grid, or that it
+// is not in metres yet, for the diagnostics.
 #pragma once
 
 #include <ros/ros.h>
@@ -18,9 +19,10 @@
 #include <string>
 #include <vector>
 
-#include "long3r/mapping/occupancy_grid.hpp"
+#include "long3r/mapping/occupancy_map.hpp"
 #include "long3r/mapping/tsdf_volume.hpp"
 #include "long3r/mapping/voxel_map.hpp"
+#include "long3r/pipeline/live_session.hpp"
 #include "long3r_ros/log_throttle.hpp"
 
 namespace long3r_ros {
@@ -33,7 +35,7 @@ class MapPublisher {
     int display_outlier_neighbours = 0;  // ~map without isolated points; 0 = off
     double display_outlier_stddev = 1.0;
     bool z_up = false;  // base_frame is set
-    long3r::OccupancyGridConfig grid;
+    long3r::GridProjectionConfig grid;
     bool surface = false;  // surface_enabled: ~surface and ~mesh
   };
 
@@ -42,10 +44,13 @@ class MapPublisher {
   // Whether the map at `revision` (a count that grows with every change) is
   // to be published; the caller takes a snapshot only then.
   bool wants(std::uint64_t revision) const;
-  // Publishes what wants() said. cameras_map: the path's camera positions
-  // (the grid's rays start there).
-  void publish(long3r::MapSnapshot map, const std::vector<Eigen::Vector3d>& cameras_map,
-               bool metric, std::uint64_t revision);
+  void publish(long3r::MapSnapshot map, std::uint64_t revision);
+  // ~grid at the occupancy's `revision`, projected by `project` only while
+  // subscribed and changed since last sent.
+  bool gridWanted(std::uint64_t revision) const;
+  void publishGrid(std::uint64_t revision,
+                   const std::function<long3r::LiveSession::GridProjection()>& project,
+                   bool metric);
   // ~surface and ~mesh at the surface's `revision`: each taken (by its
   // function) and sent only while subscribed and changed since last sent.
   void publishSurface(std::uint64_t revision, const std::function<long3r::ColoredPoints()>& points,
@@ -56,9 +61,6 @@ class MapPublisher {
   std::string gridStatus() const;
 
  private:
-  void publishGrid(const std::vector<Eigen::Vector3f>& points_map,
-                   const std::vector<Eigen::Vector3d>& cameras_map, bool metric);
-  bool gridWanted(std::uint64_t revision) const;
   bool cloudWanted(std::uint64_t revision) const;
 
   Config config_;

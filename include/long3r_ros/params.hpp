@@ -17,7 +17,7 @@
 #include <string>
 #include <vector>
 
-#include "long3r/mapping/occupancy_grid.hpp"
+#include "long3r/mapping/occupancy_map.hpp"
 #include "long3r/model/runtime/inference_config.hpp"
 #include "long3r/model/runtime/threads.hpp"
 #include "long3r/pipeline/live_session.hpp"
@@ -108,7 +108,7 @@ struct NodeParams {
   NodeletConfig node;
   FramesConfig frames;
   long3r::LiveSessionConfig session;
-  long3r::OccupancyGridConfig grid;
+  long3r::GridProjectionConfig grid;  // ~grid's band (the occupancy: reconstruction.occupancy)
   long3r::ThreadConfig threads;
   long3r::InferenceConfig inference;  // whether this machine serves it: at model load
   long3r::ReconstructionConfig reconstruction;

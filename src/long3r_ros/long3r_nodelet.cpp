@@ -215,33 +215,29 @@ void Long3rNodelet::enqueue(InputFrame frame) {
 void Long3rNodelet::mapTimerCallback(const ros::WallTimerEvent&) {
   diagnostics_->update();
   if (!session_) return;
+  bool metric = false;
+  Eigen::Isometry3d T_map_W;
+  {
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    metric = state_.session.scale_metric;
+    T_map_W = state_.T_map_W;
+  }
+  const OutputUnits units = outputUnits(metric, /*pose_given=*/false);
   // The maps lock themselves: no wait for the model step.
   const std::uint64_t revision = session_->map_revision();
-  if (map_pub_->wants(revision)) {
-    std::vector<Eigen::Vector3d> cameras;
-    bool metric = false;
-    {
-      std::lock_guard<std::mutex> lock(state_mutex_);
-      cameras = state_.cameras_map;
-      metric = state_.session.scale_metric;
-    }
-    const OutputUnits units = outputUnits(metric, /*pose_given=*/false);
+  if (map_pub_->wants(revision) && !units.map_held) map_pub_->publish(mapSnapshot(), revision);
+  const std::uint64_t occupancy = session_->occupancy_revision();
+  if (map_pub_->gridWanted(occupancy)) {
     if (units.map_held) {
       map_pub_->hold("held until the metric scale is known");
     } else {
-      map_pub_->publish(mapSnapshot(), cameras, metric, revision);
+      map_pub_->publishGrid(
+          occupancy, [&] { return session_->occupancy_grid(T_map_W, params_.grid); }, metric);
     }
   }
   if (params_.reconstruction.surface.enabled) {
-    bool metric = false;
-    Eigen::Isometry3d T_map_W;
-    {
-      std::lock_guard<std::mutex> lock(state_mutex_);
-      metric = state_.session.scale_metric;
-      T_map_W = state_.T_map_W;
-    }
     // As ~map: not sent while it is not in metres.
-    if (!outputUnits(metric, /*pose_given=*/false).map_held) {
+    if (!units.map_held) {
       map_pub_->publishSurface(
           session_->surface_revision(), [&] { return session_->surface_points(T_map_W); },
           [&] { return session_->surface_mesh(T_map_W); });
@@ -338,11 +334,6 @@ void Long3rNodelet::copyStatus() {
   state_.session = status;
   if (frames_->started()) state_.frames = frames_->describe();
   if (frames_->anchored()) state_.T_map_W = frames_->T_map_W();
-  // For ~grid, whenever it is subscribed (a few microseconds per thousand poses).
-  state_.cameras_map.clear();
-  for (const auto& entry : session_->reconstruction().trajectory()) {
-    state_.cameras_map.push_back(state_.T_map_W * entry.second.translation());
-  }
 }
 
 // ---------------------------------------------------------------- session client

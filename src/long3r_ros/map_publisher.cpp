@@ -6,6 +6,7 @@
 #include <visualization_msgs/Marker.h>
 #include <boost/make_shared.hpp>
 
+#include <cstdio>
 #include <exception>
 #include <utility>
 
@@ -51,20 +52,13 @@ bool MapPublisher::cloudWanted(std::uint64_t revision) const {
   return map_pub_.getNumSubscribers() > 0 && revision != map_revision_;
 }
 
-bool MapPublisher::wants(std::uint64_t revision) const {
-  return gridWanted(revision) || cloudWanted(revision);
-}
+bool MapPublisher::wants(std::uint64_t revision) const { return cloudWanted(revision); }
 
 std::string MapPublisher::gridStatus() const {
   return grid_pub_.getNumSubscribers() > 0 ? grid_status_ : "not subscribed";
 }
 
-void MapPublisher::publish(long3r::MapSnapshot map, const std::vector<Eigen::Vector3d>& cameras_map,
-                           bool metric, std::uint64_t revision) {
-  if (gridWanted(revision)) {
-    grid_revision_ = revision;
-    publishGrid(map.points, cameras_map, metric);
-  }
+void MapPublisher::publish(long3r::MapSnapshot map, std::uint64_t revision) {
   if (!cloudWanted(revision)) return;
   map_revision_ = revision;
   MapCloud cloud = toPclCloud(map);
@@ -80,22 +74,28 @@ void MapPublisher::publish(long3r::MapSnapshot map, const std::vector<Eigen::Vec
 
 void MapPublisher::hold(const std::string& why) { grid_status_ = "none: " + why; }
 
-void MapPublisher::publishGrid(const std::vector<Eigen::Vector3f>& points_map,
-                               const std::vector<Eigen::Vector3d>& cameras_map, bool metric) {
+void MapPublisher::publishGrid(std::uint64_t revision,
+                               const std::function<long3r::LiveSession::GridProjection()>& project,
+                               bool metric) {
+  if (!gridWanted(revision)) return;
+  grid_revision_ = revision;
   if (!config_.z_up) {
-    grid_status_ = "none: needs base_frame (the map is z-up with its floor at z = 0 only then)";
+    grid_status_ = "none: needs base_frame (the map is z-up only then)";
     return;
   }
   try {
-    const long3r::OccupancyGrid g =
-        long3r::build_occupancy_grid(points_map, cameras_map, config_.grid);
+    const long3r::LiveSession::GridProjection p = project();
+    const long3r::OccupancyGrid& g = p.grid;
     std_msgs::Header header;
     header.stamp = ros::Time::now();
     header.frame_id = config_.map_frame;
     if (g.width > 0) grid_pub_.publish(toOccupancyGrid(g, header));
+    char floor[96];
+    std::snprintf(floor, sizeof floor, "floor at z = %.2f m (%s)", p.floor_z_m,
+                  p.floor_fitted ? "fitted" : "the base's");
     grid_status_ = std::to_string(g.width) + " x " + std::to_string(g.height) + " cells, " +
-                   std::to_string(g.occupied) + " occupied, " + std::to_string(g.free) + " free" +
-                   (metric ? "" : "; in model units");
+                   std::to_string(g.occupied) + " occupied, " + std::to_string(g.free) + " free, " +
+                   floor + (metric ? "" : "; in model units");
   } catch (const std::exception& e) {
     grid_status_ = std::string("not published: ") + e.what();
     warn_("grid", "~grid " + grid_status_);

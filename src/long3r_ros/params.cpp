@@ -170,6 +170,9 @@ void resolveDefaults(NodeParams& params) {
   params.reconstruction.pose_method = params.node.pose_source == PoseSource::kKeyframes
                                           ? long3r::PoseMethod::kKeyframes
                                           : long3r::PoseMethod::kModel;
+  // ~grid needs a z-up map (base_frame): without one the occupancy would be
+  // kept for nothing.
+  if (params.frames.base_frame.empty()) params.reconstruction.occupancy.enabled = false;
 }
 
 std::string describe(const NodeParams& params) {

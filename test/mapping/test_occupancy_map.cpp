@@ -35,6 +35,25 @@ bool near(const std::set<Cell>& cells, const Cell& c) {
   return false;
 }
 
+// nav_msgs/OccupancyGrid's layout: rows of y, the origin the corner of cell
+// (0, 0), unknown outside.
+TEST(OccupancyGrid, CellsAreRowsOfY) {
+  OccupancyGrid g;
+  g.resolution_m = 0.5;
+  g.origin_x_m = -1.0;
+  g.origin_y_m = 2.0;
+  g.width = 3;
+  g.height = 2;
+  g.cells = {0, 100, -1, 100, 0, 0};
+  EXPECT_EQ(g.at(-0.9, 2.1), 0);
+  EXPECT_EQ(g.at(-0.4, 2.1), 100);  // x: second column
+  EXPECT_EQ(g.at(-0.9, 2.6), 100);  // y: second row
+  EXPECT_EQ(g.at(0.4, 2.9), 0);
+  EXPECT_EQ(g.at(0.6, 2.1), OccupancyGrid::kUnknown);  // beyond the width
+  EXPECT_EQ(g.at(-1.1, 2.1), OccupancyGrid::kUnknown);
+  EXPECT_EQ(g.at(-0.9, 3.1), OccupancyGrid::kUnknown);
+}
+
 TEST(OccupancyMap, GridOfAGeneratedRoomIsRightWithinOneCell) {
   const synth::SequenceConfig c =
       test::sequence_config(21, synth::TrajectoryType::kRobot, 40, 96, 72);
@@ -126,6 +145,91 @@ TEST(OccupancyMap, AnObstacleThatMovesAwayIsCleared) {
   const OccupancyGrid g = map.project(band);
   EXPECT_EQ(g.at(box_face.x(), box_face.y()), OccupancyGrid::kFree);
   EXPECT_EQ(g.at(wall.x(), wall.y()), OccupancyGrid::kOccupied);
+}
+
+// The map kept in another frame M (the pipeline's camera 0: z forward, y
+// down) and looked at from a z-up F: the same grid within a cell.
+TEST(OccupancyMap, ProjectsFromAnotherFrame) {
+  OccupancyMap in_F, in_M;
+  // F: x forward, z up; M = F turned so that M's z is F's x, M's y is -F's z.
+  Eigen::Isometry3d T_F_M = Eigen::Isometry3d::Identity();
+  T_F_M.linear() << 0, 0, 1,  //
+      -1, 0, 0,               //
+      0, -1, 0;
+  T_F_M.translation() = Eigen::Vector3d(0.3, -0.2, 0.5);
+  const Eigen::Isometry3d T_M_F = T_F_M.inverse();
+  const Eigen::Vector3d camera_F(0.0, 0.0, 0.5);
+  std::vector<Eigen::Vector3f> wall_F, wall_M;
+  for (int i = -30; i <= 30; ++i) {
+    for (int j = 0; j <= 30; ++j) {
+      const Eigen::Vector3d p(2.0, 0.03 * i, 0.05 * j);
+      wall_F.push_back(p.cast<float>());
+      wall_M.push_back((T_M_F * p).cast<float>());
+    }
+  }
+  for (int k = 0; k < 3; ++k) {
+    in_F.insert(wall_F, camera_F);
+    in_M.insert(wall_M, T_M_F * camera_F);
+  }
+  GridBand band;
+  const OccupancyGrid a = in_F.project(band), b = in_M.project(band, T_F_M);
+  ASSERT_GT(a.occupied, 20u);
+  std::size_t agree = 0;
+  for (int i = -25; i <= 25; ++i) {
+    const double y = 0.03 * i;
+    // At cell centres (the two grids' cells need not share their edges).
+    const double wall_x = 2.025;
+    agree += (a.at(wall_x, y) == OccupancyGrid::kOccupied) ==
+                     (b.at(wall_x, y) == OccupancyGrid::kOccupied)
+                 ? 1
+                 : 0;
+    // Halfway to the wall the rays span |y| < 0.45.
+    if (std::abs(y) < 0.4) {
+      EXPECT_EQ(b.at(1.025, y), OccupancyGrid::kFree) << y;
+    }
+  }
+  EXPECT_GE(agree, 45u);
+  ASSERT_TRUE(in_M.floor_z(T_F_M).has_value());
+}
+
+// A change of scale: every voxel moves with it, obstacles stay whole.
+TEST(OccupancyMap, RescaleMovesTheVoxels) {
+  OccupancyMap map;
+  std::vector<Eigen::Vector3f> wall;
+  for (int i = -20; i <= 20; ++i) {
+    for (int j = -5; j <= 5; ++j) wall.emplace_back(1.5f, 0.025f * i, 0.025f * j);
+  }
+  for (int k = 0; k < 3; ++k) map.insert(wall, Eigen::Vector3d::Zero());
+  ASSERT_EQ(map.occupied({1.52, 0.0, 0.0}), std::optional<bool>(true));
+  const std::uint64_t before = map.revision();
+  map.rescale(1.7);
+  EXPECT_GT(map.revision(), before);
+  EXPECT_EQ(map.occupied({1.52 * 1.7, 0.0, 0.0}), std::optional<bool>(true));
+  EXPECT_EQ(map.occupied({0.8 * 1.7, 0.0, 0.0}), std::optional<bool>(false));
+  // Along the scaled wall, no gaps.
+  for (int i = -15; i <= 15; ++i) {
+    EXPECT_EQ(map.occupied({1.52 * 1.7, 0.025 * i * 1.7, 0.0}), std::optional<bool>(true)) << i;
+  }
+  map.rescale(1.0 / 1.7);
+  EXPECT_EQ(map.occupied({1.52, 0.0, 0.0}), std::optional<bool>(true));
+  test::expect_throw_naming([&] { map.rescale(0.0); }, "factor");
+}
+
+// The pipeline's view: a pointmap, every pixel_step-th pixel, the
+// unconfident ones left out.
+TEST(OccupancyMap, InsertsAPointmap) {
+  OccupancyMap map;  // pixel_step 4
+  cv::Mat pts(40, 40, CV_32FC3), conf(40, 40, CV_32FC1, cv::Scalar(5.0f));
+  for (int v = 0; v < 40; ++v) {
+    for (int u = 0; u < 40; ++u)
+      pts.at<cv::Vec3f>(v, u) = cv::Vec3f(0.05f * (u - 20), 0.05f * (v - 20), 2.0f);
+  }
+  EXPECT_EQ(map.insert(pts, conf, 3.0f, Eigen::Vector3d::Zero()), 100u);
+  conf(cv::Rect(0, 0, 40, 20)).setTo(1.0f);
+  EXPECT_EQ(map.insert(pts, conf, 3.0f, Eigen::Vector3d::Zero()), 50u);
+  EXPECT_EQ(map.insert(pts, cv::Mat(), 0.0f, Eigen::Vector3d::Zero()), 100u);
+  test::expect_throw_naming([&] { map.insert(pts, cv::Mat(3, 3, CV_32FC1), 0.0f, {}); },
+                            "CV_32FC1");
 }
 
 TEST(OccupancyMap, RoundTripsThroughOctoMapsFile) {

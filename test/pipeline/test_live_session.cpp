@@ -8,6 +8,7 @@
 #include <any>
 #include <cmath>
 #include <functional>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -322,6 +323,71 @@ TEST(LiveSession, ResetStartsOverAndAConfigIsChecked) {
     EXPECT_NE(std::string(e.what()).find("stream.size_change_frames"), std::string::npos)
         << e.what();
   }
+}
+
+// The occupancy of the mapped views, seen from a z-up map frame (the
+// generated room's, where its floor is z = 0): the grid of the band above the
+// fitted floor; a stream that ends leaves its occupancy where it ended.
+TEST(LiveSession, OccupancyGridOfTheStreamsInTheMapFrame) {
+  Session s(8);
+  const Eigen::Isometry3d T_map_W = s.g.seq.poses[0];  // the room's frame
+  s.client.map_frame = T_map_W;
+  for (int k = 0; k < 6; ++k) s.push(k, 10.0 + 0.1 * k);
+  s.session->flush();
+  GridProjectionConfig config;
+  const LiveSession::GridProjection p = s.session->occupancy_grid(T_map_W, config);
+  EXPECT_TRUE(p.floor_fitted);
+  EXPECT_NEAR(p.floor_z_m, 0.0, 0.05);
+  ASSERT_GT(p.grid.occupied, 0u);
+  for (int k = 0; k < 6; ++k) {
+    const Eigen::Vector3d c = s.g.seq.poses[static_cast<std::size_t>(k)].translation();
+    EXPECT_NE(p.grid.at(c.x(), c.y()), OccupancyGrid::kOccupied) << k;
+  }
+  // Every occupied cell holds a true point of the band.
+  std::set<std::pair<long, long>> truth;
+  for (const cv::Mat& pts : s.g.pts_W0) {
+    for (auto it = pts.begin<cv::Vec3f>(); it != pts.end<cv::Vec3f>(); ++it) {
+      if (!std::isfinite((*it)[0])) continue;
+      const Eigen::Vector3d q = T_map_W * Eigen::Vector3d((*it)[0], (*it)[1], (*it)[2]);
+      if (q.z() < p.floor_z_m + 0.0 || q.z() > p.floor_z_m + 1.9) continue;
+      truth.insert({std::lround(std::floor(q.x() / 0.05)), std::lround(std::floor(q.y() / 0.05))});
+    }
+  }
+  std::size_t off = 0;
+  const OccupancyGrid& g = p.grid;
+  for (int y = 0; y < g.height; ++y) {
+    for (int x = 0; x < g.width; ++x) {
+      if (g.cells[static_cast<std::size_t>(y) * g.width + x] != OccupancyGrid::kOccupied) continue;
+      const long cx = std::lround(g.origin_x_m / 0.05) + x,
+                 cy = std::lround(g.origin_y_m / 0.05) + y;
+      bool near = false;
+      for (long dy = -1; dy <= 1 && !near; ++dy) {
+        for (long dx = -1; dx <= 1 && !near; ++dx) near = truth.count({cx + dx, cy + dy}) > 0;
+      }
+      off += near ? 0 : 1;
+    }
+  }
+  EXPECT_EQ(off, 0u);
+  // base: the band from z = 0 of the map frame.
+  config.floor = GridFloor::kBase;
+  EXPECT_FALSE(s.session->occupancy_grid(T_map_W, config).floor_fitted);
+  config.floor = GridFloor::kFit;
+
+  // A jump back in time ends the stream: its occupancy stays in the grid.
+  const std::uint64_t revision = s.session->occupancy_revision();
+  // (The floor at z = 0 for both, the new stream's fit being another's.)
+  config.floor = GridFloor::kBase;
+  const std::size_t before = s.session->occupancy_grid(T_map_W, config).grid.occupied;
+  s.push(6, 2.0);
+  s.push(7, 2.1);
+  EXPECT_NE(s.session->occupancy_revision(), revision);
+  EXPECT_EQ(s.session->status().streams, 2u);
+  const LiveSession::GridProjection after =
+      s.session->occupancy_grid(Eigen::Isometry3d::Identity(), config);
+  EXPECT_GE(after.grid.occupied, before);
+  // A reset clears it all.
+  s.session->reset("test");
+  EXPECT_EQ(s.session->occupancy_grid(T_map_W, config).grid.occupied, 0u);
 }
 
 }  // namespace

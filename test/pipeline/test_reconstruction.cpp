@@ -175,6 +175,46 @@ TEST(Reconstruction, FusesMappedFramesIntoTheSurface) {
   EXPECT_EQ(rec.surface().frames_kept(), 0u);
 }
 
+// The occupancy of the mapped views (on by default) in W: what the views saw
+// is occupied, rescaled with the stream, and kept by state() / restore().
+TEST(Reconstruction, KeepsTheOccupancyOfTheMappedViews) {
+  const GtSequence g = make_sequence(6);
+  Reconstruction rec(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config());
+  rec.set_calibration(g.seq.config.intrinsics);
+  for (size_t k = 0; k < g.bgr.size(); ++k) rec.push(g.bgr[k], "bgr8", 0.1 * k);
+  ASSERT_TRUE(rec.flush().has_value());
+  ASSERT_GT(rec.occupancy().voxels(), 0u);
+  // A pixel of frame 2 whose ray it cast (pixel_step 4: pixels 2, 6, ...),
+  // occupied; the camera: free.
+  const cv::Vec3f c = g.pts_W0[2].at<cv::Vec3f>(34, 34);
+  ASSERT_TRUE(std::isfinite(c[0]));
+  const Eigen::Vector3d hit(c[0], c[1], c[2]);
+  EXPECT_EQ(rec.occupancy().occupied(hit), std::optional<bool>(true));
+  EXPECT_EQ(rec.occupancy().occupied(g.T_0_k[2].translation()), std::optional<bool>(false));
+  const StateDict saved = rec.state();
+  rec.set_scale(2.0);
+  EXPECT_EQ(rec.occupancy().occupied(2.0 * hit), std::optional<bool>(true));
+  // Restored: the occupancy as it was saved.
+  Reconstruction other(std::make_unique<FakeModel>(&g.pts_W0), test::gt_reconstruction_config());
+  other.restore(saved);
+  EXPECT_EQ(other.occupancy().write(), StateReader(saved, "saved").bytes("occupancy.ot"));
+  EXPECT_EQ(other.occupancy().occupied(hit), std::optional<bool>(true));
+  // A session without one (saved with it off, or before it existed) starts empty.
+  StateDict without = saved;
+  without.erase("occupancy.ot");
+  other.restore(without);
+  EXPECT_EQ(other.occupancy().voxels(), 0u);
+  // A damaged one is refused by name, and nothing changes.
+  StateDict damaged = saved;
+  damaged["occupancy.ot"] = bytes_tensor("not an octree");
+  EXPECT_THROW(other.restore(damaged), StateError);
+  try {
+    other.restore(damaged);
+  } catch (const StateError& e) {
+    EXPECT_NE(std::string(e.what()).find("occupancy.ot"), std::string::npos) << e.what();
+  }
+}
+
 // rescale() brings one result to a scale as set_scale() brings the stream.
 TEST(Reconstruction, RescaleBringsOneResultToAScale) {
   const GtSequence g = make_sequence(3);

@@ -43,25 +43,42 @@ TEST_F(ParamsTest, DefaultsWhenUnset) {
 TEST_F(ParamsTest, SessionAndGridParameters) {
   EXPECT_EQ(readParams(pnh_).node.session_path, "");
   EXPECT_FALSE(readParams(pnh_).frames.session_odometry_continues);
-  EXPECT_EQ(readParams(pnh_).grid.resolution_m, 0.05);
+  EXPECT_EQ(readParams(pnh_).reconstruction.occupancy.resolution_m, 0.05);
+  // Without base_frame there is no ~grid, and no occupancy is kept for it.
+  EXPECT_FALSE(readParams(pnh_).reconstruction.occupancy.enabled);
+  pnh_.setParam("base_frame", "base_link");
+  EXPECT_TRUE(readParams(pnh_).reconstruction.occupancy.enabled);
+  EXPECT_EQ(readParams(pnh_).grid.floor, long3r::GridFloor::kFit);
   pnh_.setParam("session_path", "/maps/site.l3s");
   pnh_.setParam("session_odometry_continues", true);
   pnh_.setParam("grid_resolution_m", 0.1);
   pnh_.setParam("grid_min_height_m", 0.2);
   pnh_.setParam("grid_max_height_m", 2);  // an int where a double is expected is fine
   pnh_.setParam("grid_max_range_m", 3.0);
-  pnh_.setParam("grid_min_points", 5);
+  pnh_.setParam("grid_prob_hit", 0.8);
+  pnh_.setParam("grid_pixel_step", 2);
+  pnh_.setParam("grid_floor", "base");
   EXPECT_EQ(readParams(pnh_).node.session_path, "/maps/site.l3s");
   EXPECT_TRUE(readParams(pnh_).frames.session_odometry_continues);
-  const long3r::OccupancyGridConfig g = readParams(pnh_).grid;
-  EXPECT_EQ(g.resolution_m, 0.1);
-  EXPECT_EQ(g.min_height_m, 0.2);
-  EXPECT_EQ(g.max_height_m, 2.0);
-  EXPECT_EQ(g.max_range_m, 3.0);
-  EXPECT_EQ(g.min_points, 5);
+  const long3r_ros::NodeParams p = readParams(pnh_);
+  EXPECT_EQ(p.reconstruction.occupancy.resolution_m, 0.1);
+  EXPECT_EQ(p.reconstruction.occupancy.max_range_m, 3.0);
+  EXPECT_EQ(p.reconstruction.occupancy.prob_hit, 0.8);
+  EXPECT_EQ(p.reconstruction.occupancy.pixel_step, 2);
+  EXPECT_EQ(p.grid.min_height_m, 0.2);
+  EXPECT_EQ(p.grid.max_height_m, 2.0);
+  EXPECT_EQ(p.grid.floor, long3r::GridFloor::kBase);
+  pnh_.setParam("grid_enabled", false);
+  EXPECT_FALSE(readParams(pnh_).reconstruction.occupancy.enabled);
   pnh_.setParam("grid_max_height_m", 0.1);  // below the band's bottom
   expectError("grid_max_height_m");
   pnh_.setParam("grid_max_height_m", 2.0);
+  pnh_.setParam("grid_prob_miss", 0.6);
+  expectError("grid_prob_miss");
+  pnh_.setParam("grid_prob_miss", 0.4);
+  pnh_.setParam("grid_floor", "ceiling");
+  expectError("grid_floor");
+  pnh_.setParam("grid_floor", "fit");
   pnh_.setParam("grid_resolution_m", -1.0);
   expectError("grid_resolution_m");
   pnh_.setParam("grid_resolution_m", "fine");

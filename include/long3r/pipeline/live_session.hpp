@@ -34,6 +34,7 @@
 #include <cstdint>
 #include <deque>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -230,6 +231,20 @@ class LiveSession {
   ColoredPoints surface_points(const Eigen::Isometry3d& T_map_W) const;
   ColoredMesh surface_mesh(const Eigen::Isometry3d& T_map_W) const;
   std::uint64_t surface_revision() const;
+  // The 3-D occupancy (occupancy.enabled) seen from the client's z-up map
+  // frame: the current stream's placed by T_map_W and the ended streams'
+  // where they ended (as their maps are kept), one grid of config's band
+  // above the floor, its height fitted (GridFloor::kFit, where a floor is
+  // found) or z = 0 of the map frame (the base's). Callable from any thread,
+  // as is occupancy_revision().
+  struct GridProjection {
+    OccupancyGrid grid;
+    double floor_z_m = 0.0;
+    bool floor_fitted = false;
+  };
+  GridProjection occupancy_grid(const Eigen::Isometry3d& T_map_W,
+                                const GridProjectionConfig& config) const;
+  std::uint64_t occupancy_revision() const;
   const Reconstruction& reconstruction() const { return recon_; }
   Reconstruction& reconstruction() { return recon_; }
   const LiveSessionConfig& config() const { return config_; }
@@ -255,6 +270,11 @@ class LiveSession {
   LiveSessionClient& client_;
   Reconstruction recon_;
   VoxelMap ended_maps_;
+  // The ended streams' occupancy, each with its T_map_W (guarded: the grid
+  // is projected from another thread).
+  mutable std::mutex ended_occupancy_mutex_;
+  std::vector<std::pair<std::shared_ptr<const OccupancyMap>, Eigen::Isometry3d>> ended_occupancy_;
+  std::uint64_t ended_occupancy_revision_ = 0;
   StreamMonitor monitor_;
   std::optional<LiveFrame> held_;  // see StreamMonitor::kHold
   std::deque<Pending> pending_;

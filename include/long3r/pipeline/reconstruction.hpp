@@ -29,6 +29,7 @@
 #include <utility>
 #include <vector>
 
+#include "long3r/mapping/occupancy_map.hpp"
 #include "long3r/mapping/surface_map.hpp"
 #include "long3r/mapping/voxel_map.hpp"
 #include "long3r/model/loading/state_dict.hpp"
@@ -63,6 +64,8 @@ struct ReconstructionConfig {
   // The fused surface beside the voxel map (off by default: docs/performance.md,
   // "Fused surface").
   SurfaceMapConfig surface;
+  // 3-D occupancy of the mapped views (the node's ~grid), in W.
+  OccupancyMapConfig occupancy;
   FocalEstimationOptions focal;  // its own conf_threshold (default 0: all pixels, as DUSt3R)
   // When >= 0, replaces pnp.conf_threshold and map.conf_threshold; set it
   // negative to use theirs as given. The default 1 keeps every pixel: the
@@ -83,6 +86,7 @@ config::FieldsOf<S, ReconstructionConfig> visit_fields(S& s, V& v) {
   v.nested("pnp", s.pnp, "pnp_");
   v.nested("tracker", s.tracker, "tracker_");
   v.nested("surface", s.surface, "surface_");
+  v.nested("occupancy", s.occupancy, "grid_");
 }
 
 // Metadata key long3r_make_random_model writes ("true"): the weights are
@@ -150,6 +154,9 @@ class Reconstruction {
   // The fused surface of the mapped frames (empty unless surface.enabled).
   // Not in sessions yet: after restore() it holds the frames mapped since.
   const SurfaceMap& surface() const { return surface_; }
+  // The 3-D occupancy of the mapped views in W (empty unless
+  // occupancy.enabled); rescaled with the stream, kept in sessions.
+  const OccupancyMap& occupancy() const { return occupancy_; }
   // (stamp, T_W_C) of the frames with a good pose or a given one, in order.
   std::vector<std::pair<double, Eigen::Isometry3d>> trajectory() const { return trajectory_; }
   // Frames pushed in the current stream.
@@ -199,6 +206,7 @@ class Reconstruction {
   std::optional<std::pair<Eigen::Isometry3d, Eigen::Isometry3d>> last_tracked_;
   VoxelMap map_;
   SurfaceMap surface_;
+  OccupancyMap occupancy_;
   std::deque<Pending> pending_;
   std::vector<std::pair<double, Eigen::Isometry3d>> trajectory_;
   std::vector<bool> trajectory_given_;  // per entry: the pose was given to push()

@@ -40,6 +40,7 @@
 #include <Eigen/Geometry>
 #include <opencv2/core/mat.hpp>
 #include <opencv2/core/types.hpp>
+#include <opencv2/features2d.hpp>
 
 #include <array>
 #include <cstdint>
@@ -173,6 +174,7 @@ class KeyframeTracker {
                        const cv::Mat& descriptors) const;
 
   KeyframeTrackerConfig config_;
+  cv::Ptr<cv::ORB> orb_;  // made once: OpenCV's ORB defaults but the FAST threshold (theirs: 20)
   std::optional<Keyframe> keyframe_;
   // The last tracked frame as a keyframe would keep it: the next keyframe
   // when the current one goes out of sight.

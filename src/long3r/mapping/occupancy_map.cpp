@@ -7,6 +7,7 @@
 #include <map>
 #include <sstream>
 #include <stdexcept>
+#include <unordered_map>
 
 namespace long3r {
 
@@ -19,6 +20,13 @@ void OccupancyMapConfig::validate(const config::FieldCheck& check) const {
   check.require(clamp_max > 0.5 && clamp_max < 1.0, "clamp_max", "must be in (0.5, 1)");
   check.require(max_range_m > 0.0 && std::isfinite(max_range_m), "max_range_m",
                 "must be positive and finite");
+  check.require(pixel_step >= 1, "pixel_step", "must be >= 1");
+}
+
+void GridProjectionConfig::validate(const config::FieldCheck& check) const {
+  check.require(std::isfinite(min_height_m), "min_height_m", "must be finite");
+  check.require(max_height_m > min_height_m && std::isfinite(max_height_m), "max_height_m",
+                "must be finite and above min_height_m");
 }
 
 struct OccupancyMap::Impl {
@@ -31,117 +39,237 @@ struct OccupancyMap::Impl {
   }
 };
 
+namespace {
+
+octomap::point3d to_octomap(const Eigen::Vector3d& p) {
+  return {static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z())};
+}
+
+// One view's rays into the tree.
+std::size_t insert_cloud(octomap::OcTree& tree, const octomap::Pointcloud& cloud,
+                         const Eigen::Vector3d& origin, double max_range) {
+  if (cloud.size() == 0) return 0;
+  // discretize: one ray per endpoint voxel, as octomap_server does for dense clouds.
+  tree.insertPointCloud(cloud, to_octomap(origin), max_range, /*lazy_eval=*/false,
+                        /*discretize=*/true);
+  return cloud.size();
+}
+
+}  // namespace
+
 OccupancyMap::OccupancyMap(const OccupancyMapConfig& config) : config_(config) {
   config.validate({"occupancy map config", ""});
   impl_ = std::make_unique<Impl>(config_);
 }
 OccupancyMap::~OccupancyMap() = default;
-OccupancyMap::OccupancyMap(OccupancyMap&&) noexcept = default;
-OccupancyMap& OccupancyMap::operator=(OccupancyMap&&) noexcept = default;
 
-std::size_t OccupancyMap::insert(const std::vector<Eigen::Vector3f>& points_F,
-                                 const Eigen::Vector3d& origin_F) {
-  if (!origin_F.allFinite()) {
+std::size_t OccupancyMap::insert(const std::vector<Eigen::Vector3f>& points_M,
+                                 const Eigen::Vector3d& origin_M) {
+  if (!origin_M.allFinite()) {
     throw std::invalid_argument("OccupancyMap::insert: the camera's position is not finite");
   }
   octomap::Pointcloud cloud;
-  cloud.reserve(points_F.size());
-  for (const Eigen::Vector3f& p : points_F) {
+  cloud.reserve(points_M.size());
+  for (const Eigen::Vector3f& p : points_M) {
     if (p.allFinite()) cloud.push_back(p.x(), p.y(), p.z());
   }
-  if (cloud.size() == 0) return 0;
-  // discretize: one ray per endpoint voxel, as octomap_server's dense clouds.
-  impl_->tree.insertPointCloud(
-      cloud,
-      octomap::point3d(static_cast<float>(origin_F.x()), static_cast<float>(origin_F.y()),
-                       static_cast<float>(origin_F.z())),
-      config_.max_range_m, /*lazy_eval=*/false, /*discretize=*/true);
-  return cloud.size();
+  std::lock_guard<std::mutex> lock(mutex_);
+  const std::size_t n = insert_cloud(impl_->tree, cloud, origin_M, config_.max_range_m);
+  if (n > 0) ++revision_;
+  return n;
 }
 
-OccupancyGrid OccupancyMap::project(const GridBand& band) const {
-  OccupancyGrid g;
-  const octomap::OcTree& tree = impl_->tree;
-  if (tree.size() == 0) return g;
+std::size_t OccupancyMap::insert(const cv::Mat& points_M, const cv::Mat& conf, float conf_threshold,
+                                 const Eigen::Vector3d& origin_M) {
+  if (points_M.type() != CV_32FC3 ||
+      (!conf.empty() && (conf.type() != CV_32FC1 || conf.size() != points_M.size()))) {
+    throw std::invalid_argument(
+        "OccupancyMap::insert: points must be CV_32FC3 and conf CV_32FC1 (or empty) of its size");
+  }
+  if (!origin_M.allFinite()) {
+    throw std::invalid_argument("OccupancyMap::insert: the camera's position is not finite");
+  }
+  octomap::Pointcloud cloud;
+  const int step = config_.pixel_step;
+  for (int v = step / 2; v < points_M.rows; v += step) {
+    const auto* p = points_M.ptr<cv::Vec3f>(v);
+    const auto* c = conf.empty() ? nullptr : conf.ptr<float>(v);
+    for (int u = step / 2; u < points_M.cols; u += step) {
+      if (c != nullptr && !(c[u] >= conf_threshold)) continue;
+      if (std::isfinite(p[u][0]) && std::isfinite(p[u][1]) && std::isfinite(p[u][2])) {
+        cloud.push_back(p[u][0], p[u][1], p[u][2]);
+      }
+    }
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  const std::size_t n = insert_cloud(impl_->tree, cloud, origin_M, config_.max_range_m);
+  if (n > 0) ++revision_;
+  return n;
+}
+
+void OccupancyMap::rescale(double factor) {
+  if (!(factor > 0.0 && std::isfinite(factor))) {
+    throw std::invalid_argument("OccupancyMap::rescale: factor must be positive and finite");
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (factor == 1.0) return;
+  octomap::OcTree& old = impl_->tree;
+  auto fresh = std::make_unique<Impl>(config_);
+  octomap::OcTree& tree = fresh->tree;
   const double res = config_.resolution_m;
-  double x0, y0, z0, x1, y1, z1;
-  tree.getMetricMin(x0, y0, z0);
-  tree.getMetricMax(x1, y1, z1);
-  g.resolution_m = res;
-  g.origin_x_m = std::floor(x0 / res) * res;
-  g.origin_y_m = std::floor(y0 / res) * res;
-  g.width = std::max(1, static_cast<int>(std::ceil((x1 - g.origin_x_m) / res - 1e-9)));
-  g.height = std::max(1, static_cast<int>(std::ceil((y1 - g.origin_y_m) / res - 1e-9)));
-  g.cells.assign(static_cast<std::size_t>(g.width) * g.height, OccupancyGrid::kUnknown);
-  const double z_lo = band.floor_z_m + band.min_height_m, z_hi = band.floor_z_m + band.max_height_m;
-  const octomap::point3d lo(static_cast<float>(x0), static_cast<float>(y0),
-                            static_cast<float>(z_lo));
-  const octomap::point3d hi(static_cast<float>(x1), static_cast<float>(y1),
-                            static_cast<float>(z_hi));
-  for (auto it = tree.begin_leafs_bbx(lo, hi), end = tree.end_leafs_bbx(); it != end; ++it) {
-    const double half = 0.5 * it.getSize();
-    // A leaf only partly inside the band (a pruned one) still speaks for it.
-    if (it.getZ() + half <= z_lo || it.getZ() - half >= z_hi) continue;
-    const bool occ = tree.isNodeOccupied(*it);
-    const int cx0 =
-        std::max(0, static_cast<int>(std::floor((it.getX() - half - g.origin_x_m) / res + 1e-6)));
-    const int cy0 =
-        std::max(0, static_cast<int>(std::floor((it.getY() - half - g.origin_y_m) / res + 1e-6)));
-    const int cx1 = std::min(
-        g.width, static_cast<int>(std::ceil((it.getX() + half - g.origin_x_m) / res - 1e-6)));
-    const int cy1 = std::min(
-        g.height, static_cast<int>(std::ceil((it.getY() + half - g.origin_y_m) / res - 1e-6)));
-    for (int cy = cy0; cy < cy1; ++cy) {
-      for (int cx = cx0; cx < cx1; ++cx) {
-        std::int8_t& c = g.cells[static_cast<std::size_t>(cy) * g.width + cx];
-        if (occ) {
-          c = OccupancyGrid::kOccupied;
-        } else if (c == OccupancyGrid::kUnknown) {
-          c = OccupancyGrid::kFree;
+  // Each new voxel takes the largest log-odds of the old voxels that cover it
+  // (an obstacle is never thinned away by the free space beside it).
+  std::unordered_map<octomap::OcTreeKey, float, octomap::OcTreeKey::KeyHash> value;
+  for (auto it = old.begin_leafs(), end = old.end_leafs(); it != end; ++it) {
+    // Half the extent of the new voxel centres to take: those in the scaled
+    // cube, at least the one holding its centre.
+    const double half = std::max(0.0, 0.5 * it.getSize() * factor - 0.5 * res);
+    const Eigen::Vector3d c = factor * Eigen::Vector3d(it.getX(), it.getY(), it.getZ());
+    const float logodds = it->getLogOdds();
+    octomap::OcTreeKey lo, hi;
+    if (!tree.coordToKeyChecked(to_octomap(c - Eigen::Vector3d::Constant(half)), lo) ||
+        !tree.coordToKeyChecked(to_octomap(c + Eigen::Vector3d::Constant(half)), hi)) {
+      continue;  // beyond OctoMap's range
+    }
+    octomap::OcTreeKey k;
+    for (k[0] = lo[0]; k[0] <= hi[0]; ++k[0]) {
+      for (k[1] = lo[1]; k[1] <= hi[1]; ++k[1]) {
+        for (k[2] = lo[2]; k[2] <= hi[2]; ++k[2]) {
+          const auto [at, inserted] = value.emplace(k, logodds);
+          if (!inserted) at->second = std::max(at->second, logodds);
         }
       }
     }
   }
-  for (std::int8_t c : g.cells) {
-    g.occupied += c == OccupancyGrid::kOccupied ? 1 : 0;
-    g.free += c == OccupancyGrid::kFree ? 1 : 0;
+  for (const auto& [key, logodds] : value) tree.setNodeValue(key, logodds, /*lazy_eval=*/true);
+  tree.updateInnerOccupancy();
+  tree.prune();
+  impl_ = std::move(fresh);
+  ++revision_;
+}
+
+OccupancyGrid OccupancyMap::project(const GridBand& band, const Eigen::Isometry3d& T_F_M) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  OccupancyGrid g;
+  const octomap::OcTree& tree = impl_->tree;
+  if (tree.size() == 0) return g;
+  const double res = config_.resolution_m;
+  const double z_lo = band.floor_z_m + band.min_height_m, z_hi = band.floor_z_m + band.max_height_m;
+  // The voxels in the band, at their centres in F (a pruned leaf as the
+  // voxels it stands for), then the grid that spans them.
+  struct Cell {
+    double x, y;
+    bool occupied;
+  };
+  std::vector<Cell> cells;
+  double x0 = HUGE_VAL, y0 = HUGE_VAL, x1 = -HUGE_VAL, y1 = -HUGE_VAL;
+  for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
+    const bool occ = tree.isNodeOccupied(*it);
+    const double size = it.getSize();
+    const int n = std::max(1, static_cast<int>(std::lround(size / res)));
+    const Eigen::Vector3d corner =
+        Eigen::Vector3d(it.getX(), it.getY(), it.getZ()) - Eigen::Vector3d::Constant(0.5 * size);
+    for (int i = 0; i < n; ++i) {
+      for (int j = 0; j < n; ++j) {
+        for (int k = 0; k < n; ++k) {
+          const Eigen::Vector3d p_F =
+              T_F_M * (corner + res * Eigen::Vector3d(i + 0.5, j + 0.5, k + 0.5));
+          // Free space counts from the floor up (rays that end on the floor
+          // clear the cells before it), obstacles only in the band.
+          if (p_F.z() < (occ ? z_lo : band.floor_z_m) || p_F.z() > z_hi) continue;
+          cells.push_back({p_F.x(), p_F.y(), occ});
+          x0 = std::min(x0, p_F.x());
+          y0 = std::min(y0, p_F.y());
+          x1 = std::max(x1, p_F.x());
+          y1 = std::max(y1, p_F.y());
+        }
+      }
+    }
+  }
+  if (cells.empty()) return g;
+  g.resolution_m = res;
+  g.origin_x_m = std::floor(x0 / res) * res;
+  g.origin_y_m = std::floor(y0 / res) * res;
+  g.width = static_cast<int>(std::floor((x1 - g.origin_x_m) / res)) + 1;
+  g.height = static_cast<int>(std::floor((y1 - g.origin_y_m) / res)) + 1;
+  g.cells.assign(static_cast<std::size_t>(g.width) * g.height, OccupancyGrid::kUnknown);
+  for (const Cell& c : cells) {
+    const int cx =
+        std::clamp(static_cast<int>(std::floor((c.x - g.origin_x_m) / res)), 0, g.width - 1);
+    const int cy =
+        std::clamp(static_cast<int>(std::floor((c.y - g.origin_y_m) / res)), 0, g.height - 1);
+    std::int8_t& v = g.cells[static_cast<std::size_t>(cy) * g.width + cx];
+    if (c.occupied) {
+      v = OccupancyGrid::kOccupied;
+    } else if (v == OccupancyGrid::kUnknown) {
+      v = OccupancyGrid::kFree;
+    }
+  }
+  for (std::int8_t v : g.cells) {
+    g.occupied += v == OccupancyGrid::kOccupied ? 1 : 0;
+    g.free += v == OccupancyGrid::kFree ? 1 : 0;
   }
   return g;
 }
 
-std::optional<double> OccupancyMap::floor_z() const {
+std::optional<double> OccupancyMap::floor_z(const Eigen::Isometry3d& T_F_M) const {
+  std::lock_guard<std::mutex> lock(mutex_);
   const octomap::OcTree& tree = impl_->tree;
   const double res = config_.resolution_m;
-  // Occupied area per voxel layer (a pruned leaf counts for its cells).
-  std::map<long, double> area;
+  // Occupied voxels per layer of F's z (a pruned leaf counts for its voxels).
+  std::map<long, double> count;
   for (auto it = tree.begin_leafs(), end = tree.end_leafs(); it != end; ++it) {
     if (!tree.isNodeOccupied(*it)) continue;
-    const double s = it.getSize();
-    area[static_cast<long>(std::floor((it.getZ() - 0.5 * s) / res + 1e-6))] +=
-        (s / res) * (s / res);
+    const double n = std::pow(it.getSize() / res, 3);
+    const double z = (T_F_M * Eigen::Vector3d(it.getX(), it.getY(), it.getZ())).z();
+    count[static_cast<long>(std::floor(z / res))] += n;
   }
-  if (area.empty()) return std::nullopt;
-  const long lowest = area.begin()->first;
+  if (count.empty()) return std::nullopt;
+  // The lowest layer of the lowest metre that holds a quarter of the most any
+  // layer there holds: the floor, not a table top above a floor seen little,
+  // nor a stray voxel below it.
+  const long lowest = count.begin()->first;
   const long top = lowest + static_cast<long>(std::ceil(1.0 / res));
-  long best = lowest;
-  for (const auto& [layer, a] : area) {
+  double most = 0;
+  for (const auto& [layer, n] : count) {
     if (layer > top) break;
-    if (a > area[best]) best = layer;
+    most = std::max(most, n);
+  }
+  long best = lowest;
+  for (const auto& [layer, n] : count) {
+    if (n >= 0.25 * most) {
+      best = layer;
+      break;
+    }
   }
   return (best + 0.5) * res;
 }
 
-std::optional<bool> OccupancyMap::occupied(const Eigen::Vector3d& p_F) const {
-  const octomap::OcTreeNode* n = impl_->tree.search(p_F.x(), p_F.y(), p_F.z());
+std::optional<bool> OccupancyMap::occupied(const Eigen::Vector3d& p_M) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const octomap::OcTreeNode* n = impl_->tree.search(p_M.x(), p_M.y(), p_M.z());
   if (n == nullptr) return std::nullopt;
   return impl_->tree.isNodeOccupied(n);
 }
 
-std::size_t OccupancyMap::voxels() const { return impl_->tree.getNumLeafNodes(); }
+std::size_t OccupancyMap::voxels() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return impl_->tree.getNumLeafNodes();
+}
 
-void OccupancyMap::clear() { impl_->tree.clear(); }
+std::uint64_t OccupancyMap::revision() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return revision_;
+}
+
+void OccupancyMap::clear() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  impl_->tree.clear();
+  ++revision_;
+}
 
 std::string OccupancyMap::write() const {
+  std::lock_guard<std::mutex> lock(mutex_);
   std::ostringstream out;
   if (!impl_->tree.write(out)) throw std::runtime_error("OccupancyMap::write: OctoMap failed");
   return out.str();
@@ -159,7 +287,9 @@ void OccupancyMap::read(const std::string& bytes) {
                              std::to_string(tree->getResolution()) + " m, this map's " +
                              std::to_string(config_.resolution_m) + " m");
   }
+  std::lock_guard<std::mutex> lock(mutex_);
   impl_->tree.swapContent(*tree);
+  ++revision_;
 }
 
 }  // namespace long3r

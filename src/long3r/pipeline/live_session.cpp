@@ -217,6 +217,11 @@ cv::Mat LiveSession::calibrate(const LiveFrame& frame) {
 void LiveSession::reset(const std::string& why) {
   monitor_.reset();
   ended_maps_.clear();
+  {
+    std::lock_guard<std::mutex> lock(ended_occupancy_mutex_);
+    ended_occupancy_.clear();
+    ++ended_occupancy_revision_;
+  }
   new_stream(why, /*keep_map=*/false);
 }
 
@@ -253,6 +258,13 @@ void LiveSession::keep_ended_map() {
   if (recon_.map().empty()) return;
   const std::optional<Eigen::Isometry3d> T_map_W = client_.T_map_W();
   if (!T_map_W) return;
+  if (recon_.config().occupancy.enabled && recon_.occupancy().voxels() > 0) {
+    auto kept = std::make_shared<OccupancyMap>(recon_.config().occupancy);
+    kept->read(recon_.occupancy().write());
+    std::lock_guard<std::mutex> lock(ended_occupancy_mutex_);
+    ended_occupancy_.emplace_back(std::move(kept), *T_map_W);
+    ++ended_occupancy_revision_;
+  }
   const MapSnapshot snap = snapshot_in(recon_.map(), *T_map_W);
   ended_maps_.integrate(snap.points, snap.colors,
                         static_cast<std::int64_t>(ended_maps_.revision()));
@@ -285,6 +297,43 @@ ColoredMesh LiveSession::surface_mesh(const Eigen::Isometry3d& T_map_W) const {
 }
 
 std::uint64_t LiveSession::surface_revision() const { return recon_.surface().revision(); }
+
+LiveSession::GridProjection LiveSession::occupancy_grid(const Eigen::Isometry3d& T_map_W,
+                                                        const GridProjectionConfig& config) const {
+  std::lock_guard<std::mutex> lock(ended_occupancy_mutex_);
+  // Every stream's occupancy with where it sits in the map frame.
+  std::vector<std::pair<const OccupancyMap*, Eigen::Isometry3d>> maps{
+      {&recon_.occupancy(), T_map_W}};
+  for (const auto& [occupancy, T_map_W_ended] : ended_occupancy_) {
+    maps.emplace_back(occupancy.get(), T_map_W_ended);
+  }
+  GridProjection p;
+  // The floor of the current stream, else of the latest ended one that has one.
+  if (config.floor == GridFloor::kFit) {
+    for (std::size_t k = 0; k < maps.size(); ++k) {
+      const auto& [occupancy, T] = maps[k == 0 ? 0 : maps.size() - k];
+      if (const std::optional<double> floor = occupancy->floor_z(T)) {
+        p.floor_z_m = *floor;
+        p.floor_fitted = true;
+        break;
+      }
+    }
+  }
+  GridBand band;
+  band.floor_z_m = p.floor_z_m;
+  band.min_height_m = config.min_height_m;
+  band.max_height_m = config.max_height_m;
+  std::vector<OccupancyGrid> grids;
+  for (const auto& [occupancy, T] : maps) grids.push_back(occupancy->project(band, T));
+  p.grid = grids.size() == 1 ? std::move(grids.front()) : merge_grids(grids);
+  return p;
+}
+
+// Both revisions only grow: their sum changes whenever either does.
+std::uint64_t LiveSession::occupancy_revision() const {
+  std::lock_guard<std::mutex> lock(ended_occupancy_mutex_);
+  return recon_.occupancy().revision() + ended_occupancy_revision_;
+}
 
 void LiveSession::start_stream_scale() {
   scale_policy_.reset();

@@ -87,7 +87,8 @@ Reconstruction::Reconstruction(std::unique_ptr<StreamingModel> model,
       tracker_(config_.pnp),
       keyframes_(config_.tracker),
       map_(config_.map),
-      surface_(config_.surface) {
+      surface_(config_.surface),
+      occupancy_(config_.occupancy) {
   if (!model_) throw std::invalid_argument("Reconstruction: null model");
   // A landscape-only Spann3R returns portrait maps transposed on a scrambled
   // token grid (as the official model does); refuse rather than mislead.
@@ -122,6 +123,7 @@ void Reconstruction::reset() {
   last_tracked_.reset();
   map_.clear();
   surface_.clear();
+  occupancy_.clear();
   trajectory_.clear();
   trajectory_given_.clear();
   frames_pushed_ = 0;
@@ -138,6 +140,7 @@ void Reconstruction::set_scale(double scale) {
   if (factor == 1.0) return;
   map_.rescale(factor);
   surface_.rescale(factor);
+  occupancy_.rescale(factor);
   // Given poses are the caller's (odometry: metres), not the model's.
   for (std::size_t i = 0; i < trajectory_.size(); ++i) {
     if (!trajectory_given_[i]) trajectory_[i].second.translation() *= factor;
@@ -251,6 +254,7 @@ StateDict Reconstruction::state() const {
   out["trajectory.given"] = given;
 
   put_state(out, "map.", map_.state());
+  if (config_.occupancy.enabled) out["occupancy.ot"] = bytes_tensor(occupancy_.write());
   put_state(out, "model.", model_->stream_state());
   return out;
 }
@@ -314,6 +318,16 @@ void Reconstruction::restore(const StateDict& state) {
   }
   // The model and the map validate their own parts; the model's is undone
   // if the map then refuses its part.
+  // The occupancy, where the session has one (sessions saved before it, or
+  // with it off, have none: it starts empty), is read before anything changes.
+  OccupancyMap occupancy(config_.occupancy);
+  if (config_.occupancy.enabled && r.has("occupancy.ot")) {
+    try {
+      occupancy.read(r.bytes("occupancy.ot"));
+    } catch (const std::runtime_error& e) {
+      r.fail("occupancy.ot", e.what());
+    }
+  }
   const StateDict previous = model_->stream_state();
   model_->restore_stream_state(model_state);
   try {
@@ -322,6 +336,8 @@ void Reconstruction::restore(const StateDict& state) {
     model_->restore_stream_state(previous);
     throw;
   }
+  occupancy_.clear();
+  if (occupancy.voxels() > 0) occupancy_.read(occupancy.write());
   pending_.clear();
   frames_pushed_ = frames;
   source_width_ = width;
@@ -355,10 +371,27 @@ std::optional<FrameResult> Reconstruction::push(const cv::Mat& image, const std:
   p.stamp = stamp_s;
   p.T_W_C = T_W_C;
   if (config_.pose_method == PoseMethod::kKeyframes) {
-    if (enc == ImageEncoding::kMono8) {
-      p.gray = image.clone();
-    } else {
-      cv::cvtColor(to_rgb8(image, enc, config_.preprocess.mono16), p.gray, cv::COLOR_RGB2GRAY);
+    // Straight from the source encoding (the same weights as through RGB).
+    switch (enc) {
+      case ImageEncoding::kMono8:
+        p.gray = image.clone();
+        break;
+      case ImageEncoding::kRgb8:
+        cv::cvtColor(image, p.gray, cv::COLOR_RGB2GRAY);
+        break;
+      case ImageEncoding::kBgr8:
+        cv::cvtColor(image, p.gray, cv::COLOR_BGR2GRAY);
+        break;
+      case ImageEncoding::kRgba8:
+        cv::cvtColor(image, p.gray, cv::COLOR_RGBA2GRAY);
+        break;
+      case ImageEncoding::kBgra8:
+        cv::cvtColor(image, p.gray, cv::COLOR_BGRA2GRAY);
+        break;
+      case ImageEncoding::kMono16:  // scaled to 8 bits as the model's input is
+        p.gray = to_rgb8(image, enc, config_.preprocess.mono16);
+        cv::cvtColor(p.gray, p.gray, cv::COLOR_RGB2GRAY);
+        break;
     }
   }
   const int h = p.image.height, w = p.image.width;
@@ -499,6 +532,9 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
     map_.integrate(r.points_W, r.conf, r.rgb, r.frame_index);
     surface_.integrate(r.points_C, r.rgb, r.conf, config_.map.conf_threshold, r.intrinsics,
                        r.pose.T_W_C);
+    if (config_.occupancy.enabled) {
+      occupancy_.insert(r.points_W, r.conf, config_.map.conf_threshold, r.pose.T_W_C.translation());
+    }
     r.added_to_map = true;
   }
   if (r.posed()) {

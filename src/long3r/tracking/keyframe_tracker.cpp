@@ -123,6 +123,8 @@ const char* to_string(TrackStatus status) {
 
 KeyframeTracker::KeyframeTracker(const KeyframeTrackerConfig& config) : config_(config) {
   config_.validate({"tracker config", ""});
+  orb_ = cv::ORB::create(config_.max_features, 1.2f, 8, 31, 0, 2, cv::ORB::HARRIS_SCORE, 31,
+                         config_.fast_threshold);
 }
 
 void KeyframeTracker::reset() {
@@ -182,10 +184,7 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
   r.scale = last_scale_;  // unless this frame measures its own
   std::vector<cv::KeyPoint> keypoints;
   cv::Mat descriptors;
-  // OpenCV's ORB defaults but the FAST threshold (theirs: 20).
-  cv::ORB::create(config_.max_features, 1.2f, 8, 31, 0, 2, cv::ORB::HARRIS_SCORE, 31,
-                  config_.fast_threshold)
-      ->detectAndCompute(frame.gray, cv::noArray(), keypoints, descriptors);
+  orb_->detectAndCompute(frame.gray, cv::noArray(), keypoints, descriptors);
   r.features = static_cast<int>(keypoints.size());
   std::ostringstream why;
   if (r.features < config_.min_matches) {

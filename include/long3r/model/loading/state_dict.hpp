@@ -32,6 +32,9 @@ void put_real(StateDict& state, const std::string& key, double value);
 void put_state(StateDict& state, const std::string& prefix, const StateDict& part);
 StateDict sub_state(const StateDict& state, const std::string& prefix);
 
+// A blob as a 1-D uint8 tensor, for StateReader::bytes().
+at::Tensor bytes_tensor(const std::string& bytes);
+
 class StateReader {
  public:
   // `what` names the state in messages ("session model state").
@@ -50,6 +53,9 @@ class StateReader {
                       bool finite = true) const;
   // An int64 tensor of the given shape (-1: any size).
   at::Tensor int64(const std::string& key, std::initializer_list<int64_t> shape) const;
+  // The bytes of a 1-D uint8 tensor (a blob another library wrote: an
+  // OctoMap file), as bytes_tensor() stored them.
+  std::string bytes(const std::string& key) const;
 
   [[noreturn]] void fail(const std::string& key, const std::string& problem) const;
 

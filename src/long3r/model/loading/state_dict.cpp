@@ -1,6 +1,8 @@
 // Saved component states; see include/long3r/model/loading/state_dict.hpp.
 #include "long3r/model/loading/state_dict.hpp"
 
+#include <cstring>
+
 #include <ATen/ATen.h>
 
 #include <cmath>
@@ -105,6 +107,23 @@ at::Tensor StateReader::floating(const std::string& key, std::initializer_list<i
 
 at::Tensor StateReader::int64(const std::string& key, std::initializer_list<int64_t> shape) const {
   return shaped(key, shape, false, false);
+}
+
+std::string StateReader::bytes(const std::string& key) const {
+  const at::Tensor& t = get(key);
+  if (t.scalar_type() != at::kByte || t.dim() != 1) {
+    fail(key, "expected a 1-D uint8 tensor, found " + std::string(c10::toString(t.scalar_type())) +
+                  " of shape " + c10::str(t.sizes()));
+  }
+  const at::Tensor c = t.contiguous();
+  return std::string(reinterpret_cast<const char*>(c.data_ptr<std::uint8_t>()),
+                     static_cast<std::size_t>(c.numel()));
+}
+
+at::Tensor bytes_tensor(const std::string& bytes) {
+  at::Tensor t = at::empty({static_cast<int64_t>(bytes.size())}, at::kByte);
+  if (!bytes.empty()) std::memcpy(t.data_ptr<std::uint8_t>(), bytes.data(), bytes.size());
+  return t;
 }
 
 }  // namespace long3r
