@@ -14,15 +14,12 @@
 #include "long3r/dataset/image_file.hpp"
 #include "long3r/dataset/tum_dataset.hpp"
 #include "long3r/eval/eval.hpp"
+#include "long3r/eval/eval_json.hpp"
 #include "long3r/geometry/cv/point_cloud_io.hpp"
 #include "long3r/io/atomic_file.hpp"
 
 namespace {
 
-nlohmann::json stats_json(const long3r::ErrorStatistics& s) {
-  return {{"rmse", s.rmse}, {"mean", s.mean}, {"median", s.median}, {"std", s.std},
-          {"min", s.min},   {"max", s.max},   {"sse", s.sse},       {"count", s.count}};
-}
 nlohmann::json sim3_json(const long3r::Sim3& s) {
   nlohmann::json r = nlohmann::json::array();
   for (int i = 0; i < 3; ++i) r.push_back({s.rotation(i, 0), s.rotation(i, 1), s.rotation(i, 2)});
@@ -120,11 +117,11 @@ int main(int argc, char** argv) {
           {"alignment",
            topt.align ? (topt.correct_scale ? "sim3_umeyama" : "se3_umeyama") : "none"},
           {"sim3", sim3_json(tm->alignment)},
-          {"ate_m", stats_json(tm->ate)},
+          {"ate_m", tm->ate},
           {"rpe_delta_frames", topt.rpe_delta},
           {"rpe_pairs", topt.rpe_all_pairs ? "all" : "consecutive"},
-          {"rpe_translation_m", stats_json(tm->rpe_translation)},
-          {"rpe_rotation_deg", stats_json(tm->rpe_rotation_deg)}};
+          {"rpe_translation_m", tm->rpe_translation},
+          {"rpe_rotation_deg", tm->rpe_rotation_deg}};
       std::printf("%-28s %12zu\n", "poses matched", tm->matched);
       std::printf("%-28s %12.6f\n", "alignment scale", tm->alignment.scale);
       std::printf("%-28s %12.4f\n", "ATE RMSE [cm]", 100.0 * tm->ate.rmse);

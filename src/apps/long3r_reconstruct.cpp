@@ -47,6 +47,7 @@
 
 #include "long3r/config/cli_options.hpp"
 #include "long3r/dataset/tum_dataset.hpp"
+#include "long3r/eval/eval_json.hpp"
 #include "long3r/eval/fusion_bound.hpp"
 #include "long3r/geometry/cv/point_cloud_io.hpp"
 #include "long3r/io/atomic_file.hpp"
@@ -127,7 +128,7 @@ class Client : public LiveSessionClient {
                         "frame " + std::to_string(i) + " has no --poses pose near its stamp");
     }
     if (!T_ref_W_) T_ref_W_ = *src_.poses[i];
-    return T_ref_W_->inverse() * *src_.poses[i];
+    return given_pose(i);
   }
   void on_new_stream(const std::string& why) override {
     (void)why;
@@ -479,18 +480,14 @@ int main(int argc, char** argv) {
       save_point_cloud((fs::path(out_dir) / "averaged_rescaled.ply").string(),
                        bound.averaged_points(true));
       const FusionBoundSummary b = bound.summary();
-      auto stats = [](const ErrorStatistics& e) {
-        return nlohmann::json{{"mean", e.mean}, {"median", e.median}, {"rmse", e.rmse},
-                              {"std", e.std},   {"max", e.max},       {"count", e.count}};
-      };
       const nlohmann::json j{{"frames", b.frames},
                              {"pairs", b.pairs},
                              {"voxel_size_m", cfg.map.voxel_size_m},
                              {"voxels", b.voxels},
                              {"mean_views", b.mean_views},
-                             {"single_view_error_m", stats(b.single_view_m)},
-                             {"averaged_error_m", stats(b.averaged_m)},
-                             {"averaged_rescaled_error_m", stats(b.averaged_rescaled_m)},
+                             {"single_view_error_m", b.single_view_m},
+                             {"averaged_error_m", b.averaged_m},
+                             {"averaged_rescaled_error_m", b.averaged_rescaled_m},
                              {"depth_ratio_median", b.depth_ratio_median},
                              {"depth_ratio_mad", b.depth_ratio_mad},
                              {"depth_ratio", b.depth_ratio}};

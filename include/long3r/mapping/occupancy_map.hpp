@@ -31,6 +31,10 @@
 #include "long3r/config/config_fields.hpp"
 #include "long3r/mapping/occupancy_grid.hpp"
 
+namespace octomap {
+class Pointcloud;
+}  // namespace octomap
+
 namespace long3r {
 
 struct OccupancyMapConfig {
@@ -146,6 +150,12 @@ class OccupancyMap {
   void clear();
   const OccupancyMapConfig& config() const { return config_; }
 
+  // A copy of the map, to be kept apart (an ended stream's).
+  std::unique_ptr<OccupancyMap> clone() const;
+  // Exchanges the two maps, voxels and config (a restored session's map
+  // takes the running one's place).
+  void swap(OccupancyMap& other);
+
   // OctoMap's full-probability file (.ot) as bytes, for sessions; read()
   // takes those bytes (of a map of the same resolution). Throws
   // std::runtime_error naming the problem; the map is unchanged then.
@@ -154,6 +164,9 @@ class OccupancyMap {
 
  private:
   struct Impl;
+  // One view's rays (endpoints in M) from origin_M; the one insertion path.
+  std::size_t insert_rays(const octomap::Pointcloud& cloud, const Eigen::Vector3d& origin_M);
+
   OccupancyMapConfig config_;
   mutable std::mutex mutex_;
   std::unique_ptr<Impl> impl_;

@@ -45,16 +45,6 @@ octomap::point3d to_octomap(const Eigen::Vector3d& p) {
   return {static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z())};
 }
 
-// One view's rays into the tree.
-std::size_t insert_cloud(octomap::OcTree& tree, const octomap::Pointcloud& cloud,
-                         const Eigen::Vector3d& origin, double max_range) {
-  if (cloud.size() == 0) return 0;
-  // discretize: one ray per endpoint voxel, as octomap_server does for dense clouds.
-  tree.insertPointCloud(cloud, to_octomap(origin), max_range, /*lazy_eval=*/false,
-                        /*discretize=*/true);
-  return cloud.size();
-}
-
 }  // namespace
 
 OccupancyMap::OccupancyMap(const OccupancyMapConfig& config) : config_(config) {
@@ -65,18 +55,12 @@ OccupancyMap::~OccupancyMap() = default;
 
 std::size_t OccupancyMap::insert(const std::vector<Eigen::Vector3f>& points_M,
                                  const Eigen::Vector3d& origin_M) {
-  if (!origin_M.allFinite()) {
-    throw std::invalid_argument("OccupancyMap::insert: the camera's position is not finite");
-  }
   octomap::Pointcloud cloud;
   cloud.reserve(points_M.size());
   for (const Eigen::Vector3f& p : points_M) {
     if (p.allFinite()) cloud.push_back(p.x(), p.y(), p.z());
   }
-  std::lock_guard<std::mutex> lock(mutex_);
-  const std::size_t n = insert_cloud(impl_->tree, cloud, origin_M, config_.max_range_m);
-  if (n > 0) ++revision_;
-  return n;
+  return insert_rays(cloud, origin_M);
 }
 
 std::size_t OccupancyMap::insert(const cv::Mat& points_M, const cv::Mat& conf, float conf_threshold,
@@ -85,9 +69,6 @@ std::size_t OccupancyMap::insert(const cv::Mat& points_M, const cv::Mat& conf, f
       (!conf.empty() && (conf.type() != CV_32FC1 || conf.size() != points_M.size()))) {
     throw std::invalid_argument(
         "OccupancyMap::insert: points must be CV_32FC3 and conf CV_32FC1 (or empty) of its size");
-  }
-  if (!origin_M.allFinite()) {
-    throw std::invalid_argument("OccupancyMap::insert: the camera's position is not finite");
   }
   octomap::Pointcloud cloud;
   const int step = config_.pixel_step;
@@ -101,10 +82,37 @@ std::size_t OccupancyMap::insert(const cv::Mat& points_M, const cv::Mat& conf, f
       }
     }
   }
+  return insert_rays(cloud, origin_M);
+}
+
+std::size_t OccupancyMap::insert_rays(const octomap::Pointcloud& cloud,
+                                      const Eigen::Vector3d& origin_M) {
+  if (!origin_M.allFinite()) {
+    throw std::invalid_argument("OccupancyMap::insert: the camera's position is not finite");
+  }
+  if (cloud.size() == 0) return 0;
   std::lock_guard<std::mutex> lock(mutex_);
-  const std::size_t n = insert_cloud(impl_->tree, cloud, origin_M, config_.max_range_m);
-  if (n > 0) ++revision_;
-  return n;
+  // discretize: one ray per endpoint voxel, as octomap_server does for dense clouds.
+  impl_->tree.insertPointCloud(cloud, to_octomap(origin_M), config_.max_range_m,
+                               /*lazy_eval=*/false, /*discretize=*/true);
+  ++revision_;
+  return cloud.size();
+}
+
+std::unique_ptr<OccupancyMap> OccupancyMap::clone() const {
+  auto copy = std::make_unique<OccupancyMap>(config_);
+  std::lock_guard<std::mutex> lock(mutex_);
+  copy->impl_ = std::make_unique<Impl>(*impl_);
+  return copy;
+}
+
+void OccupancyMap::swap(OccupancyMap& other) {
+  if (&other == this) return;
+  std::scoped_lock lock(mutex_, other.mutex_);
+  std::swap(impl_, other.impl_);
+  std::swap(config_, other.config_);
+  ++revision_;
+  ++other.revision_;
 }
 
 void OccupancyMap::rescale(double factor) {

@@ -158,8 +158,7 @@ std::size_t TsdfVolume::integrate_depth(const cv::Mat& depth_m, const cv::Mat& r
                                         const Eigen::Isometry3d& T_W_C) {
   if (depth_m.type() != CV_32FC1 || rgb.type() != CV_8UC3 || rgb.size() != depth_m.size()) {
     throw std::invalid_argument(
-        "TsdfVolume::integrate: points_C must be CV_32FC3, rgb CV_8UC3 and conf CV_32FC1 (or "
-        "empty), all of one size (a depth image CV_32FC1)");
+        "TsdfVolume::integrate_depth: the depth must be CV_32FC1 and rgb CV_8UC3 of its size");
   }
   if (!(K.fx > 0 && K.fy > 0 && std::isfinite(K.cx) && std::isfinite(K.cy))) {
     throw std::invalid_argument("TsdfVolume::integrate: intrinsics without a focal length");

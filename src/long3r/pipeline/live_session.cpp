@@ -259,8 +259,7 @@ void LiveSession::keep_ended_map() {
   const std::optional<Eigen::Isometry3d> T_map_W = client_.T_map_W();
   if (!T_map_W) return;
   if (recon_.config().occupancy.enabled && recon_.occupancy().voxels() > 0) {
-    auto kept = std::make_shared<OccupancyMap>(recon_.config().occupancy);
-    kept->read(recon_.occupancy().write());
+    std::shared_ptr<const OccupancyMap> kept = recon_.occupancy().clone();
     std::lock_guard<std::mutex> lock(ended_occupancy_mutex_);
     ended_occupancy_.emplace_back(std::move(kept), *T_map_W);
     ++ended_occupancy_revision_;

@@ -336,8 +336,7 @@ void Reconstruction::restore(const StateDict& state) {
     model_->restore_stream_state(previous);
     throw;
   }
-  occupancy_.clear();
-  if (occupancy.voxels() > 0) occupancy_.read(occupancy.write());
+  occupancy_.swap(occupancy);
   pending_.clear();
   frames_pushed_ = frames;
   source_width_ = width;
