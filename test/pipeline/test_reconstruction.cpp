@@ -204,7 +204,18 @@ TEST(Reconstruction, KeepsTheOccupancyOfTheMappedViews) {
   without.erase("occupancy.ot");
   other.restore(without);
   EXPECT_EQ(other.occupancy().voxels(), 0u);
-  // A damaged one is refused by name, and nothing changes.
+  // A damaged one is refused by name, and nothing changes: a byte changed
+  // (its check sum no longer matches, so OctoMap never parses it) ...
+  StateDict flipped = saved;
+  flipped["occupancy.ot"] = saved.at("occupancy.ot").clone();
+  flipped["occupancy.ot"].data_ptr<std::uint8_t>()[20] ^= 0x10;
+  try {
+    other.restore(flipped);
+    ADD_FAILURE() << "a damaged occupancy was restored";
+  } catch (const StateError& e) {
+    EXPECT_NE(std::string(e.what()).find("check sum"), std::string::npos) << e.what();
+  }
+  // ... or whole bytes that are no OctoMap file.
   StateDict damaged = saved;
   damaged["occupancy.ot"] = bytes_tensor("not an octree");
   EXPECT_THROW(other.restore(damaged), StateError);

@@ -32,7 +32,10 @@ void put_real(StateDict& state, const std::string& key, double value);
 void put_state(StateDict& state, const std::string& prefix, const StateDict& part);
 StateDict sub_state(const StateDict& state, const std::string& prefix);
 
-// A blob as a 1-D uint8 tensor, for StateReader::bytes().
+// A blob as a 1-D uint8 tensor, for StateReader::bytes(): its FNV-1a (8
+// bytes, little endian) and then its bytes. The check sum lets the reader
+// refuse a damaged blob before the library that wrote it parses it (which
+// may not be safe against damage: OctoMap's reader is not).
 at::Tensor bytes_tensor(const std::string& bytes);
 
 class StateReader {
@@ -54,7 +57,8 @@ class StateReader {
   // An int64 tensor of the given shape (-1: any size).
   at::Tensor int64(const std::string& key, std::initializer_list<int64_t> shape) const;
   // The bytes of a 1-D uint8 tensor (a blob another library wrote: an
-  // OctoMap file), as bytes_tensor() stored them.
+  // OctoMap file), as bytes_tensor() stored them; a blob whose check sum does
+  // not match is refused (StateError naming the key).
   std::string bytes(const std::string& key) const;
 
   [[noreturn]] void fail(const std::string& key, const std::string& problem) const;

@@ -1,6 +1,8 @@
 // Saved component states; see include/long3r/model/loading/state_dict.hpp.
 #include "long3r/model/loading/state_dict.hpp"
 
+#include "long3r/io/fnv1a.hpp"
+
 #include <cstring>
 
 #include <ATen/ATen.h>
@@ -109,6 +111,18 @@ at::Tensor StateReader::int64(const std::string& key, std::initializer_list<int6
   return shaped(key, shape, false, false);
 }
 
+namespace {
+
+constexpr std::size_t kBlobSumBytes = 8;
+
+std::uint64_t blob_sum(const char* data, std::size_t n) {
+  Fnv1a f;
+  f.add(data, n);
+  return f.h;
+}
+
+}  // namespace
+
 std::string StateReader::bytes(const std::string& key) const {
   const at::Tensor& t = get(key);
   if (t.scalar_type() != at::kByte || t.dim() != 1) {
@@ -116,13 +130,25 @@ std::string StateReader::bytes(const std::string& key) const {
                   " of shape " + c10::str(t.sizes()));
   }
   const at::Tensor c = t.contiguous();
-  return std::string(reinterpret_cast<const char*>(c.data_ptr<std::uint8_t>()),
-                     static_cast<std::size_t>(c.numel()));
+  const auto* p = reinterpret_cast<const char*>(c.data_ptr<std::uint8_t>());
+  const auto n = static_cast<std::size_t>(c.numel());
+  if (n < kBlobSumBytes) fail(key, "too short for its check sum (damaged)");
+  std::uint64_t stored = 0;
+  for (std::size_t i = 0; i < kBlobSumBytes; ++i) {
+    stored |= static_cast<std::uint64_t>(static_cast<unsigned char>(p[i])) << (8 * i);
+  }
+  if (blob_sum(p + kBlobSumBytes, n - kBlobSumBytes) != stored) {
+    fail(key, "its check sum does not match its bytes (damaged)");
+  }
+  return std::string(p + kBlobSumBytes, n - kBlobSumBytes);
 }
 
 at::Tensor bytes_tensor(const std::string& bytes) {
-  at::Tensor t = at::empty({static_cast<int64_t>(bytes.size())}, at::kByte);
-  if (!bytes.empty()) std::memcpy(t.data_ptr<std::uint8_t>(), bytes.data(), bytes.size());
+  at::Tensor t = at::empty({static_cast<int64_t>(kBlobSumBytes + bytes.size())}, at::kByte);
+  auto* p = t.data_ptr<std::uint8_t>();
+  const std::uint64_t sum = blob_sum(bytes.data(), bytes.size());
+  for (std::size_t i = 0; i < kBlobSumBytes; ++i) p[i] = static_cast<std::uint8_t>(sum >> (8 * i));
+  if (!bytes.empty()) std::memcpy(p + kBlobSumBytes, bytes.data(), bytes.size());
   return t;
 }
 
