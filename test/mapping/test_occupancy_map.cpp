@@ -6,7 +6,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <set>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -264,6 +266,58 @@ TEST(OccupancyMap, RoundTripsThroughOctoMapsFile) {
   EXPECT_EQ(map.voxels(), 0u);
   EXPECT_EQ(map.project(band).width, 0);
   EXPECT_FALSE(map.floor_z().has_value());
+}
+
+// OctoMap's own reader trusts its input (children bits past the end of the
+// bytes make it recurse and allocate without bound), so crafted files are
+// refused before it reads them, each by what is wrong, the map unchanged.
+TEST(OccupancyMap, CraftedFilesAreRefusedBeforeOctoMapReadsThem) {
+  OccupancyMap map;
+  std::vector<Eigen::Vector3f> points;
+  for (int i = 0; i < 20; ++i) points.emplace_back(1.0f, 0.05f * i, 0.2f);
+  map.insert(points, Eigen::Vector3d::Zero());
+  const std::string bytes = map.write();
+  const std::size_t data = bytes.find("\ndata\n") + 6;
+  ASSERT_NE(data, std::string::npos + 6);
+  const std::string header = bytes.substr(0, data), nodes = bytes.substr(data);
+  const std::size_t voxels = map.voxels();
+  auto node = [](float log_odds, unsigned char children) {
+    std::string n(sizeof(float), '\0');
+    std::memcpy(n.data(), &log_odds, sizeof(float));
+    return n + static_cast<char>(children);
+  };
+  auto with_size = [&](std::size_t n) {
+    const std::size_t at = header.find("size ");
+    const std::size_t end = header.find('\n', at);
+    return header.substr(0, at) + "size " + std::to_string(n) + header.substr(end);
+  };
+  auto refused = [&](const std::string& file, const std::string& why) {
+    test::expect_throw_naming([&] { map.read(file); }, why);
+    EXPECT_EQ(map.voxels(), voxels);
+  };
+  // A root claiming eight children, and nothing after it.
+  refused(with_size(1) + node(0.0f, 0xff), "more nodes than");
+  refused(with_size(9) + node(0.0f, 0xff), "cannot hold");
+  // A chain of single children deeper than the tree's 16 levels.
+  std::string chain;
+  for (int d = 0; d <= 17; ++d) chain += node(0.0f, d < 17 ? 1 : 0);
+  refused(with_size(18) + chain, "last level");
+  // Values that are no log-odds, counts that do not match, bytes left over.
+  refused(with_size(1) + node(std::nanf(""), 0), "not finite");
+  refused(with_size(2) + node(0.0f, 0) + node(0.0f, 0), "fewer nodes");
+  refused(bytes + "x", "after its last node");
+  refused(header.substr(0, header.find("id ")) + "id ColorOcTree\n" +
+              header.substr(header.find("size ")) + nodes,
+          "ColorOcTree");
+  refused("# Octomap OcTree file\nid OcTree\nres 0.05\n", "does not end");
+  refused("# Octomap OcTree file\nid OcTree\nres 0.05\ndata\n", "lacks");
+  // The true file still reads, and an empty map round-trips.
+  OccupancyMap copy;
+  copy.read(bytes);
+  EXPECT_EQ(copy.voxels(), voxels);
+  OccupancyMap empty, empty_copy;
+  empty_copy.read(empty.write());
+  EXPECT_EQ(empty_copy.voxels(), 0u);
 }
 
 }  // namespace

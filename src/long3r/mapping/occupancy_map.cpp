@@ -4,10 +4,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <map>
 #include <sstream>
 #include <stdexcept>
 #include <unordered_map>
+#include <vector>
 
 namespace long3r {
 
@@ -283,20 +285,116 @@ std::string OccupancyMap::write() const {
   return out.str();
 }
 
-void OccupancyMap::read(const std::string& bytes) {
-  std::istringstream in(bytes);
-  std::unique_ptr<octomap::AbstractOcTree> read(octomap::AbstractOcTree::read(in));
-  auto* tree = dynamic_cast<octomap::OcTree*>(read.get());
-  if (tree == nullptr) {
-    throw std::runtime_error("OccupancyMap::read: not an OctoMap OcTree file (.ot)");
+namespace {
+
+// OctoMap's .ot reader trusts its input: the children bits of a damaged or
+// crafted file make it recurse without bound and allocate without limit. So
+// the file is read here first: the header as write() makes it, then every
+// node (a float log-odds and a byte of children bits) walked within the
+// bytes and the tree's 16 levels, all finite, as many as the header says,
+// nothing left over. Only then does OctoMap read the nodes.
+constexpr int kOcTreeDepth = 16;
+constexpr std::size_t kNodeBytes = sizeof(float) + 1;
+
+struct OtFile {
+  double resolution_m = 0.0;
+  std::size_t nodes = 0;
+  std::size_t data_offset = 0;  // where the nodes start
+};
+
+[[noreturn]] void refuse(const std::string& problem) {
+  throw std::runtime_error("OccupancyMap::read: not an OctoMap OcTree file (.ot): " + problem);
+}
+
+OtFile read_ot_header(const std::string& bytes) {
+  std::size_t pos = 0;
+  auto next_line = [&](std::string& line) {
+    const std::size_t end = bytes.find('\n', pos);
+    if (end == std::string::npos || end - pos > 256) refuse("its header does not end");
+    line.assign(bytes, pos, end - pos);
+    pos = end + 1;
+  };
+  std::string line;
+  next_line(line);
+  if (line.rfind("# Octomap OcTree file", 0) != 0) refuse("the first line is not OctoMap's");
+  OtFile f;
+  bool id = false, size = false, res = false;
+  for (;;) {
+    next_line(line);
+    if (!line.empty() && line[0] == '#') continue;
+    std::istringstream words(line);
+    std::string key, rest;
+    words >> key;
+    if (key == "data") break;
+    if (key == "id") {
+      words >> rest;
+      if (rest != "OcTree") refuse("a tree of kind '" + rest + "', not an OcTree");
+      id = true;
+    } else if (key == "size") {
+      long long n = -1;
+      if (!(words >> n) || n < 0) refuse("no node count");
+      f.nodes = static_cast<std::size_t>(n);
+      size = true;
+    } else if (key == "res") {
+      if (!(words >> f.resolution_m) || !(f.resolution_m > 0.0) || !std::isfinite(f.resolution_m)) {
+        refuse("no positive resolution");
+      }
+      res = true;
+    } else {
+      refuse("an unknown header line '" + line + "'");
+    }
   }
-  if (std::abs(tree->getResolution() - config_.resolution_m) > 1e-9) {
-    throw std::runtime_error("OccupancyMap::read: resolution " +
-                             std::to_string(tree->getResolution()) + " m, this map's " +
-                             std::to_string(config_.resolution_m) + " m");
+  if (!id || !size || !res) refuse("its header lacks the id, size or res line");
+  f.data_offset = pos;
+  return f;
+}
+
+// The nodes from data_offset, walked depth first as OctoMap wrote them.
+void check_ot_nodes(const std::string& bytes, const OtFile& f) {
+  if (f.nodes == 0) {
+    if (f.data_offset != bytes.size()) refuse("bytes after an empty tree");
+    return;
+  }
+  if (f.nodes > (bytes.size() - f.data_offset) / kNodeBytes) {
+    refuse("a node count its bytes cannot hold");
+  }
+  std::size_t pos = f.data_offset, walked = 0;
+  std::vector<int> pending_depths{0};  // nodes still to read, by depth
+  while (!pending_depths.empty()) {
+    const int depth = pending_depths.back();
+    pending_depths.pop_back();
+    // walked <= nodes, and the bytes hold that many: the read stays inside.
+    if (++walked > f.nodes) refuse("more nodes than its header says");
+    float log_odds = 0.0f;
+    std::memcpy(&log_odds, bytes.data() + pos, sizeof(float));
+    const auto children = static_cast<unsigned char>(bytes[pos + sizeof(float)]);
+    pos += kNodeBytes;
+    if (!std::isfinite(log_odds)) refuse("a node whose value is not finite");
+    if (children != 0 && depth == kOcTreeDepth) refuse("nodes below the tree's last level");
+    for (int i = 0; i < 8; ++i) {
+      if (children & (1u << i)) pending_depths.push_back(depth + 1);
+    }
+  }
+  if (walked != f.nodes) refuse("fewer nodes than its header says");
+  if (pos != bytes.size()) refuse("bytes after its last node");
+}
+
+}  // namespace
+
+void OccupancyMap::read(const std::string& bytes) {
+  const OtFile f = read_ot_header(bytes);
+  if (std::abs(f.resolution_m - config_.resolution_m) > 1e-9) {
+    throw std::runtime_error("OccupancyMap::read: resolution " + std::to_string(f.resolution_m) +
+                             " m, this map's " + std::to_string(config_.resolution_m) + " m");
+  }
+  check_ot_nodes(bytes, f);
+  octomap::OcTree tree(f.resolution_m);
+  if (f.nodes > 0) {
+    std::istringstream in(bytes.substr(f.data_offset));
+    if (!tree.readData(in)) refuse("OctoMap could not read its nodes");
   }
   std::lock_guard<std::mutex> lock(mutex_);
-  impl_->tree.swapContent(*tree);
+  impl_->tree.swapContent(tree);
   ++revision_;
 }
 
