@@ -12,9 +12,11 @@
 # the global batch and its draws are the same at any rank count); then
 # prints the blind control against pairs seen. --keep stores the newest
 # checkpoint and the logs back into the snapshot folder for the next sitting
-# (a full checkpoint: weights, AdamW state, data and RNG states).
+# (a full checkpoint: weights, AdamW state, data and RNG states). --init
+# starts a fresh run from a model's weights (by name; the sequence stage
+# starts from the pair model); a run that resumes ignores it.
 #   bash scripts/train_pairs_curve.sh [RUN_DIR] [--budget-s S] [--ranks N] [--keep]
-#        [--config FILE] [--snapshot DIR]
+#        [--config FILE] [--snapshot DIR] [--init MODEL.safetensors]
 # Run it in the background (nice -n 19) and build nothing beside it: the
 # figures are pairs per second of the whole machine.
 set -euo pipefail
@@ -26,14 +28,16 @@ budget=3000
 ranks=$(nproc)
 keep=0
 snapshot="$LONG3R_ROOT/models/experiments/pairs_fast"
+init=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --budget-s) budget=$2; shift 2 ;;
     --ranks) ranks=$2; shift 2 ;;
     --config) config=$2; shift 2 ;;
     --snapshot) snapshot=$2; shift 2 ;;
+    --init) init=$(realpath "$2"); shift 2 ;;
     --keep) keep=1; shift ;;
-    -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
     -*) echo "unknown option $1" >&2; exit 2 ;;
     *) run=$1; shift ;;
   esac
@@ -65,7 +69,11 @@ if [ ! -f "$run/checkpoint/latest" ] && [ -f "$snapshot/checkpoint/latest" ]; th
   done
 fi
 resume=()
-[ -f "$run/checkpoint/latest" ] && resume=(--resume)
+if [ -f "$run/checkpoint/latest" ]; then
+  resume=(--resume)
+elif [ -n "$init" ]; then
+  resume=(--init-dust3r "$init")
+fi
 args=(--config "$config" --out "$run" --seed 0 --threads 1 --prefetch 0 --render-threads 1
       --frame-cache "$cache" --time-budget-s "$budget" "${resume[@]}")
 if [ "$ranks" = 1 ]; then
@@ -96,4 +104,8 @@ if [ "$keep" = 1 ]; then
   done
   echo "== kept $latest in $snapshot"
 fi
-/usr/bin/python3 "$LONG3R_ROOT/scripts/blind_curve.py" "$run/train_log.csv" --every 4
+# Samples seen counted by the first stage's batch and frames.
+read -r batch frames < <(/usr/bin/python3 -c 'import json, sys
+s = json.load(open(sys.argv[1]))["stages"][0]; print(s["batch_size"], s["frames"])' "$config")
+/usr/bin/python3 "$LONG3R_ROOT/scripts/blind_curve.py" "$run/train_log.csv" --every 4 \
+  --batch "$batch" --frames "$frames"
