@@ -12,7 +12,9 @@
 // saved session's world frame.
 //
 // Outputs in --out: map.ply (fused voxel map, world = camera 0), with
-// --surface-enabled true surface.ply and mesh.ply (the TSDF's), trajectory.txt
+// --surface-enabled true surface.ply and mesh.ply (the TSDF's), with --poses
+// and the occupancy on grid.pgm and grid.yaml (map_server's files, in the
+// poses' z-up frame, of the default band above the fitted floor), trajectory.txt
 // (TUM "t tx ty tz qx qy qz qw", frames with a good pose), frames.csv (per
 // frame timings, memory tokens, PnP status, scale, RSS); a summary on stdout.
 // Lengths in metres once a metric scale is known, else in model units.
@@ -51,6 +53,7 @@
 #include "long3r/eval/fusion_bound.hpp"
 #include "long3r/geometry/cv/point_cloud_io.hpp"
 #include "long3r/io/atomic_file.hpp"
+#include "long3r/mapping/occupancy_map.hpp"
 #include "long3r/model/loading/safetensors.hpp"
 #include "long3r/model/runtime/inference_config.hpp"
 #include "long3r/model/runtime/threads.hpp"
@@ -134,6 +137,9 @@ class Client : public LiveSessionClient {
     (void)why;
     T_ref_W_.reset();
   }
+  // The --poses' world frame's pose of W (the current stream's first placed
+  // camera); nullopt until one is placed.
+  std::optional<Eigen::Isometry3d> T_poses_W() const { return T_ref_W_; }
   // T_W_C of frame i by --poses (set once its stream is placed).
   std::optional<Eigen::Isometry3d> given_pose(std::size_t i) const {
     if (!T_ref_W_ || i >= src_.poses.size() || !src_.poses[i]) return std::nullopt;
@@ -520,6 +526,23 @@ int main(int argc, char** argv) {
           "from %zu frames (%zu no longer kept for rebuilds)\n",
           surface.points.size(), ms(t1 - t0).count(), mesh.triangles.size(), ms(t2 - t1).count(),
           rec.surface().frames_kept(), rec.surface().frames_dropped());
+    }
+
+    // The grid needs a z-up frame: the --poses' world (a generated
+    // sequence's room, a motion-capture frame), where it is known.
+    if (cfg.occupancy.enabled) {
+      std::printf("occupancy: %zu voxels known", rec.occupancy().voxels());
+      if (const std::optional<Eigen::Isometry3d> T_P_W = client.T_poses_W()) {
+        GridBand band;
+        const std::optional<double> floor = rec.occupancy().floor_z(*T_P_W);
+        band.floor_z_m = floor.value_or(0.0);
+        const OccupancyGrid grid = rec.occupancy().project(band, *T_P_W);
+        if (grid.width > 0) save_grid_map((fs::path(out_dir) / "grid").string(), grid);
+        std::printf("; grid (the --poses' frame, %s %.3f m): %d x %d cells, %zu occupied, %zu free",
+                    floor ? "floor fitted at" : "no floor found, z =", band.floor_z_m, grid.width,
+                    grid.height, grid.occupied, grid.free);
+      }
+      std::printf("\n");
     }
 
     std::vector<double> sorted = frame_ms;

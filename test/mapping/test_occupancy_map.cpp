@@ -56,6 +56,32 @@ TEST(OccupancyGrid, CellsAreRowsOfY) {
   EXPECT_EQ(g.at(-0.9, 3.1), OccupancyGrid::kUnknown);
 }
 
+// map_saver's files: the image's top row is the grid's last (largest y),
+// occupied black, free white, unknown grey; the YAML places its corner.
+TEST(OccupancyGrid, SavesAsMapServerFiles) {
+  OccupancyGrid g;
+  g.resolution_m = 0.5;
+  g.origin_x_m = -1.0;
+  g.origin_y_m = 2.0;
+  g.width = 3;
+  g.height = 2;
+  g.cells = {0, 100, -1, 100, 0, 0};
+  const std::string stem = test::scratch_dir("occupancy/grid_files") + "/grid";
+  save_grid_map(stem, g);
+  const std::string pgm = test::read_file(stem + ".pgm");
+  const std::string header = "P5\n3 2\n255\n";
+  ASSERT_EQ(pgm.size(), header.size() + 6);
+  EXPECT_EQ(pgm.substr(0, header.size()), header);
+  const std::string pixels = pgm.substr(header.size());
+  EXPECT_EQ(pixels, std::string("\x00\xfe\xfe\xfe\x00\xcd", 6));  // row y = 1, then y = 0
+  const std::string yaml = test::read_file(stem + ".yaml");
+  EXPECT_NE(yaml.find("image: grid.pgm\n"), std::string::npos) << yaml;
+  EXPECT_NE(yaml.find("resolution: 0.5\n"), std::string::npos) << yaml;
+  EXPECT_NE(yaml.find("origin: [-1, 2, 0.0]\n"), std::string::npos) << yaml;
+  EXPECT_NE(yaml.find("occupied_thresh: 0.65\n"), std::string::npos) << yaml;
+  test::expect_throw_naming([&] { save_grid_map(stem, OccupancyGrid{}); }, "empty grid");
+}
+
 TEST(OccupancyMap, GridOfAGeneratedRoomIsRightWithinOneCell) {
   const synth::SequenceConfig c =
       test::sequence_config(21, synth::TrajectoryType::kRobot, 40, 96, 72);

@@ -7,6 +7,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <string>
 #include <vector>
 
 namespace long3r {
@@ -28,5 +29,13 @@ struct OccupancyGrid {
 // where any says so, else free where any says so. Empty grids are skipped.
 // Throws std::invalid_argument for grids of different resolutions.
 OccupancyGrid merge_grids(const std::vector<OccupancyGrid>& grids);
+
+// The grid as map_server's files (map_saver's layout, which map_server and
+// nav2's map loader read): <stem>.pgm (P5, the top row at the largest y;
+// occupied 0, free 254, unknown 205) and <stem>.yaml (image, resolution,
+// origin, negate 0, occupied_thresh 0.65, free_thresh 0.196), each written
+// atomically. Throws AtomicWriteError naming the file, std::invalid_argument
+// for an empty grid.
+void save_grid_map(const std::string& stem, const OccupancyGrid& grid);
 
 }  // namespace long3r

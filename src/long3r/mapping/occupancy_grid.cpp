@@ -2,8 +2,12 @@
 // makes them.
 #include "long3r/mapping/occupancy_grid.hpp"
 
+#include "long3r/io/atomic_file.hpp"
+
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <filesystem>
 #include <stdexcept>
 
 namespace long3r {
@@ -58,6 +62,38 @@ OccupancyGrid merge_grids(const std::vector<OccupancyGrid>& grids) {
     out.free += c == OccupancyGrid::kFree ? 1 : 0;
   }
   return out;
+}
+
+void save_grid_map(const std::string& stem, const OccupancyGrid& grid) {
+  if (grid.width <= 0 || grid.height <= 0 ||
+      grid.cells.size() != static_cast<std::size_t>(grid.width) * grid.height) {
+    throw std::invalid_argument("save_grid_map: an empty grid");
+  }
+  std::string pgm =
+      "P5\n" + std::to_string(grid.width) + " " + std::to_string(grid.height) + "\n255\n";
+  const std::size_t header = pgm.size();
+  pgm.resize(header + grid.cells.size());
+  for (int y = 0; y < grid.height; ++y) {
+    const std::size_t row = header + static_cast<std::size_t>(grid.height - 1 - y) * grid.width;
+    for (int x = 0; x < grid.width; ++x) {
+      const std::int8_t c = grid.cells[static_cast<std::size_t>(y) * grid.width + x];
+      pgm[row + x] = static_cast<char>(c == OccupancyGrid::kOccupied ? 0
+                                       : c == OccupancyGrid::kFree   ? 254
+                                                                     : 205);
+    }
+  }
+  char yaml[512];
+  std::snprintf(yaml, sizeof yaml,
+                "image: %s\nresolution: %.9g\norigin: [%.9g, %.9g, 0.0]\nnegate: 0\n"
+                "occupied_thresh: 0.65\nfree_thresh: 0.196\n",
+                std::filesystem::path(stem + ".pgm").filename().c_str(), grid.resolution_m,
+                grid.origin_x_m, grid.origin_y_m);
+  AtomicFile image(stem + ".pgm");
+  image.write(pgm);
+  image.commit();
+  AtomicFile info(stem + ".yaml");
+  info.write(yaml);
+  info.commit();
 }
 
 }  // namespace long3r
