@@ -1,11 +1,15 @@
 // SurfaceMap: off, it holds nothing; on, a rescale rebuilds the volume from
 // the kept frames as if they had come in at the new scale; the frames kept
-// are capped; the surface and the mesh are read while frames are fused.
+// are capped; sessions keep the frames and rebuild from them; the surface
+// and the mesh are read while frames are fused.
 #include <gtest/gtest.h>
+
+#include <ATen/ATen.h>
 
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -116,6 +120,57 @@ TEST_F(SurfaceMapTest, BadFrameChangesNothing) {
       std::invalid_argument);
   EXPECT_EQ(map.revision(), revision);
   EXPECT_EQ(map.frames_kept(), 1u);
+}
+
+// Sessions keep the frames and rebuild the volume from them: the restored
+// surface is the saved one, point for point. Damaged parts are refused by
+// name and change nothing.
+TEST_F(SurfaceMapTest, SavesItsFramesAndRebuildsFromThem) {
+  const Scene s;
+  SurfaceMap map(enabled_config());
+  for (int k = 0; k < 4; ++k)
+    map.integrate(s.points_C, s.rgb, cv::Mat(), 0.0f, s.K, Scene::pose(k));
+  const StateDict saved = map.state();
+  SurfaceMap copy(enabled_config());
+  copy.restore(StateReader(saved, "surface"));
+  EXPECT_EQ(copy.frames_kept(), 4u);
+  ASSERT_FALSE(map.points().points.empty());
+  EXPECT_EQ(sorted(copy.points().points), sorted(map.points().points));
+  EXPECT_EQ(copy.mesh().triangles.size(), map.mesh().triangles.size());
+
+  const std::vector<Eigen::Vector3f> before = sorted(copy.points().points);
+  auto refused = [&](StateDict damaged, const std::string& why) {
+    test::expect_throw_naming([&] { copy.restore(StateReader(damaged, "surface")); }, why);
+    EXPECT_EQ(copy.frames_kept(), 4u);
+    EXPECT_EQ(sorted(copy.points().points), before);
+  };
+  StateDict d = saved;
+  d["2.depth"] = saved.at("2.depth").clone().fill_(-1.0f);
+  refused(d, "negative");
+  d = saved;
+  d["1.depth"] = saved.at("1.depth").clone().fill_(NAN);
+  refused(d, "non-finite");
+  d = saved;
+  d["0.rgb"] = saved.at("0.rgb").narrow(0, 0, 5).clone();
+  refused(d, "0.rgb");
+  d = saved;
+  d["3.T_W_C"] = saved.at("3.T_W_C").clone().mul_(2.0);
+  refused(d, "3.T_W_C");
+  d = saved;
+  d["3.K"] = saved.at("3.K").clone().fill_(0.0);
+  refused(d, "3.K");
+  d = saved;
+  d.erase("3.depth");
+  refused(d, "3.depth");
+  SurfaceMapConfig few = enabled_config();
+  few.keep_frames = 2;
+  SurfaceMap small(few);
+  test::expect_throw_naming([&] { small.restore(StateReader(saved, "surface")); }, "frames");
+  EXPECT_EQ(small.frames_kept(), 0u);
+  // Off, it takes nothing.
+  SurfaceMap off;
+  off.restore(StateReader(saved, "surface"));
+  EXPECT_EQ(off.frames_kept(), 0u);
 }
 
 TEST_F(SurfaceMapTest, ReadWhileFramesAreFused) {

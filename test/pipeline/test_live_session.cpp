@@ -1,7 +1,8 @@
 // LiveSession without ROS: tags back with their results, stream continuity
 // (a pause goes on, a jump back in time starts a new stream after the old
 // one's last result), tracking loss, the metric scale from odometry and from
-// depth images, calibrations validated, and frames the client cannot place.
+// depth images, calibrations validated, frames the client cannot place, and
+// what ended streams leave (occupancy, surface) kept in the map and sessions.
 // A model that returns the generator's ground truth makes every figure exact.
 #include <gtest/gtest.h>
 
@@ -15,6 +16,7 @@
 #include "long3r/pipeline/live_session.hpp"
 #include "support/cv_test_support.hpp"
 #include "support/live_session_support.hpp"
+#include "support/test_support.hpp"
 
 namespace long3r {
 namespace {
@@ -388,6 +390,61 @@ TEST(LiveSession, OccupancyGridOfTheStreamsInTheMapFrame) {
   // A reset clears it all.
   s.session->reset("test");
   EXPECT_EQ(s.session->occupancy_grid(T_map_W, config).grid.occupied, 0u);
+}
+
+// An ended stream's surface stays where it ended, beside the current one's;
+// sessions keep the ended streams' surfaces and occupancy, and a load puts
+// the file's in place of the running ones'.
+TEST(LiveSession, EndedStreamsKeepTheirSurfaceAndOccupancyInSessions) {
+  if (!TsdfVolume::available()) GTEST_SKIP() << "built without Open3D";
+  ReconstructionConfig recon = test::gt_reconstruction_config();
+  recon.surface.enabled = true;
+  recon.surface.tsdf.voxel_size_m = 0.05;
+  recon.surface.tsdf.truncation_m = 0.2;
+  recon.surface.tsdf.min_weight = 1.0f;
+  Session s(8, {}, true, recon);
+  const Eigen::Isometry3d T_map_W = s.g.seq.poses[0];
+  s.client.map_frame = T_map_W;
+  for (int k = 0; k < 4; ++k) s.push(k, 10.0 + 0.1 * k);
+  s.session->flush();
+  const std::size_t first = s.session->surface_points(T_map_W).points.size();
+  const std::size_t first_triangles = s.session->surface_mesh(T_map_W).triangles.size();
+  ASSERT_GT(first, 0u);
+  ASSERT_GT(first_triangles, 0u);
+  const std::uint64_t revision = s.session->surface_revision();
+  // A jump back in time ends the stream: its surface stays, the new one's beside it.
+  s.push(4, 2.0);
+  s.push(5, 2.1);
+  s.session->flush();
+  ASSERT_EQ(s.session->status().streams, 2u);
+  EXPECT_NE(s.session->surface_revision(), revision);
+  EXPECT_EQ(s.session->reconstruction().surface().frames_kept(), 2u);
+  const ColoredPoints both = s.session->surface_points(T_map_W);
+  EXPECT_GT(both.points.size(), first);
+  EXPECT_GT(s.session->surface_mesh(T_map_W).triangles.size(), first_triangles);
+  GridProjectionConfig grid;
+  grid.floor = GridFloor::kBase;
+  const std::size_t occupied = s.session->occupancy_grid(T_map_W, grid).grid.occupied;
+  ASSERT_GT(occupied, 0u);
+
+  // Saved, reset, loaded: the ended stream's parts come back with the file.
+  const std::string path = test::scratch_dir("live_session/ended") + "/ended.l3s";
+  s.session->save(path);
+  s.session->reset("test");
+  EXPECT_EQ(s.session->surface_points(T_map_W).points.size(), 0u);
+  s.session->load(path);
+  EXPECT_EQ(s.session->surface_points(T_map_W).points.size(), both.points.size());
+  EXPECT_EQ(s.session->occupancy_grid(T_map_W, grid).grid.occupied, occupied);
+  // A file without ended streams replaces them: nothing of the running
+  // session's ended streams is left beside the file's map.
+  Session fresh(8, {}, true, recon);
+  fresh.client.map_frame = T_map_W;
+  for (int k = 0; k < 3; ++k) fresh.push(k, 10.0 + 0.1 * k);
+  const std::string single = test::scratch_dir("live_session/ended") + "/single.l3s";
+  fresh.session->save(single);
+  const std::size_t single_points = fresh.session->surface_points(T_map_W).points.size();
+  s.session->load(single);
+  EXPECT_EQ(s.session->surface_points(T_map_W).points.size(), single_points);
 }
 
 }  // namespace

@@ -134,7 +134,8 @@ TEST(Reconstruction, SetScaleRescalesTheStream) {
 }
 
 // surface.enabled: every mapped frame goes into the fused surface too, in the
-// stream's world; set_scale() rebuilds it at the new scale, reset() clears it.
+// stream's world; sessions keep it, set_scale() rebuilds it at the new
+// scale, reset() clears it.
 TEST(Reconstruction, FusesMappedFramesIntoTheSurface) {
   if (!TsdfVolume::available()) GTEST_SKIP() << "built without Open3D";
   const GtSequence g = make_sequence(8);
@@ -163,6 +164,20 @@ TEST(Reconstruction, FusesMappedFramesIntoTheSurface) {
   const ColoredPoints surface = rec.surface().points();
   ASSERT_GT(surface.points.size(), 100u);
   EXPECT_LT(accuracy(surface.points), 0.05);
+  // Kept by state() / restore(): the same surface, rebuilt from its frames;
+  // a session without one starts it empty.
+  const StateDict saved = rec.state();
+  Reconstruction other(std::make_unique<FakeModel>(&g.pts_W0), config);
+  other.restore(saved);
+  EXPECT_EQ(other.surface().frames_kept(), g.bgr.size());
+  EXPECT_EQ(other.surface().points().points.size(), surface.points.size());
+  EXPECT_LT(accuracy(other.surface().points().points), 0.05);
+  StateDict without = saved;
+  for (auto it = without.begin(); it != without.end();) {
+    it = it->first.rfind("surface.", 0) == 0 ? without.erase(it) : std::next(it);
+  }
+  other.restore(without);
+  EXPECT_EQ(other.surface().frames_kept(), 0u);
   // Twice the scale: the surface is rebuilt twice as large (and as accurate
   // against the doubled truth).
   rec.set_scale(2.0);

@@ -23,6 +23,7 @@
 
 #include "long3r/config/config_fields.hpp"
 #include "long3r/mapping/tsdf_volume.hpp"
+#include "long3r/model/loading/state_dict.hpp"
 
 namespace long3r {
 
@@ -73,6 +74,19 @@ class SurfaceMap {
   std::size_t frames_kept() const;
   std::size_t frames_dropped() const;  // fused, but no longer kept for rebuilds
   const SurfaceMapConfig& config() const { return config_; }
+
+  // The kept frames, for sessions (state_dict.hpp): "frames", "dropped" and
+  // per frame i "<i>.depth" [H, W] float32, "<i>.rgb" [H, W, 3] uint8,
+  // "<i>.K" and "<i>.T_W_C" (state_geometry.hpp). The volume is not saved:
+  // restore() rebuilds it from them, so a restored surface holds the kept
+  // frames only (all of them unless more than keep_frames were fused).
+  StateDict state() const;
+  // Throws StateError naming the part (a frame more than keep_frames counts
+  // as damage); nothing changes then. A disabled map takes nothing.
+  void restore(const StateReader& state);
+  // Exchanges the two maps, volume, frames and config (a restored session's
+  // surface takes the running one's place; an ended stream's is kept apart).
+  void swap(SurfaceMap& other);
 
  private:
   struct Kept {

@@ -81,6 +81,9 @@ struct ColoredMesh {
 // Points and mesh vertices moved by T_B_A (from frame A to frame B).
 ColoredPoints transformed(ColoredPoints points_A, const Eigen::Isometry3d& T_B_A);
 ColoredMesh transformed(ColoredMesh mesh_A, const Eigen::Isometry3d& T_B_A);
+// `more` added to `into` (both in one frame); a mesh's triangles re-indexed.
+void append(ColoredPoints& into, const ColoredPoints& more);
+void append(ColoredMesh& into, const ColoredMesh& more);
 
 class TsdfVolume {
  public:

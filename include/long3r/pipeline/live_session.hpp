@@ -225,9 +225,9 @@ class LiveSession {
   // map does.
   MapSnapshot map_snapshot(const Eigen::Isometry3d& T_map_W) const;
   std::uint64_t map_revision() const;
-  // The current stream's fused surface (surface_enabled) and its mesh in the
-  // client's map frame, placed by T_map_W; ended streams keep no surface.
-  // Callable from any thread, as is surface_revision().
+  // The fused surface (surface_enabled) and its mesh in the client's map
+  // frame: the current stream's placed by T_map_W and the ended streams'
+  // where they ended. Callable from any thread, as is surface_revision().
   ColoredPoints surface_points(const Eigen::Isometry3d& T_map_W) const;
   ColoredMesh surface_mesh(const Eigen::Isometry3d& T_map_W) const;
   std::uint64_t surface_revision() const;
@@ -270,11 +270,21 @@ class LiveSession {
   LiveSessionClient& client_;
   Reconstruction recon_;
   VoxelMap ended_maps_;
-  // The ended streams' occupancy, each with its T_map_W (guarded: the grid
-  // is projected from another thread).
-  mutable std::mutex ended_occupancy_mutex_;
-  std::vector<std::pair<std::shared_ptr<const OccupancyMap>, Eigen::Isometry3d>> ended_occupancy_;
-  std::uint64_t ended_occupancy_revision_ = 0;
+  // What an ended stream leaves besides its points (ended_maps_): its
+  // occupancy and its surface (each null where off or empty), at the T_map_W
+  // where it ended. Guarded: the grid and the surface are read from other
+  // threads. Saved with the session.
+  struct EndedStream {
+    std::shared_ptr<const OccupancyMap> occupancy;
+    std::shared_ptr<const SurfaceMap> surface;
+    Eigen::Isometry3d T_map_W = Eigen::Isometry3d::Identity();
+  };
+  StateDict ended_state() const;
+  std::vector<EndedStream> read_ended(const StateDict& file) const;
+  void set_ended(std::vector<EndedStream> ended);
+  mutable std::mutex ended_mutex_;
+  std::vector<EndedStream> ended_;
+  std::uint64_t ended_revision_ = 0;
   StreamMonitor monitor_;
   std::optional<LiveFrame> held_;  // see StreamMonitor::kHold
   std::deque<Pending> pending_;

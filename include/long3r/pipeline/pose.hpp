@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "long3r/config/config_fields.hpp"
+#include "long3r/mapping/state_geometry.hpp"  // pose_to_tensor, for sessions
 #include "long3r/pipeline/intrinsics.hpp"
 
 namespace long3r {
@@ -158,12 +159,6 @@ class PoseTracker {
   bool has_good_ = false;
   int64_t consecutive_failures_ = 0;
 };
-
-// A pose in a state dict (sessions, state_dict.hpp): a [4, 4] float64 tensor,
-// and back: nullopt unless the tensor is [4, 4], finite and a rigid
-// transform (orthonormal rotation with det 1 to 1e-6, last row 0 0 0 1).
-at::Tensor pose_to_tensor(const Eigen::Isometry3d& T);
-std::optional<Eigen::Isometry3d> pose_from_tensor(const at::Tensor& t);
 
 // points (CV_32FC3) mapped through T: p' = T p, e.g. the world pointmap into
 // the camera frame with T = T_W_C.inverse(). Non-finite points stay NaN.

@@ -151,9 +151,12 @@ class Reconstruction {
 
   const VoxelMap& map() const { return map_; }
   VoxelMap& map() { return map_; }
-  // The fused surface of the mapped frames (empty unless surface.enabled).
-  // Not in sessions yet: after restore() it holds the frames mapped since.
+  // The fused surface of the mapped frames (empty unless surface.enabled);
+  // rescaled with the stream, kept in sessions (rebuilt from its kept frames).
   const SurfaceMap& surface() const { return surface_; }
+  // The surface handed over whole (an ending stream's, kept apart); an empty
+  // one takes its place.
+  std::unique_ptr<SurfaceMap> take_surface();
   // The 3-D occupancy of the mapped views in W (empty unless
   // occupancy.enabled); rescaled with the stream, kept in sessions.
   const OccupancyMap& occupancy() const { return occupancy_; }

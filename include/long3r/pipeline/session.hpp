@@ -10,8 +10,13 @@
 //             voxel_size_m: what the saved state is only valid for; frames,
 //             map_points, path_poses, scale: a summary for people and tools;
 //   tensors   the state dict (state_dict.hpp): "reconstruction.*" (the
-//             model's stream, map, path, tracker, intrinsics, scale) and
-//             "live.*" (the scale estimate).
+//             model's stream, map, path, tracker, intrinsics, scale, and
+//             where they are on: the occupancy as OctoMap's .ot bytes, the
+//             surface's kept frames), "live.*" (the scale estimate),
+//             "ended_maps.*" and "ended.*" (what ended streams left: their
+//             points; their occupancy and surface with where they ended).
+//             Parts a file lacks (older files, or saved with them off)
+//             start empty.
 // Other settings (thresholds, PnP, scale source) may change between runs:
 // they act on frames to come, not on what the file holds.
 #pragma once

@@ -1,7 +1,13 @@
 #include "long3r/mapping/surface_map.hpp"
 
+#include <ATen/ATen.h>
+
+#include "long3r/mapping/state_geometry.hpp"
+
 #include <cmath>
+#include <cstring>
 #include <stdexcept>
+#include <string>
 #include <utility>
 
 namespace long3r {
@@ -58,6 +64,76 @@ void SurfaceMap::clear() {
   kept_.clear();
   dropped_ = 0;
   ++revision_;
+}
+
+StateDict SurfaceMap::state() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  StateDict out;
+  put_int(out, "frames", static_cast<int64_t>(kept_.size()));
+  put_int(out, "dropped", static_cast<int64_t>(dropped_));
+  for (std::size_t i = 0; i < kept_.size(); ++i) {
+    const Kept& k = kept_[i];
+    const std::string at = std::to_string(i) + ".";
+    at::Tensor depth = at::empty({k.depth.rows, k.depth.cols}, at::kFloat);
+    at::Tensor rgb = at::empty({k.rgb.rows, k.rgb.cols, 3}, at::kByte);
+    for (int v = 0; v < k.depth.rows; ++v) {  // rows: a cv::Mat need not be continuous
+      std::memcpy(depth.data_ptr<float>() + static_cast<std::ptrdiff_t>(v) * k.depth.cols,
+                  k.depth.ptr<float>(v), sizeof(float) * static_cast<std::size_t>(k.depth.cols));
+      std::memcpy(rgb.data_ptr<std::uint8_t>() + static_cast<std::ptrdiff_t>(v) * k.rgb.cols * 3,
+                  k.rgb.ptr<std::uint8_t>(v), 3 * static_cast<std::size_t>(k.rgb.cols));
+    }
+    out[at + "depth"] = depth;
+    out[at + "rgb"] = rgb;
+    out[at + "K"] = intrinsics_to_tensor(k.K);
+    out[at + "T_W_C"] = pose_to_tensor(k.T_W_C);
+  }
+  return out;
+}
+
+void SurfaceMap::restore(const StateReader& r) {
+  if (!config_.enabled) return;
+  constexpr int64_t kMaxSide = 1 << 14;
+  const int64_t n = r.integer("frames", 0, config_.keep_frames);
+  const int64_t dropped = r.integer("dropped", 0, int64_t{1} << 53);
+  std::deque<Kept> kept;
+  for (int64_t i = 0; i < n; ++i) {
+    const std::string at = std::to_string(i) + ".";
+    const at::Tensor depth = r.floating(at + "depth", {-1, -1}).to(at::kFloat).contiguous();
+    const int64_t h = depth.size(0), w = depth.size(1);
+    if (h < 1 || w < 1 || h > kMaxSide || w > kMaxSide) r.fail(at + "depth", "not an image size");
+    if (depth.min().item<float>() < 0.0f) r.fail(at + "depth", "holds negative depths");
+    const at::Tensor rgb = r.uint8(at + "rgb", {h, w, 3}).contiguous();
+    Kept k;
+    k.depth = cv::Mat(static_cast<int>(h), static_cast<int>(w), CV_32FC1,
+                      const_cast<float*>(depth.data_ptr<float>()))
+                  .clone();
+    k.rgb = cv::Mat(static_cast<int>(h), static_cast<int>(w), CV_8UC3,
+                    const_cast<std::uint8_t*>(rgb.data_ptr<std::uint8_t>()))
+                .clone();
+    k.K = read_intrinsics(r, at + "K");
+    k.T_W_C = read_pose(r, at + "T_W_C");
+    kept.push_back(std::move(k));
+  }
+  // The volume rebuilt apart, so that the running one stays whole until the
+  // rebuilt one takes its place.
+  auto volume = std::make_unique<TsdfVolume>(config_.tsdf);
+  for (const Kept& k : kept) volume->integrate_depth(k.depth, k.rgb, k.K, k.T_W_C);
+  std::lock_guard<std::mutex> lock(mutex_);
+  volume_ = std::move(volume);
+  kept_ = std::move(kept);
+  dropped_ = static_cast<std::size_t>(dropped);
+  ++revision_;
+}
+
+void SurfaceMap::swap(SurfaceMap& other) {
+  if (&other == this) return;
+  std::scoped_lock lock(mutex_, other.mutex_);
+  std::swap(config_, other.config_);
+  std::swap(volume_, other.volume_);
+  std::swap(kept_, other.kept_);
+  std::swap(dropped_, other.dropped_);
+  ++revision_;
+  ++other.revision_;
 }
 
 ColoredPoints SurfaceMap::points() const {

@@ -52,6 +52,21 @@ ColoredMesh transformed(ColoredMesh mesh_A, const Eigen::Isometry3d& T_B_A) {
   return mesh_A;
 }
 
+void append(ColoredPoints& into, const ColoredPoints& more) {
+  into.points.insert(into.points.end(), more.points.begin(), more.points.end());
+  into.colors.insert(into.colors.end(), more.colors.begin(), more.colors.end());
+}
+
+void append(ColoredMesh& into, const ColoredMesh& more) {
+  const auto offset = static_cast<std::int32_t>(into.vertices.size());
+  into.vertices.insert(into.vertices.end(), more.vertices.begin(), more.vertices.end());
+  into.colors.insert(into.colors.end(), more.colors.begin(), more.colors.end());
+  into.triangles.reserve(into.triangles.size() + more.triangles.size());
+  for (const Triangle& t : more.triangles) {
+    into.triangles.push_back({t[0] + offset, t[1] + offset, t[2] + offset});
+  }
+}
+
 bool TsdfVolume::available() {
 #ifdef LONG3R_WITH_OPEN3D
   return true;

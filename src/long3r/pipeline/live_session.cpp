@@ -1,6 +1,8 @@
 // A live camera stream turned into one reconstruction; see live_session.hpp.
 #include "long3r/pipeline/live_session.hpp"
 
+#include "long3r/mapping/state_geometry.hpp"
+
 #include <ATen/ATen.h>
 
 #include <cmath>
@@ -217,11 +219,7 @@ cv::Mat LiveSession::calibrate(const LiveFrame& frame) {
 void LiveSession::reset(const std::string& why) {
   monitor_.reset();
   ended_maps_.clear();
-  {
-    std::lock_guard<std::mutex> lock(ended_occupancy_mutex_);
-    ended_occupancy_.clear();
-    ++ended_occupancy_revision_;
-  }
+  set_ended({});
   new_stream(why, /*keep_map=*/false);
 }
 
@@ -258,11 +256,19 @@ void LiveSession::keep_ended_map() {
   if (recon_.map().empty()) return;
   const std::optional<Eigen::Isometry3d> T_map_W = client_.T_map_W();
   if (!T_map_W) return;
+  EndedStream ended;
+  ended.T_map_W = *T_map_W;
   if (recon_.config().occupancy.enabled && recon_.occupancy().voxels() > 0) {
-    std::shared_ptr<const OccupancyMap> kept = recon_.occupancy().clone();
-    std::lock_guard<std::mutex> lock(ended_occupancy_mutex_);
-    ended_occupancy_.emplace_back(std::move(kept), *T_map_W);
-    ++ended_occupancy_revision_;
+    ended.occupancy = recon_.occupancy().clone();
+  }
+  // The stream is about to be reset: its surface is handed over, not copied.
+  if (recon_.config().surface.enabled && recon_.surface().frames_kept() > 0) {
+    ended.surface = recon_.take_surface();
+  }
+  if (ended.occupancy || ended.surface) {
+    std::lock_guard<std::mutex> lock(ended_mutex_);
+    ended_.push_back(std::move(ended));
+    ++ended_revision_;
   }
   const MapSnapshot snap = snapshot_in(recon_.map(), *T_map_W);
   ended_maps_.integrate(snap.points, snap.colors,
@@ -275,9 +281,7 @@ void LiveSession::keep_ended_map() {
 MapSnapshot LiveSession::map_snapshot(const Eigen::Isometry3d& T_map_W) const {
   MapSnapshot snap = snapshot_in(recon_.map(), T_map_W);
   if (!ended_maps_.empty()) {
-    const MapSnapshot ended = ended_maps_.snapshot();
-    snap.points.insert(snap.points.end(), ended.points.begin(), ended.points.end());
-    snap.colors.insert(snap.colors.end(), ended.colors.begin(), ended.colors.end());
+    append(snap, ended_maps_.snapshot());
   }
   return snap;
 }
@@ -288,23 +292,39 @@ std::uint64_t LiveSession::map_revision() const {
 }
 
 ColoredPoints LiveSession::surface_points(const Eigen::Isometry3d& T_map_W) const {
-  return transformed(recon_.surface().points(), T_map_W);
+  ColoredPoints all = transformed(recon_.surface().points(), T_map_W);
+  std::lock_guard<std::mutex> lock(ended_mutex_);
+  for (const EndedStream& e : ended_) {
+    if (!e.surface) continue;
+    append(all, transformed(e.surface->points(), e.T_map_W));
+  }
+  return all;
 }
 
 ColoredMesh LiveSession::surface_mesh(const Eigen::Isometry3d& T_map_W) const {
-  return transformed(recon_.surface().mesh(), T_map_W);
+  ColoredMesh all = transformed(recon_.surface().mesh(), T_map_W);
+  std::lock_guard<std::mutex> lock(ended_mutex_);
+  for (const EndedStream& e : ended_) {
+    if (!e.surface) continue;
+    append(all, transformed(e.surface->mesh(), e.T_map_W));
+  }
+  return all;
 }
 
-std::uint64_t LiveSession::surface_revision() const { return recon_.surface().revision(); }
+// Both revisions only grow: their sum changes whenever either does.
+std::uint64_t LiveSession::surface_revision() const {
+  std::lock_guard<std::mutex> lock(ended_mutex_);
+  return recon_.surface().revision() + ended_revision_;
+}
 
 LiveSession::GridProjection LiveSession::occupancy_grid(const Eigen::Isometry3d& T_map_W,
                                                         const GridProjectionConfig& config) const {
-  std::lock_guard<std::mutex> lock(ended_occupancy_mutex_);
+  std::lock_guard<std::mutex> lock(ended_mutex_);
   // Every stream's occupancy with where it sits in the map frame.
   std::vector<std::pair<const OccupancyMap*, Eigen::Isometry3d>> maps{
       {&recon_.occupancy(), T_map_W}};
-  for (const auto& [occupancy, T_map_W_ended] : ended_occupancy_) {
-    maps.emplace_back(occupancy.get(), T_map_W_ended);
+  for (const EndedStream& e : ended_) {
+    if (e.occupancy) maps.emplace_back(e.occupancy.get(), e.T_map_W);
   }
   GridProjection p;
   // The floor of the current stream, else of the latest ended one that has one.
@@ -330,8 +350,63 @@ LiveSession::GridProjection LiveSession::occupancy_grid(const Eigen::Isometry3d&
 
 // Both revisions only grow: their sum changes whenever either does.
 std::uint64_t LiveSession::occupancy_revision() const {
-  std::lock_guard<std::mutex> lock(ended_occupancy_mutex_);
-  return recon_.occupancy().revision() + ended_occupancy_revision_;
+  std::lock_guard<std::mutex> lock(ended_mutex_);
+  return recon_.occupancy().revision() + ended_revision_;
+}
+
+// The ended streams' parts for sessions: "ended.count", and per stream i
+// "ended.<i>.T_map_W" with "ended.<i>.occupancy.ot" and "ended.<i>.surface.*"
+// where it has them.
+StateDict LiveSession::ended_state() const {
+  std::lock_guard<std::mutex> lock(ended_mutex_);
+  StateDict out;
+  put_int(out, "count", static_cast<int64_t>(ended_.size()));
+  for (std::size_t i = 0; i < ended_.size(); ++i) {
+    const EndedStream& e = ended_[i];
+    const std::string at = std::to_string(i) + ".";
+    out[at + "T_map_W"] = pose_to_tensor(e.T_map_W);
+    if (e.occupancy) out[at + "occupancy.ot"] = bytes_tensor(e.occupancy->write());
+    if (e.surface) put_state(out, at + "surface.", e.surface->state());
+  }
+  return out;
+}
+
+// Read whole before anything changes; parts this run has off are left out.
+// Throws StateError naming the part.
+std::vector<LiveSession::EndedStream> LiveSession::read_ended(const StateDict& file) const {
+  const StateReader r(file, "session", "ended.");
+  std::vector<EndedStream> ended;
+  if (!r.has("count")) return ended;  // files of earlier versions
+  constexpr int64_t kMaxStreams = 1 << 20;
+  const int64_t n = r.integer("count", 0, kMaxStreams);
+  for (int64_t i = 0; i < n; ++i) {
+    const std::string at = std::to_string(i) + ".";
+    EndedStream e;
+    e.T_map_W = read_pose(r, at + "T_map_W");
+    if (recon_.config().occupancy.enabled && r.has(at + "occupancy.ot")) {
+      auto occupancy = std::make_shared<OccupancyMap>(recon_.config().occupancy);
+      const std::string bytes = r.bytes(at + "occupancy.ot");
+      try {
+        occupancy->read(bytes);
+      } catch (const std::runtime_error& err) {
+        r.fail(at + "occupancy.ot", err.what());
+      }
+      e.occupancy = std::move(occupancy);
+    }
+    if (recon_.config().surface.enabled && r.has(at + "surface.frames")) {
+      auto surface = std::make_shared<SurfaceMap>(recon_.config().surface);
+      surface->restore(r.child(at + "surface."));
+      e.surface = std::move(surface);
+    }
+    if (e.occupancy || e.surface) ended.push_back(std::move(e));
+  }
+  return ended;
+}
+
+void LiveSession::set_ended(std::vector<EndedStream> ended) {
+  std::lock_guard<std::mutex> lock(ended_mutex_);
+  ended_ = std::move(ended);
+  ++ended_revision_;
 }
 
 void LiveSession::start_stream_scale() {
@@ -369,6 +444,7 @@ void LiveSession::save(const std::string& path) {
   put_real(state, "live.scale.applied", scale.applied);
   put_int(state, "live.scale.metric", scale.metric ? 1 : 0);
   if (!ended_maps_.empty()) put_state(state, "ended_maps.", ended_maps_.state());
+  put_state(state, "ended.", ended_state());
   put_state(state, "client.", client_.session_state());
   char scale_text[64];
   std::snprintf(scale_text, sizeof scale_text, "%.6g%s", recon_.scale(),
@@ -386,6 +462,7 @@ void LiveSession::load(const std::string& path) {
   const StateDict file = read_session(path, identity());
   ScalePolicy::State scale;
   VoxelMap ended(recon_.config().map);
+  std::vector<EndedStream> ended_parts;
   try {
     const StateReader r(file, "session", "live.scale.");
     const at::Tensor samples = r.floating("samples", {-1}).to(at::kDouble).contiguous();
@@ -404,6 +481,7 @@ void LiveSession::load(const std::string& path) {
         break;
       }
     }
+    ended_parts = read_ended(file);
     recon_.restore(sub_state(file, "reconstruction."));
   } catch (const StateError& e) {
     throw SessionError(path + ": damaged session: " + e.what());
@@ -411,6 +489,7 @@ void LiveSession::load(const std::string& path) {
   // The stream now is the file's: stamps start over, and so does what the
   // client keeps per stream.
   ended_maps_.restore(ended.records());
+  set_ended(std::move(ended_parts));
   monitor_.reset();
   held_.reset();
   pending_.clear();

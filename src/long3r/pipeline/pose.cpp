@@ -362,29 +362,4 @@ std::optional<Twist> finite_difference_twist(const Eigen::Isometry3d& T_map_a,
   return twist;
 }
 
-at::Tensor pose_to_tensor(const Eigen::Isometry3d& T) {
-  at::Tensor t = at::empty({4, 4}, at::kDouble);
-  Eigen::Map<Eigen::Matrix<double, 4, 4, Eigen::RowMajor>>(t.data_ptr<double>()) = T.matrix();
-  return t;
-}
-
-std::optional<Eigen::Isometry3d> pose_from_tensor(const at::Tensor& t) {
-  if (!t.defined() || t.dim() != 2 || t.size(0) != 4 || t.size(1) != 4 ||
-      !at::isFloatingType(t.scalar_type())) {
-    return std::nullopt;
-  }
-  const at::Tensor c = t.to(at::kDouble).contiguous();
-  const Eigen::Matrix4d m =
-      Eigen::Map<const Eigen::Matrix<double, 4, 4, Eigen::RowMajor>>(c.data_ptr<double>());
-  const Eigen::Matrix3d R = m.topLeftCorner<3, 3>();
-  if (!m.allFinite() || (R * R.transpose() - Eigen::Matrix3d::Identity()).norm() > 1e-6 ||
-      std::abs(R.determinant() - 1.0) > 1e-6 ||
-      m.row(3) != Eigen::RowVector4d(0.0, 0.0, 0.0, 1.0)) {
-    return std::nullopt;
-  }
-  Eigen::Isometry3d T;
-  T.matrix() = m;
-  return T;
-}
-
 }  // namespace long3r

@@ -1,6 +1,8 @@
 // Streaming reconstruction pipeline (see reconstruction.hpp).
 #include "long3r/pipeline/reconstruction.hpp"
 
+#include "long3r/mapping/state_geometry.hpp"
+
 #include <ATen/ATen.h>
 #include <c10/core/InferenceMode.h>
 #include <opencv2/imgproc.hpp>
@@ -178,36 +180,11 @@ void Reconstruction::rescale(FrameResult& r, double scale) {
   r.scale = scale;
 }
 
-namespace {
-
-Eigen::Isometry3d pose_from(const at::Tensor& t, const StateReader& r, const std::string& key) {
-  const std::optional<Eigen::Isometry3d> T = pose_from_tensor(t);
-  if (!T) r.fail(key, "not a rigid transform");
-  return *T;
+std::unique_ptr<SurfaceMap> Reconstruction::take_surface() {
+  auto taken = std::make_unique<SurfaceMap>(config_.surface);
+  taken->swap(surface_);
+  return taken;
 }
-
-at::Tensor intrinsics_tensor(const PinholeIntrinsics& k) {
-  return at::tensor(std::vector<double>{k.fx, k.fy, k.cx, k.cy, double(k.width), double(k.height)},
-                    at::kDouble);
-}
-
-PinholeIntrinsics intrinsics_from(const StateReader& r, const std::string& key) {
-  const at::Tensor t = r.floating(key, {6}).to(at::kDouble).contiguous();
-  const double* v = t.data_ptr<double>();
-  PinholeIntrinsics k;
-  k.fx = v[0];
-  k.fy = v[1];
-  k.cx = v[2];
-  k.cy = v[3];
-  k.width = static_cast<int>(v[4]);
-  k.height = static_cast<int>(v[5]);
-  if (!k.valid() || v[4] < 0 || v[5] < 0 || v[4] > 1e5 || v[5] > 1e5) {
-    r.fail(key, "not valid intrinsics");
-  }
-  return k;
-}
-
-}  // namespace
 
 StateDict Reconstruction::state() const {
   const bool lone_first = frames_pushed_ == 1 && pending_.size() == 1;
@@ -227,9 +204,9 @@ StateDict Reconstruction::state() const {
   put_int(out, "flushed_index", flushed_index_);
   put_real(out, "scale", scale_);
   put_int(out, "intrinsics_failed", intrinsics_failed_ ? 1 : 0);
-  if (calibration_) out["calibration"] = intrinsics_tensor(*calibration_);
+  if (calibration_) out["calibration"] = intrinsics_to_tensor(*calibration_);
   if (intrinsics_) {
-    out["intrinsics"] = intrinsics_tensor(intrinsics_->intrinsics);
+    out["intrinsics"] = intrinsics_to_tensor(intrinsics_->intrinsics);
     put_int(out, "intrinsics.source", static_cast<int64_t>(intrinsics_->source));
   }
   const PoseTracker::State tracker = tracker_.state();
@@ -255,6 +232,7 @@ StateDict Reconstruction::state() const {
 
   put_state(out, "map.", map_.state());
   if (config_.occupancy.enabled) out["occupancy.ot"] = bytes_tensor(occupancy_.write());
+  if (config_.surface.enabled) put_state(out, "surface.", surface_.state());
   put_state(out, "model.", model_->stream_state());
   return out;
 }
@@ -279,16 +257,16 @@ void Reconstruction::restore(const StateDict& state) {
   const int64_t flushed = r.integer("flushed_index", -1, frames - 1);
   const bool intrinsics_failed = r.integer("intrinsics_failed", 0, 1) == 1;
   std::optional<PinholeIntrinsics> calibration;
-  if (r.has("calibration")) calibration = intrinsics_from(r, "calibration");
+  if (r.has("calibration")) calibration = read_intrinsics(r, "calibration");
   std::optional<ResolvedIntrinsics> intrinsics;
   if (r.has("intrinsics")) {
     intrinsics = ResolvedIntrinsics{
-        intrinsics_from(r, "intrinsics"),
+        read_intrinsics(r, "intrinsics"),
         static_cast<IntrinsicsSource>(r.integer(
             "intrinsics.source", 0, static_cast<int64_t>(IntrinsicsSource::kEstimatedWeiszfeld)))};
   }
   PoseTracker::State tracker;
-  tracker.last_good = pose_from(r.floating("tracker.last_good", {4, 4}), r, "tracker.last_good");
+  tracker.last_good = read_pose(r, "tracker.last_good");
   tracker.has_good = r.integer("tracker.has_good", 0, 1) == 1;
   tracker.consecutive_failures = r.integer("tracker.consecutive_failures", 0, kMax);
 
@@ -298,8 +276,9 @@ void Reconstruction::restore(const StateDict& state) {
   std::vector<std::pair<double, Eigen::Isometry3d>> trajectory;
   trajectory.reserve(static_cast<std::size_t>(n));
   for (int64_t i = 0; i < n; ++i) {
-    trajectory.emplace_back(stamps.data_ptr<double>()[i],
-                            pose_from(poses[i], r, "trajectory.T_W_C[" + std::to_string(i) + "]"));
+    const std::optional<Eigen::Isometry3d> T = pose_from_tensor(poses[i]);
+    if (!T) r.fail("trajectory.T_W_C[" + std::to_string(i) + "]", "not a rigid transform");
+    trajectory.emplace_back(stamps.data_ptr<double>()[i], *T);
   }
   std::vector<bool> trajectory_given(static_cast<std::size_t>(n), false);
   if (r.has("trajectory.given")) {  // absent: every pose the model's
@@ -322,12 +301,17 @@ void Reconstruction::restore(const StateDict& state) {
   // with it off, have none: it starts empty), is read before anything changes.
   OccupancyMap occupancy(config_.occupancy);
   if (config_.occupancy.enabled && r.has("occupancy.ot")) {
+    const std::string bytes = r.bytes("occupancy.ot");
     try {
-      occupancy.read(r.bytes("occupancy.ot"));
+      occupancy.read(bytes);
     } catch (const std::runtime_error& e) {
       r.fail("occupancy.ot", e.what());
     }
   }
+  // So is the surface (rebuilt from its kept frames); sessions without one
+  // start it empty.
+  SurfaceMap surface(config_.surface);
+  if (config_.surface.enabled && r.has("surface.frames")) surface.restore(r.child("surface."));
   const StateDict previous = model_->stream_state();
   model_->restore_stream_state(model_state);
   try {
@@ -349,7 +333,7 @@ void Reconstruction::restore(const StateDict& state) {
   tracker_.restore(tracker);
   trajectory_ = std::move(trajectory);
   trajectory_given_ = std::move(trajectory_given);
-  surface_.clear();  // not in sessions yet: the surface starts again here
+  surface_.swap(surface);
 }
 
 std::optional<FrameResult> Reconstruction::push(const cv::Mat& image, const std::string& encoding,

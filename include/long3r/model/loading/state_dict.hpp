@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <initializer_list>
 #include <map>
+#include <optional>
 #include <stdexcept>
 #include <string>
 
@@ -56,6 +57,8 @@ class StateReader {
                       bool finite = true) const;
   // An int64 tensor of the given shape (-1: any size).
   at::Tensor int64(const std::string& key, std::initializer_list<int64_t> shape) const;
+  // A uint8 tensor of the given shape (an image's colours).
+  at::Tensor uint8(const std::string& key, std::initializer_list<int64_t> shape) const;
   // The bytes of a 1-D uint8 tensor (a blob another library wrote: an
   // OctoMap file), as bytes_tensor() stored them; a blob whose check sum does
   // not match is refused (StateError naming the key).
@@ -65,8 +68,9 @@ class StateReader {
 
  private:
   const at::Tensor& get(const std::string& key) const;
-  at::Tensor shaped(const std::string& key, std::initializer_list<int64_t> shape, bool floating,
-                    bool finite) const;
+  // Of dtype `exact`, or of any floating-point dtype without it.
+  at::Tensor shaped(const std::string& key, std::initializer_list<int64_t> shape,
+                    std::optional<at::ScalarType> exact, bool finite) const;
 
   const StateDict& state_;
   std::string what_, prefix_;

@@ -76,10 +76,12 @@ double StateReader::real(const std::string& key) const {
 }
 
 at::Tensor StateReader::shaped(const std::string& key, std::initializer_list<int64_t> shape,
-                               bool floating, bool finite) const {
+                               std::optional<at::ScalarType> exact, bool finite) const {
   const at::Tensor& t = get(key);
-  if (floating ? !at::isFloatingType(t.scalar_type()) : t.scalar_type() != at::kLong) {
-    fail(key, std::string("expected ") + (floating ? "a floating-point" : "an int64") +
+  const bool floating = !exact.has_value();
+  if (floating ? !at::isFloatingType(t.scalar_type()) : t.scalar_type() != *exact) {
+    fail(key, std::string("expected ") +
+                  (floating ? std::string("a floating-point") : c10::toString(*exact)) +
                   " tensor, found " + c10::toString(t.scalar_type()));
   }
   bool ok = t.dim() == static_cast<int64_t>(shape.size());
@@ -104,11 +106,15 @@ at::Tensor StateReader::shaped(const std::string& key, std::initializer_list<int
 
 at::Tensor StateReader::floating(const std::string& key, std::initializer_list<int64_t> shape,
                                  bool finite) const {
-  return shaped(key, shape, true, finite);
+  return shaped(key, shape, std::nullopt, finite);
 }
 
 at::Tensor StateReader::int64(const std::string& key, std::initializer_list<int64_t> shape) const {
-  return shaped(key, shape, false, false);
+  return shaped(key, shape, at::kLong, false);
+}
+
+at::Tensor StateReader::uint8(const std::string& key, std::initializer_list<int64_t> shape) const {
+  return shaped(key, shape, at::kByte, false);
 }
 
 namespace {
