@@ -49,14 +49,14 @@ struct NodeletConfig {
   std::string model_path;    // safetensors checkpoint; empty = package default
   std::string session_path;  // a saved session to continue at start; empty = none
   bool publish_tf = true;    // broadcast the one transform (robot_frames.hpp)
-  PoseSource pose_source = PoseSource::kModel;
-  bool use_camera_info = true;          // use camera_info intrinsics when published
-  std::string image_transport = "raw";  // raw, compressed, ...
-  int max_image_pixels = 4096 * 4096;   // larger frames are dropped
-  int queue_size = 1;                   // bounded input queue; newest frame wins
-  double flush_after_s = 1.0;           // publish the pending frame after this silence
-  double map_publish_period_s = 1.0;    // republish the map (if changed) this often
-  double map_display_voxel_m = 0.0;     // ~map downsampled to this voxel (PCL); 0 = the map's own
+  PoseSource pose_source = PoseSource::kKeyframes;  // as ReconstructionConfig::pose_method
+  bool use_camera_info = true;                      // use camera_info intrinsics when published
+  std::string image_transport = "raw";              // raw, compressed, ...
+  int max_image_pixels = 4096 * 4096;               // larger frames are dropped
+  int queue_size = 1;                               // bounded input queue; newest frame wins
+  double flush_after_s = 1.0;                       // publish the pending frame after this silence
+  double map_publish_period_s = 1.0;                // republish the map (if changed) this often
+  double map_display_voxel_m = 0.0;  // ~map downsampled to this voxel (PCL); 0 = the map's own
   // ~map without isolated points (PCL's StatisticalOutlierRemoval over this
   // many neighbours, beyond this many standard deviations); 0 = off.
   int map_display_outlier_neighbours = 0;

@@ -178,6 +178,8 @@ TEST_F(ParamsTest, MapFrameDefaultSaysItsUnits) {
 }
 
 TEST_F(ParamsTest, PoseSourceChoosesThePipelinesPoseMethod) {
+  EXPECT_EQ(readParams(pnh_).reconstruction.pose_method, long3r::PoseMethod::kKeyframes);
+  pnh_.setParam("pose_source", "model");
   EXPECT_EQ(readParams(pnh_).reconstruction.pose_method, long3r::PoseMethod::kModel);
   pnh_.setParam("pose_source", "keyframes");
   EXPECT_EQ(readParams(pnh_).reconstruction.pose_method, long3r::PoseMethod::kKeyframes);
@@ -211,7 +213,7 @@ TEST_F(ParamsTest, FramesAndScale) {
   const long3r_ros::FramesConfig f = readParams(pnh_).frames;
   EXPECT_EQ(f.odom_frame, "odom");
   EXPECT_EQ(f.base_frame, "base_link");
-  EXPECT_EQ(readParams(pnh_).node.pose_source, long3r_ros::PoseSource::kModel);
+  EXPECT_EQ(readParams(pnh_).node.pose_source, long3r_ros::PoseSource::kKeyframes);
   pnh_.setParam("pose_source", "odometry");
   EXPECT_EQ(readParams(pnh_).node.pose_source, long3r_ros::PoseSource::kOdometry);
   EXPECT_EQ(readParams(pnh_).session.scale.source, long3r::ScaleSource::kNone);
