@@ -37,9 +37,8 @@ bool near(const std::set<Cell>& cells, const Cell& c) {
   return false;
 }
 
-// nav_msgs/OccupancyGrid's layout: rows of y, the origin the corner of cell
-// (0, 0), unknown outside.
-TEST(OccupancyGrid, CellsAreRowsOfY) {
+// 3 x 2 cells of 0.5 m from (-1, 2): free, occupied, unknown; occupied, free, free.
+OccupancyGrid small_grid() {
   OccupancyGrid g;
   g.resolution_m = 0.5;
   g.origin_x_m = -1.0;
@@ -47,6 +46,13 @@ TEST(OccupancyGrid, CellsAreRowsOfY) {
   g.width = 3;
   g.height = 2;
   g.cells = {0, 100, -1, 100, 0, 0};
+  return g;
+}
+
+// nav_msgs/OccupancyGrid's layout: rows of y, the origin the corner of cell
+// (0, 0), unknown outside.
+TEST(OccupancyGrid, CellsAreRowsOfY) {
+  const OccupancyGrid g = small_grid();
   EXPECT_EQ(g.at(-0.9, 2.1), 0);
   EXPECT_EQ(g.at(-0.4, 2.1), 100);  // x: second column
   EXPECT_EQ(g.at(-0.9, 2.6), 100);  // y: second row
@@ -59,13 +65,7 @@ TEST(OccupancyGrid, CellsAreRowsOfY) {
 // map_saver's files: the image's top row is the grid's last (largest y),
 // occupied black, free white, unknown grey; the YAML places its corner.
 TEST(OccupancyGrid, SavesAsMapServerFiles) {
-  OccupancyGrid g;
-  g.resolution_m = 0.5;
-  g.origin_x_m = -1.0;
-  g.origin_y_m = 2.0;
-  g.width = 3;
-  g.height = 2;
-  g.cells = {0, 100, -1, 100, 0, 0};
+  const OccupancyGrid g = small_grid();
   const std::string stem = test::scratch_dir("occupancy/grid_files") + "/grid";
   save_grid_map(stem, g);
   const std::string pgm = test::read_file(stem + ".pgm");

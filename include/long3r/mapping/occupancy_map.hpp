@@ -30,6 +30,7 @@
 
 #include "long3r/config/config_fields.hpp"
 #include "long3r/mapping/occupancy_grid.hpp"
+#include "long3r/model/loading/state_dict.hpp"
 
 namespace octomap {
 class Pointcloud;
@@ -161,6 +162,9 @@ class OccupancyMap {
   // std::runtime_error naming the problem; the map is unchanged then.
   std::string write() const;
   void read(const std::string& bytes);
+  // read() of the blob a session keeps under `key` (bytes_tensor(write()));
+  // throws StateError naming the key, the map unchanged then.
+  void restore(const StateReader& state, const std::string& key);
 
  private:
   struct Impl;

@@ -279,6 +279,8 @@ class LiveSession {
     std::shared_ptr<const SurfaceMap> surface;
     Eigen::Isometry3d T_map_W = Eigen::Isometry3d::Identity();
   };
+  template <class Part>
+  Part surfaces_in_map(Part (SurfaceMap::*part)() const, const Eigen::Isometry3d& T_map_W) const;
   StateDict ended_state() const;
   std::vector<EndedStream> read_ended(const StateDict& file) const;
   void set_ended(std::vector<EndedStream> ended);

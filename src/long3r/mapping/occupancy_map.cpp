@@ -381,6 +381,15 @@ void check_ot_nodes(const std::string& bytes, const OtFile& f) {
 
 }  // namespace
 
+void OccupancyMap::restore(const StateReader& state, const std::string& key) {
+  const std::string bytes = state.bytes(key);
+  try {
+    read(bytes);
+  } catch (const std::runtime_error& e) {
+    state.fail(key, e.what());
+  }
+}
+
 void OccupancyMap::read(const std::string& bytes) {
   const OtFile f = read_ot_header(bytes);
   if (std::abs(f.resolution_m - config_.resolution_m) > 1e-9) {

@@ -5,7 +5,6 @@
 #include "long3r/mapping/state_geometry.hpp"
 
 #include <cmath>
-#include <cstring>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -74,16 +73,10 @@ StateDict SurfaceMap::state() const {
   for (std::size_t i = 0; i < kept_.size(); ++i) {
     const Kept& k = kept_[i];
     const std::string at = std::to_string(i) + ".";
-    at::Tensor depth = at::empty({k.depth.rows, k.depth.cols}, at::kFloat);
-    at::Tensor rgb = at::empty({k.rgb.rows, k.rgb.cols, 3}, at::kByte);
-    for (int v = 0; v < k.depth.rows; ++v) {  // rows: a cv::Mat need not be continuous
-      std::memcpy(depth.data_ptr<float>() + static_cast<std::ptrdiff_t>(v) * k.depth.cols,
-                  k.depth.ptr<float>(v), sizeof(float) * static_cast<std::size_t>(k.depth.cols));
-      std::memcpy(rgb.data_ptr<std::uint8_t>() + static_cast<std::ptrdiff_t>(v) * k.rgb.cols * 3,
-                  k.rgb.ptr<std::uint8_t>(v), 3 * static_cast<std::size_t>(k.rgb.cols));
-    }
-    out[at + "depth"] = depth;
-    out[at + "rgb"] = rgb;
+    // Kept frames are continuous (made by depth_of() and clone()).
+    out[at + "depth"] =
+        at::from_blob(k.depth.data, {k.depth.rows, k.depth.cols}, at::kFloat).clone();
+    out[at + "rgb"] = at::from_blob(k.rgb.data, {k.rgb.rows, k.rgb.cols, 3}, at::kByte).clone();
     out[at + "K"] = intrinsics_to_tensor(k.K);
     out[at + "T_W_C"] = pose_to_tensor(k.T_W_C);
   }

@@ -291,24 +291,25 @@ std::uint64_t LiveSession::map_revision() const {
   return recon_.map().revision() + ended_maps_.revision();
 }
 
-ColoredPoints LiveSession::surface_points(const Eigen::Isometry3d& T_map_W) const {
-  ColoredPoints all = transformed(recon_.surface().points(), T_map_W);
+// One part of every stream's surface (SurfaceMap::points or ::mesh), each
+// placed in the map frame.
+template <class Part>
+Part LiveSession::surfaces_in_map(Part (SurfaceMap::*part)() const,
+                                  const Eigen::Isometry3d& T_map_W) const {
+  Part all = transformed((recon_.surface().*part)(), T_map_W);
   std::lock_guard<std::mutex> lock(ended_mutex_);
   for (const EndedStream& e : ended_) {
-    if (!e.surface) continue;
-    append(all, transformed(e.surface->points(), e.T_map_W));
+    if (e.surface) append(all, transformed((*e.surface.*part)(), e.T_map_W));
   }
   return all;
 }
 
+ColoredPoints LiveSession::surface_points(const Eigen::Isometry3d& T_map_W) const {
+  return surfaces_in_map(&SurfaceMap::points, T_map_W);
+}
+
 ColoredMesh LiveSession::surface_mesh(const Eigen::Isometry3d& T_map_W) const {
-  ColoredMesh all = transformed(recon_.surface().mesh(), T_map_W);
-  std::lock_guard<std::mutex> lock(ended_mutex_);
-  for (const EndedStream& e : ended_) {
-    if (!e.surface) continue;
-    append(all, transformed(e.surface->mesh(), e.T_map_W));
-  }
-  return all;
+  return surfaces_in_map(&SurfaceMap::mesh, T_map_W);
 }
 
 // Both revisions only grow: their sum changes whenever either does.
@@ -385,12 +386,7 @@ std::vector<LiveSession::EndedStream> LiveSession::read_ended(const StateDict& f
     e.T_map_W = read_pose(r, at + "T_map_W");
     if (recon_.config().occupancy.enabled && r.has(at + "occupancy.ot")) {
       auto occupancy = std::make_shared<OccupancyMap>(recon_.config().occupancy);
-      const std::string bytes = r.bytes(at + "occupancy.ot");
-      try {
-        occupancy->read(bytes);
-      } catch (const std::runtime_error& err) {
-        r.fail(at + "occupancy.ot", err.what());
-      }
+      occupancy->restore(r, at + "occupancy.ot");
       e.occupancy = std::move(occupancy);
     }
     if (recon_.config().surface.enabled && r.has(at + "surface.frames")) {

@@ -300,14 +300,7 @@ void Reconstruction::restore(const StateDict& state) {
   // The occupancy, where the session has one (sessions saved before it, or
   // with it off, have none: it starts empty), is read before anything changes.
   OccupancyMap occupancy(config_.occupancy);
-  if (config_.occupancy.enabled && r.has("occupancy.ot")) {
-    const std::string bytes = r.bytes("occupancy.ot");
-    try {
-      occupancy.read(bytes);
-    } catch (const std::runtime_error& e) {
-      r.fail("occupancy.ot", e.what());
-    }
-  }
+  if (config_.occupancy.enabled && r.has("occupancy.ot")) occupancy.restore(r, "occupancy.ot");
   // So is the surface (rebuilt from its kept frames); sessions without one
   // start it empty.
   SurfaceMap surface(config_.surface);
