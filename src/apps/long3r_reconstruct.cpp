@@ -351,7 +351,8 @@ int main(int argc, char** argv) {
         "frame,stamp,preprocess_ms,model_ms,encode_ms,decode_ms,memory_ms,intrinsics_ms,"
         "pose_ms,map_ms,total_ms,mem_short,mem_long,mem_relevant,pnp_status,pnp_inliers,"
         "added_to_map,map_points,scale,rss_kb,tracking,tracking_solver,tracking_matches,"
-        "tracking_inliers,tracking_parallax_deg,tracking_scale,keyframe,tracking_ms\n");
+        "tracking_inliers,tracking_parallax_deg,tracking_scale,keyframe,tracking_ms,"
+        "baseline_scale_sample,baseline_triangulated\n");
     const bool tty = isatty(fileno(stdout));
     std::vector<double> frame_ms;
     long peak_rss = 0;
@@ -368,16 +369,23 @@ int main(int argc, char** argv) {
                       to_string(k->status), config::enum_name(k->solver), k->matches, k->inliers,
                       k->parallax_deg, k->scale, k->new_keyframe ? 1 : 0, t.tracking_ms);
       }
+      // Placed by given poses with --scale-source odometry: the images' sample
+      // of metres per model unit over the baseline (else empty).
+      char baseline[64] = ",";
+      if (const auto& b = r.baseline_scale) {
+        std::snprintf(baseline, sizeof baseline, "%s,%d",
+                      b->sample ? std::to_string(*b->sample).c_str() : "", b->triangulated);
+      }
       char line[768];
       std::snprintf(
           line, sizeof line,
           "%lld,%.6f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%lld,%lld,%lld,%s,%d,%d,"
-          "%zu,%.9g,%ld,%s\n",
+          "%zu,%.9g,%ld,%s,%s\n",
           static_cast<long long>(r.frame_index), r.stamp, t.preprocess_ms, t.model_ms, m.encode_ms,
           m.decode_ms, m.memory_ms, t.intrinsics_ms, t.pose_ms, t.map_ms, t.total_ms,
           static_cast<long long>(m.mem_short_tokens), static_cast<long long>(m.mem_long_tokens),
           static_cast<long long>(m.relevant_tokens), to_string(r.pose.status), r.pose.inliers,
-          r.added_to_map ? 1 : 0, r.map_points, r.scale, rss, tracking);
+          r.added_to_map ? 1 : 0, r.map_points, r.scale, rss, tracking, baseline);
       csv.write(line);
       const double fps = t.total_ms > 0 ? 1000.0 / t.total_ms : 0.0;
       if (tty) {

@@ -77,6 +77,7 @@ void fillDiagnostics(const NodeStatus& n, diagnostic_updater::DiagnosticStatusWr
   stat.add("streams started", s.streams);
   stat.add("relocalisation attempts", s.relocalisation_attempts);
   stat.add("relocalisations", s.relocalisations);
+  stat.add("relocalisations refused by the images", s.relocalisations_refused);
   stat.add("frames tracked by keyframes (total)", s.keyframe_tracked);
   stat.add("frames not tracked: the model's motion (total)", s.keyframe_untracked);
   stat.add("map points kept from ended streams", n.ended_map_points);

@@ -2,18 +2,28 @@
 // model returning the true pointmap at its 64 x 64 input (through the
 // pipeline's own resize and crop), so that the plumbing is checked against
 // exact ground truth: the tracker's pose and Sim(3) scale reach the result,
-// and a frame it cannot track is placed without a jump.
+// and a frame it cannot track is placed without a jump. Relocalisation by
+// images: a restored stream (a loaded session) places a frame of the same
+// place by its kept keyframes, whatever the model's pose, refuses one of
+// another place (not posed, not mapped), and its keyframes survive a
+// session file. Frames placed by metric odometry measure the model's scale
+// by their images (BaselineScale), whatever the model's own poses.
+#include <ATen/ATen.h>
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <vector>
 
+#include "long3r/pipeline/keyframe_state.hpp"
+#include "long3r/pipeline/live_session.hpp"
 #include "long3r/pipeline/preprocess.hpp"
 #include "long3r/pipeline/reconstruction.hpp"
 #include "long3r/synth/cv/sensor_image.hpp"
 #include "long3r/synth/generate.hpp"
 #include "long3r/synth/render.hpp"
 #include "support/cv_test_support.hpp"
+#include "support/live_session_support.hpp"
+#include "support/test_support.hpp"
 
 namespace long3r {
 namespace {
@@ -29,9 +39,9 @@ struct Footage {
 };
 
 // `scale_of(k)` scales frame k's pointmap (a model whose scale wanders).
-Footage render(int frames, const std::function<double(int)>& scale_of) {
+Footage render(int frames, const std::function<double(int)>& scale_of, std::uint64_t seed = 21) {
   synth::SequenceConfig c;
-  c.seed = 21;
+  c.seed = seed;
   c.trajectory.frames = frames;
   c.intrinsics = PinholeIntrinsics::from_hfov(kW, kH, 70.0);
   Footage f;
@@ -150,6 +160,328 @@ TEST(ReconstructionKeyframes, TheModelsPoseMethodRunsNoTracker) {
                      test::gt_reconstruction_config());
   rec.set_calibration(f.seq.config.intrinsics);
   for (const FrameResult& r : run(rec, f.bgr)) EXPECT_FALSE(r.tracking.has_value());
+}
+
+// ------------------------------------------------------------ relocalisation
+
+double one(int) { return 1.0; }
+
+// Pointmaps as a model would give them in another world: `T` times the truth.
+std::vector<cv::Mat> moved(const std::vector<cv::Mat>& pts, const Eigen::Isometry3d& T) {
+  std::vector<cv::Mat> out;
+  const Eigen::Isometry3f Tf = T.cast<float>();
+  for (const cv::Mat& p : pts) {
+    cv::Mat q = p.clone();
+    for (int i = 0; i < q.rows * q.cols; ++i) {
+      cv::Vec3f& x = q.at<cv::Vec3f>(i);
+      if (!std::isfinite(x[2])) continue;
+      const Eigen::Vector3f y = Tf * Eigen::Vector3f(x[0], x[1], x[2]);
+      x = cv::Vec3f(y.x(), y.y(), y.z());
+    }
+    out.push_back(q);
+  }
+  return out;
+}
+
+// A far-off world: the model's own pose of a revisited frame is 1 m and 25
+// degrees from the truth.
+Eigen::Isometry3d wrong_world() {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(25.0 * M_PI / 180.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(1.0, -0.3, 0.5);
+  return T;
+}
+
+constexpr int kSaved = 12;  // frames of the saved stream
+
+// The saved stream: frames 0..kSaved-1 of `a`; the model then returns
+// `after` for the frames pushed after the restore.
+struct Restored {
+  std::vector<cv::Mat> pts;
+  std::unique_ptr<Reconstruction> rec;
+  StateDict saved;
+};
+std::unique_ptr<Restored> restored(const Footage& a, const std::vector<cv::Mat>& after) {
+  auto out = std::make_unique<Restored>();
+  out->pts.assign(a.pts_W0.begin(), a.pts_W0.begin() + kSaved);
+  out->pts.insert(out->pts.end(), after.begin(), after.end());
+  Reconstruction first(std::make_unique<test::FakeModel>(&out->pts), keyframes_config());
+  first.set_calibration(a.seq.config.intrinsics);
+  run(first, std::vector<cv::Mat>(a.bgr.begin(), a.bgr.begin() + kSaved));
+  out->saved = first.state();
+  out->rec = std::make_unique<Reconstruction>(std::make_unique<test::FakeModel>(&out->pts),
+                                              keyframes_config());
+  out->rec->set_calibration(a.seq.config.intrinsics);
+  out->rec->restore(out->saved);
+  return out;
+}
+
+// The results of `images` pushed after the restore (the first push returns
+// the saved stream's last frame again, which the reconstruction drops).
+std::vector<FrameResult> continue_with(Reconstruction& rec, const std::vector<cv::Mat>& images) {
+  std::vector<FrameResult> results;
+  for (std::size_t k = 0; k < images.size(); ++k) {
+    if (auto r = rec.push(images[k], "bgr8", 10.0 + 0.1 * static_cast<double>(k))) {
+      results.push_back(std::move(*r));
+    }
+  }
+  results.push_back(*rec.flush());
+  return results;
+}
+
+TEST(Relocalisation, ARestoredStreamPlacesTheSamePlaceByItsImagesNotByTheModel) {
+  const Footage a = render(kSaved, one);
+  // Frames 4..9 again, the model's pointmaps in a world 1 m and 25 degrees off.
+  const std::vector<int> revisit{4, 5, 6, 7, 8, 9};
+  std::vector<cv::Mat> pts, images;
+  for (int k : revisit) {
+    pts.push_back(a.pts_W0[static_cast<std::size_t>(k)]);
+    images.push_back(a.bgr[static_cast<std::size_t>(k)]);
+  }
+  auto r = restored(a, moved(pts, wrong_world()));
+  const std::size_t kept = read_keyframes(StateReader(r->saved, "saved", "keyframes.")).size();
+  EXPECT_GE(kept, 2u);
+  const std::size_t map_before = r->rec->map().size();
+  const std::vector<FrameResult> results = continue_with(*r->rec, images);
+  ASSERT_EQ(results.size(), revisit.size());
+  for (std::size_t i = 0; i < results.size(); ++i) {
+    const FrameResult& f = results[i];
+    ASSERT_TRUE(f.tracking.has_value()) << i;
+    ASSERT_TRUE(f.pose.ok()) << i << ": " << f.pose.message;
+    EXPECT_EQ(f.tracking->status, i == 0 ? TrackStatus::kRelocalised : TrackStatus::kTracked) << i;
+    const Eigen::Isometry3d truth = a.T_0_k[static_cast<std::size_t>(revisit[i])];
+    // The model's own pose is where its world put it; the images' is the truth.
+    EXPECT_GT((f.model_T_W_C.translation() - truth.translation()).norm(), 0.5) << i;
+    // Where the saved stream put the same frame (its own drift reaches
+    // 2.6 cm and 0.7 degrees by frame 9 of the truth): the path goes on in
+    // the saved map.
+    const Eigen::Isometry3d saved =
+        r->rec->trajectory()[static_cast<std::size_t>(revisit[i])].second;
+    const Eigen::Isometry3d d = saved.inverse() * f.pose.T_W_C;
+    EXPECT_LT(d.translation().norm(), 0.03) << i;
+    EXPECT_LT(Eigen::AngleAxisd(d.rotation()).angle(), 0.01) << i;
+    const Eigen::Isometry3d e = truth.inverse() * f.pose.T_W_C;
+    EXPECT_LT(e.translation().norm(), 0.04) << i;
+    EXPECT_LT(Eigen::AngleAxisd(e.rotation()).angle(), 0.015) << i;
+    EXPECT_TRUE(f.added_to_map) << i;
+  }
+  EXPECT_GT(results[0].tracking->inliers, keyframes_config().tracker.relocalisation_min_inliers);
+  EXPECT_LT(results[0].tracking->depth_error, 0.05);
+  EXPECT_GT(r->rec->map().size(), map_before);
+}
+
+TEST(Relocalisation, AFrameAfterALostPoseIsRelocalisedByTheImages) {
+  Footage f = render(6, one);
+  f.pts_W0[3].setTo(cv::Scalar::all(NAN));  // the model's pose fails on frame 3
+  Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0), keyframes_config());
+  rec.set_calibration(f.seq.config.intrinsics);
+  const std::vector<FrameResult> results = run(rec, f.bgr);
+  ASSERT_EQ(results.size(), 6u);
+  EXPECT_FALSE(results[3].pose.ok());
+  EXPECT_FALSE(results[3].tracking.has_value());
+  ASSERT_TRUE(results[4].tracking.has_value());
+  EXPECT_EQ(results[4].tracking->status, TrackStatus::kRelocalised);
+  EXPECT_EQ(results[5].tracking->status, TrackStatus::kTracked);
+  for (int k : {4, 5}) {
+    const Eigen::Isometry3d d = f.T_0_k[static_cast<std::size_t>(k)].inverse() *
+                                results[static_cast<std::size_t>(k)].pose.T_W_C;
+    EXPECT_LT(d.translation().norm(), 0.03) << k;
+    EXPECT_LT(Eigen::AngleAxisd(d.rotation()).angle(), 0.01) << k;
+  }
+}
+
+TEST(Relocalisation, AnotherPlaceIsRefusedNotPostedAndNotMapped) {
+  const Footage a = render(kSaved, one);
+  const Footage b = render(6, one, /*seed=*/77);
+  auto r = restored(a, b.pts_W0);  // the model poses b in its own world
+  const std::size_t map_before = r->rec->map().size();
+  const std::size_t path_before = r->rec->trajectory().size();
+  std::vector<cv::Mat> images = b.bgr;
+  images[2] = cv::Mat(kH, kW, CV_8UC3, cv::Scalar(0, 0, 0));  // no features: refused too
+  const std::vector<FrameResult> results = continue_with(*r->rec, images);
+  ASSERT_EQ(results.size(), b.bgr.size());
+  for (const FrameResult& f : results) {
+    ASSERT_TRUE(f.tracking.has_value());
+    EXPECT_EQ(f.tracking->status, TrackStatus::kRefused) << f.tracking->message;
+    EXPECT_EQ(f.pose.status, PnpStatus::kNotRelocalised);
+    EXPECT_FALSE(f.posed());
+    EXPECT_FALSE(f.added_to_map);
+    EXPECT_NE(f.pose.message.find(f.frame_index == kSaved + 2
+                                      ? "relocalisation refused: 0 features in the image"
+                                      : "relocalisation refused: not placed against"),
+              std::string::npos)
+        << f.pose.message;
+    EXPECT_TRUE(f.points_C.empty());
+  }
+  EXPECT_EQ(r->rec->map().size(), map_before);
+  EXPECT_EQ(r->rec->trajectory().size(), path_before);
+}
+
+TEST(Relocalisation, AStreamWithoutKeptKeyframesStartsAKeyframeWhereTheModelPutsIt) {
+  // A session saved before the keyframes were kept (or by pose_method
+  // model): the next frame starts a keyframe at the model's pose.
+  const Footage a = render(kSaved + 3, one);
+  auto r = restored(a, std::vector<cv::Mat>(a.pts_W0.begin() + kSaved, a.pts_W0.end()));
+  StateDict older = r->saved;
+  for (auto it = older.begin(); it != older.end();) {
+    it = it->first.rfind("keyframes.", 0) == 0 ? older.erase(it) : std::next(it);
+  }
+  r->rec->restore(older);
+  const std::vector<FrameResult> results =
+      continue_with(*r->rec, std::vector<cv::Mat>(a.bgr.begin() + kSaved, a.bgr.end()));
+  ASSERT_EQ(results.size(), 3u);
+  EXPECT_EQ(results[0].tracking->status, TrackStatus::kKeyframe);
+  EXPECT_EQ(results[1].tracking->status, TrackStatus::kTracked);
+}
+
+TEST(Relocalisation, KeptKeyframesRoundTripAndDamageIsRefusedByName) {
+  const Footage a = render(kSaved, one);
+  auto r = restored(a, {});
+  const StateReader reader(r->saved, "saved reconstruction", "keyframes.");
+  const std::vector<KeptKeyframe> kept = read_keyframes(reader);
+  ASSERT_FALSE(kept.empty());
+  // Written again, read again: the same keyframes (float32 points and rays).
+  StateDict again;
+  put_keyframes(again, "", std::deque<KeptKeyframe>(kept.begin(), kept.end()));
+  const std::vector<KeptKeyframe> back = read_keyframes(StateReader(again, "again"));
+  ASSERT_EQ(back.size(), kept.size());
+  for (std::size_t i = 0; i < kept.size(); ++i) {
+    ASSERT_EQ(back[i].pixels.size(), kept[i].pixels.size());
+    EXPECT_TRUE(back[i].T_W_K.isApprox(kept[i].T_W_K, 0.0));
+    EXPECT_EQ(cv::norm(back[i].descriptors, kept[i].descriptors, cv::NORM_HAMMING), 0.0);
+    EXPECT_DOUBLE_EQ(back[i].median_depth, kept[i].median_depth);
+    for (std::size_t j = 0; j < kept[i].pixels.size(); ++j) {
+      EXPECT_EQ(back[i].pixels[j], kept[i].pixels[j]);
+      ASSERT_EQ(back[i].points[j].has_value(), kept[i].points[j].has_value());
+    }
+  }
+
+  auto refused = [&](const std::string& key, const at::Tensor& t, const std::string& expect) {
+    StateDict bad = r->saved;
+    bad["keyframes." + key] = t;
+    Reconstruction other(std::make_unique<test::FakeModel>(&a.pts_W0), keyframes_config());
+    try {
+      other.restore(bad);
+      ADD_FAILURE() << key << ": not refused";
+    } catch (const StateError& e) {
+      EXPECT_NE(std::string(e.what()).find(expect), std::string::npos) << e.what();
+    }
+    EXPECT_EQ(other.frames_pushed(), 0);  // nothing changed
+  };
+  const at::Tensor& offsets = r->saved.at("keyframes.offsets");
+  refused("version", at::full({}, 2, at::kLong), "keyframes.version");
+  at::Tensor down = offsets.clone();
+  down[1] = offsets[offsets.size(0) - 1] + 1;
+  refused("offsets", down, "keyframes.offsets");
+  at::Tensor rays = r->saved.at("keyframes.bearings").clone();
+  rays[0] *= 2.0;
+  refused("bearings", rays, "keyframes.bearings: feature 0: not a unit ray");
+  at::Tensor points = r->saved.at("keyframes.points").clone();
+  points[0][0] = std::nanf("");
+  points[0][1] = 1.0f;
+  points[0][2] = 1.0f;
+  refused("points", points, "keyframes.points: feature 0");
+  const int64_t n = r->saved.at("keyframes.descriptors").size(0);
+  refused("descriptors", at::zeros({n, 16}, at::kByte), "keyframes.descriptors");
+  at::Tensor poses = r->saved.at("keyframes.T_W_K").clone();
+  poses[0][0][0] = 2.0;
+  refused("T_W_K", poses, "keyframes.T_W_K: keyframe 0: not a rigid transform");
+}
+
+TEST(Relocalisation, ASavedSessionRelocalisesByImagesAndCountsWhatItRefuses) {
+  // Through LiveSession's session files: the keyframes are saved and read
+  // back; a frame of another place is refused and counted, then the same
+  // place is found again.
+  const Footage a = render(kSaved, one);
+  const Footage b = render(3, one, /*seed=*/77);
+  std::vector<cv::Mat> pts(a.pts_W0.begin(), a.pts_W0.end());
+  pts.insert(pts.end(), b.pts_W0.begin(), b.pts_W0.end());
+  for (int k : {6, 7, 8}) pts.push_back(a.pts_W0[static_cast<std::size_t>(k)]);
+  const std::string path = test::scratch_dir("relocalisation") + "/site.l3s";
+  auto push = [&](LiveSession& s, const cv::Mat& image, double stamp, int tag) {
+    LiveFrame f;
+    f.image = image;
+    f.encoding = "bgr8";
+    f.stamp_s = f.clock_s = stamp;
+    f.camera = camera_model(a.seq.config.intrinsics);
+    f.tag = tag;
+    s.push(std::move(f));
+  };
+  {
+    test::Recorder client;
+    LiveSession s(std::make_unique<test::FakeModel>(&pts), keyframes_config(), {}, client);
+    for (int k = 0; k < kSaved; ++k) push(s, a.bgr[static_cast<std::size_t>(k)], 1.0 + 0.1 * k, k);
+    s.save(path);
+  }
+  test::Recorder client;
+  LiveSession s(std::make_unique<test::FakeModel>(&pts), keyframes_config(), {}, client);
+  s.load(path);
+  int tag = kSaved;
+  for (const cv::Mat& image : b.bgr) push(s, image, 20.0 + 0.1 * tag, tag), ++tag;
+  for (int k : {6, 7, 8}) push(s, a.bgr[static_cast<std::size_t>(k)], 20.0 + 0.1 * tag, tag), ++tag;
+  s.flush();
+  const LiveStatus st = s.status();
+  EXPECT_EQ(st.relocalisations_refused, 3u);
+  EXPECT_EQ(st.relocalisations, 1u);
+  EXPECT_EQ(st.relocalisation_attempts, 4u);
+  EXPECT_EQ(st.tracking, "ok");
+  EXPECT_NE(client.event("relocalised at frame 15 by the images"), nullptr);
+  EXPECT_NE(client.event("relocalisation refused: not placed against"), nullptr);
+  EXPECT_EQ(st.streams, 2u);  // the first and the loaded one, which went on
+  EXPECT_EQ(client.results.size(), 6u);
+}
+
+// ------------------------------------------------------- scale from odometry
+
+TEST(ScaleFromOdometry, FramesPlacedByOdometryMeasureTheScaleByTheirImages) {
+  // A monocular camera placed by metric odometry (pose_source odometry,
+  // scale_source odometry); the model's units are half a metre and its own
+  // poses useless (a world 1 m and 25 degrees off after frame 0): the scale
+  // comes from the images over the odometry's baseline, and the map fills.
+  const Footage f = render(24, [](int) { return 0.5; });
+  std::vector<cv::Mat> pts = f.pts_W0;
+  const std::vector<cv::Mat> off = moved(pts, wrong_world());
+  std::copy(off.begin() + 1, off.end(), pts.begin() + 1);
+  test::Recorder client;
+  client.placer = [&](int k) { return f.T_0_k[static_cast<std::size_t>(k)]; };
+  LiveSessionConfig config;
+  config.scale.source = ScaleSource::kOdometry;
+  ReconstructionConfig recon = test::gt_reconstruction_config();  // the model's poses
+  LiveSession s(std::make_unique<test::FakeModel>(&pts), recon, config, client);
+  int metric_from = -1;
+  for (int k = 0; k < static_cast<int>(f.bgr.size()); ++k) {
+    LiveFrame frame;
+    frame.image = f.bgr[static_cast<std::size_t>(k)];
+    frame.encoding = "bgr8";
+    frame.stamp_s = frame.clock_s = 1.0 + 0.1 * k;
+    frame.camera = camera_model(f.seq.config.intrinsics);
+    frame.tag = k;
+    s.push(std::move(frame));
+    if (metric_from < 0 && s.status().scale_metric) metric_from = k;
+  }
+  s.flush();
+  const LiveStatus st = s.status();
+  ASSERT_TRUE(st.scale_metric) << st.scale_estimate.samples << " samples";
+  EXPECT_LE(metric_from, 20);
+  EXPECT_NEAR(st.scale, 2.0, 0.06);  // metres per model unit
+  EXPECT_GT(s.reconstruction().map().size(), 0u);
+  // Each result after the scale is mapped, where the odometry put it.
+  int mapped = 0;
+  for (const LiveResult& r : client.results) {
+    const int k = std::any_cast<int>(r.tag);
+    if (!r.frame.added_to_map) continue;
+    ++mapped;
+    const cv::Vec3f w = r.frame.points_W.at<cv::Vec3f>(kSize / 2, kSize / 2);
+    const cv::Vec3f truth =
+        f.pts_W0[static_cast<std::size_t>(k)].at<cv::Vec3f>(kSize / 2, kSize / 2);
+    ASSERT_TRUE(std::isfinite(w[2]));
+    EXPECT_LT(
+        (Eigen::Vector3d(w[0], w[1], w[2]) - Eigen::Vector3d(truth[0], truth[1], truth[2]) / 0.5)
+            .norm(),
+        0.06)
+        << k;
+  }
+  EXPECT_GE(mapped, 3);
 }
 
 }  // namespace

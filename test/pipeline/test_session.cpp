@@ -249,7 +249,13 @@ TEST(Session, DamagedForeignOrMismatchedFilesAreRefusedAndTheStreamIsUntouched) 
   expect_refused(with_metadata("size.l3s", "input_width", "512"),
                  "a model input size of 512x64, this one 64x64");
   expect_refused(with_metadata("version.l3s", "format_version", "7"),
-                 "session format version 7, this build reads 1");
+                 "session format version 7, this build reads 1 to 2");
+  {
+    // Version 1 (before the keyframes were kept) is read.
+    Session older(kFrames);
+    older.session->load(with_metadata("version1.l3s", "format_version", "1"));
+    EXPECT_EQ(older.session->reconstruction().frames_pushed(), kSplit);
+  }
   {
     ReconstructionConfig coarse = test::gt_reconstruction_config();
     coarse.map.voxel_size_m *= 2.0;

@@ -1,4 +1,6 @@
-// KeyframeTracker on rendered footage at a camera's resolution (640 x 480),
+// KeyframeTracker (and BaselineScale, the metric scale of the model's depth
+// over the baseline of poses known in metres) on rendered footage at a
+// camera's resolution (640 x 480),
 // its pointmaps from the true depth at a quarter of that (as the model's
 // would come), on real footage (test/data/tum_fr1_rpy: a hand-held Kinect,
 // its own depth, motion-capture ground truth) and on hostile frames.
@@ -16,6 +18,7 @@
 #include "long3r/synth/cv/sensor_image.hpp"
 #include "long3r/synth/generate.hpp"
 #include "long3r/synth/render.hpp"
+#include "long3r/tracking/baseline_scale.hpp"
 #include "long3r/tracking/keyframe_tracker.hpp"
 
 namespace long3r {
@@ -294,6 +297,63 @@ TEST(KeyframeTracker, RejectsWrongTypes) {
   KeyframeTrackerConfig c;
   c.min_matches = 3;
   EXPECT_THROW(KeyframeTracker{c}, ConfigError);
+}
+
+// ------------------------------------------------------------ baseline scale
+
+// Frames placed by their true poses in metres, their pointmaps in model
+// units of `units_per_metre`: every sample is 1 / units_per_metre.
+std::vector<BaselineScaleResult> baseline_samples(const Footage& f, double units_per_metre) {
+  BaselineScale scale;
+  std::vector<BaselineScaleResult> out;
+  for (int k = 0; k < static_cast<int>(f.gray.size()); ++k) {
+    out.push_back(scale.add(frame(f, k, units_per_metre), f.T_W_C[static_cast<std::size_t>(k)]));
+  }
+  return out;
+}
+
+TEST(BaselineScale, MeasuresTheModelsScaleOverARobotsBaseline) {
+  // A wheeled base's camera: a sample once the matches' median parallax
+  // reaches a degree (every 5 frames here).
+  const Footage f = render(synth::TrajectoryType::kRobot, 12, 31);
+  const std::vector<BaselineScaleResult> results = baseline_samples(f, 0.37);
+  EXPECT_FALSE(results[0].sample.has_value());  // the reference
+  int samples = 0;
+  for (std::size_t k = 0; k < results.size(); ++k) {
+    const BaselineScaleResult& r = results[k];
+    if (!r.sample) continue;
+    ++samples;
+    EXPECT_NEAR(*r.sample, 1.0 / 0.37, 0.03 / 0.37) << k << ": " << r.triangulated << " points";
+    EXPECT_GE(r.triangulated, BaselineScale::kMinTriangulated);
+  }
+  EXPECT_GE(samples, 2);
+}
+
+TEST(BaselineScale, AWalkGivesTheSameScaleAndTurningOnTheSpotNone) {
+  const Footage walk = render(synth::TrajectoryType::kWalk, 10, 32);
+  int samples = 0;
+  for (const BaselineScaleResult& r : baseline_samples(walk, 2.5)) {
+    if (!r.sample) continue;
+    ++samples;
+    EXPECT_NEAR(*r.sample, 0.4, 0.012);
+  }
+  EXPECT_GE(samples, 2);
+  // The camera only turns: no baseline, no sample (the depth is unobservable).
+  Footage turn = render(synth::TrajectoryType::kWalk, 6, 33);
+  for (std::size_t k = 0; k < turn.T_W_C.size(); ++k) {
+    turn.T_W_C[k].translation() = turn.T_W_C[0].translation();
+  }
+  for (const BaselineScaleResult& r : baseline_samples(turn, 1.0)) {
+    EXPECT_FALSE(r.sample.has_value()) << r.triangulated;
+  }
+}
+
+TEST(BaselineScale, RejectsWrongTypes) {
+  BaselineScale scale;
+  TrackerFrame bad;
+  bad.gray = cv::Mat::zeros(8, 8, CV_8UC3);
+  bad.points_C = cv::Mat::zeros(2, 2, CV_32FC3);
+  EXPECT_THROW(scale.add(bad, Eigen::Isometry3d::Identity()), std::invalid_argument);
 }
 
 }  // namespace

@@ -17,6 +17,7 @@
 #include "long3r/model/network/streaming.hpp"
 #include "long3r/pipeline/intrinsics.hpp"
 #include "long3r/pipeline/pose.hpp"
+#include "long3r/tracking/baseline_scale.hpp"
 #include "long3r/tracking/keyframe_tracker.hpp"
 
 namespace long3r {
@@ -57,6 +58,9 @@ struct FrameResult {
   // stream's scale by its Sim(3) (model_T_W_C stays the pointmap's pose);
   // otherwise the pointmap's pose stands. Empty without a tracker run.
   std::optional<TrackResult> tracking;
+  // ReconstructionConfig::scale_from_given_poses, a frame placed by a given
+  // pose: its sample of metres per model unit from the images (if any).
+  std::optional<BaselineScaleResult> baseline_scale;
   bool posed() const { return pose.ok() || pose_given; }
   double scale = 1.0;
   PinholeIntrinsics intrinsics;  // at model resolution

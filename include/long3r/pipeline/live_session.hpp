@@ -163,13 +163,18 @@ class LiveSessionClient {
 
 // A snapshot for diagnostics.
 struct LiveStatus {
-  std::int64_t stream_frames = 0;             // frames pushed in the current stream
-  std::uint64_t streams = 0;                  // streams started, the first included
-  std::string tracking = "not started";       // "ok", "lost"
-  int lost_frames = 0;                        // consecutive frames without a pose
-  double lost_for_s = 0.0;                    // stamps spanned by them
-  std::uint64_t relocalisation_attempts = 0;  // frames tried while tracking was lost
-  std::uint64_t relocalisations = 0;          // of them, the ones that found the pose again
+  std::int64_t stream_frames = 0;        // frames pushed in the current stream
+  std::uint64_t streams = 0;             // streams started, the first included
+  std::string tracking = "not started";  // "ok", "lost"
+  int lost_frames = 0;                   // consecutive frames without a pose
+  double lost_for_s = 0.0;               // stamps spanned by them
+  // Frames tried while tracking was lost or, with pose_method keyframes,
+  // while relocalising (after a lost pose or a loaded session); of them, the
+  // ones that found the pose again, and those the images refused (no kept
+  // keyframe confirms the pose: the frame is not posed).
+  std::uint64_t relocalisation_attempts = 0;
+  std::uint64_t relocalisations = 0;
+  std::uint64_t relocalisations_refused = 0;
   // pose_method keyframes: frames the keyframe tracker posed, and those it
   // could not (placed by the model's motion since the last frame).
   std::uint64_t keyframe_tracked = 0, keyframe_untracked = 0;

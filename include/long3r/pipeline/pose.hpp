@@ -69,6 +69,9 @@ enum class PnpStatus {
   kSolverFailed,   // solvePnPRansac found no pose (or threw)
   kTooFewInliers,  // a pose, but fewer than min_inliers inliers
   kNonFinite,      // the solver returned NaN/inf
+  // Relocalising (pose_method keyframes): PnP posed the pointmap, but no
+  // kept keyframe's image correspondences confirm where (KeyframeTracker).
+  kNotRelocalised,
 };
 const char* to_string(PnpStatus status);
 

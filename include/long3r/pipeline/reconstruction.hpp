@@ -7,7 +7,10 @@
 // pointmap (PoseTracker, the paper's way), and with pose_method keyframes
 // then by image correspondences with keyframes (tracking/keyframe_tracker.hpp,
 // on the full-resolution image, its points the pointmap seen from the PnP
-// pose) -> map fusion when the pose is good.
+// pose) -> map fusion when the pose is good. With keyframes, a frame after
+// one whose pose failed, or after a session's restore, is posed only when
+// the images relocalise it against a kept keyframe (otherwise its pose
+// status is kNotRelocalised and it is not mapped).
 //
 // Frames: the world frame W is the camera optical frame of frame 0 of the
 // current stream (x right, y down, z forward); frame 0's pose is the identity.
@@ -38,6 +41,7 @@
 #include "long3r/pipeline/intrinsics.hpp"
 #include "long3r/pipeline/pose.hpp"
 #include "long3r/pipeline/preprocess.hpp"
+#include "long3r/tracking/baseline_scale.hpp"
 #include "long3r/tracking/keyframe_tracker.hpp"
 
 namespace long3r {
@@ -74,6 +78,11 @@ struct ReconstructionConfig {
   // shipped model's confidence stays within about [1, 1.1] (docs/model_card.md)
   // and says little; 3 suits the official DUSt3R / Spann3R checkpoints.
   float conf_threshold = 1.0f;
+  // Frames placed by given poses in metres (odometry) measure the metric
+  // scale of the model's depth from their images over the baseline
+  // (tracking/baseline_scale.hpp; FrameResult::baseline_scale). Set by
+  // LiveSession for scale_source odometry, not a parameter of its own.
+  bool scale_from_given_poses = false;
 
   // Throws ConfigError naming the field.
   void validate(const config::FieldCheck& check) const;
@@ -206,6 +215,7 @@ class Reconstruction {
   bool intrinsics_failed_ = false;
   PoseTracker tracker_;
   KeyframeTracker keyframes_;
+  BaselineScale baseline_scale_;
   // The last frame the keyframe tracker saw: (its T_W_C, tracked or placed
   // by the model's motion; the model's own).
   std::optional<std::pair<Eigen::Isometry3d, Eigen::Isometry3d>> last_tracked_;

@@ -4,7 +4,8 @@
 //
 // The file is safetensors (self-describing, validated like a checkpoint,
 // written atomically):
-//   metadata  format "long3r_session", format_version "1";
+//   metadata  format "long3r_session", format_version "2" (version 1, read
+//             too, is the same without the keyframes);
 //             model.variant, model.config (JSON), model.weights (fingerprint,
 //             ModelShell::weights_fingerprint); input_width, input_height,
 //             voxel_size_m: what the saved state is only valid for; frames,
@@ -12,7 +13,9 @@
 //   tensors   the state dict (state_dict.hpp): "reconstruction.*" (the
 //             model's stream, map, path, tracker, intrinsics, scale, and
 //             where they are on: the occupancy as OctoMap's .ot bytes, the
-//             surface's kept frames), "live.*" (the scale estimate),
+//             surface's kept frames; "reconstruction.keyframes.*": the
+//             keyframe tracker's kept keyframes, keyframe_state.hpp),
+//             "live.*" (the scale estimate),
 //             "ended_maps.*" and "ended.*" (what ended streams left: their
 //             points; their occupancy and surface with where they ended).
 //             Parts a file lacks (older files, or saved with them off)
@@ -38,7 +41,9 @@ class SessionError : public std::runtime_error {
 };
 
 constexpr const char* kSessionFormat = "long3r_session";
-constexpr const char* kSessionFormatVersion = "1";
+constexpr const char* kSessionFormatVersion = "2";
+// The oldest version this build reads (1: before the kept keyframes).
+constexpr const char* kSessionFormatVersionOldest = "1";
 
 // What a saved state is only valid for.
 struct SessionIdentity {

@@ -34,6 +34,16 @@
 // A frame with too few matches (a blank wall, a dark or blurred image, a cut
 // to another scene) is not posed: the caller falls back (the model's motion).
 // A pointmap that lies behind its camera never makes a keyframe.
+//
+// Relocalisation by images: keyframes from new viewpoints are kept (a
+// sparse set, bounded; what sessions save). After a restore (a loaded
+// session) or lose() (the caller lost the frame's pose), a frame is posed
+// only when the images place it against a kept keyframe (the current one
+// first, then the nearest to the caller's pose, then the rest in turn) with
+// enough PnP inliers, a large enough share of its lifted matches, and its
+// own depth agreeing with the kept keyframe's points at them (the distance
+// of its points to the saved map, as a ratio of their depth); otherwise it
+// is refused (kRefused), and no keyframe is made from it.
 // Nothing here knows the model: the pointmap comes in as a CV_32FC3 in C.
 #pragma once
 
@@ -44,6 +54,7 @@
 
 #include <array>
 #include <cstdint>
+#include <deque>
 #include <optional>
 #include <string>
 #include <utility>
@@ -81,6 +92,20 @@ struct KeyframeTrackerConfig {
   double keyframe_parallax_deg = 4.0;
   double keyframe_min_overlap = 0.4;
   int keyframe_max_frames = 4;
+  // Relocalisation: a frame is placed against a kept keyframe only with at
+  // least this many PnP inliers, this share of the matches with keyframe
+  // depth among them, and its own depth at the inliers within this median
+  // relative difference of the keyframe's points (after its Sim(3) scale).
+  int relocalisation_min_inliers = 40;
+  double relocalisation_min_inlier_share = 0.3;
+  double relocalisation_max_depth_error = 0.2;
+  int relocalisation_candidates = 6;  // kept keyframes tried per frame
+  // A keyframe is kept unless a kept one is within this baseline (a share
+  // of its median depth) and this angle; at most max_kept_keyframes are kept,
+  // the oldest dropped first.
+  double kept_keyframe_baseline = 0.15;
+  double kept_keyframe_angle_deg = 10.0;
+  int max_kept_keyframes = 500;
 
   // Throws ConfigError naming the field.
   void validate(const config::FieldCheck& check) const;
@@ -99,6 +124,13 @@ config::FieldsOf<S, KeyframeTrackerConfig> visit_fields(S& s, V& v) {
   v("keyframe_parallax_deg", s.keyframe_parallax_deg);
   v("keyframe_min_overlap", s.keyframe_min_overlap);
   v("keyframe_max_frames", s.keyframe_max_frames);
+  v("relocalisation_min_inliers", s.relocalisation_min_inliers);
+  v("relocalisation_min_inlier_share", s.relocalisation_min_inlier_share);
+  v("relocalisation_max_depth_error", s.relocalisation_max_depth_error);
+  v("relocalisation_candidates", s.relocalisation_candidates);
+  v("kept_keyframe_baseline", s.kept_keyframe_baseline);
+  v("kept_keyframe_angle_deg", s.kept_keyframe_angle_deg);
+  v("max_kept_keyframes", s.max_kept_keyframes);
 }
 
 // One frame as the tracker sees it.
@@ -115,13 +147,18 @@ enum class TrackStatus {
   kTooFewFeatures,  // the image has too few features (blank, dark, blurred)
   kTooFewMatches,   // too few matches with the keyframe (or inliers after RANSAC)
   kNoDepth,         // too few matched keyframe points with depth to give the length
+  kRelocalised,     // relocalising: posed against a kept keyframe, the checks passed
+  kRefused,         // relocalising: no kept keyframe places the frame (not posed)
 };
 const char* to_string(TrackStatus status);
 
 struct TrackResult {
   TrackStatus status = TrackStatus::kTooFewFeatures;
   std::string message;  // why not, with the numbers; empty when posed
-  bool posed() const { return status == TrackStatus::kKeyframe || status == TrackStatus::kTracked; }
+  bool posed() const {
+    return status == TrackStatus::kKeyframe || status == TrackStatus::kTracked ||
+           status == TrackStatus::kRelocalised;
+  }
   Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
   // The frame's pointmap times this is in the stream's scale: measured at
   // its inliers (scale_measured), else the last posed frame's (also when the
@@ -130,9 +167,25 @@ struct TrackResult {
   bool scale_measured = false;
   TrackingSolver solver = TrackingSolver::kEssential;  // what gave the pose
   int features = 0, matches = 0, inliers = 0;
+  int lifted = 0;             // matches with a keyframe point
   double parallax_deg = 0.0;  // median over the inliers
+  // Median over the inliers of |own depth x scale / keyframe point's depth - 1|.
+  double depth_error = 0.0;
   bool new_keyframe = false;
 };
+
+// A keyframe as kept for relocalisation and saved with sessions: its ORB
+// features on the full-resolution image and their points in K.
+struct KeptKeyframe {
+  std::vector<cv::Point2f> pixels;
+  cv::Mat descriptors;                                 // CV_8UC1 [features, 32]
+  std::vector<Eigen::Vector3d> bearings;               // unit, in K's frame
+  std::vector<std::optional<Eigen::Vector3d>> points;  // in K, stream scale
+  Eigen::Isometry3d T_W_K = Eigen::Isometry3d::Identity();
+  double median_depth = 1.0;  // of its points (1 without any): its viewpoint's scale
+};
+// The median depth of a keyframe's points (1 without any).
+double median_depth(const std::vector<std::optional<Eigen::Vector3d>>& points);
 
 class KeyframeTracker {
  public:
@@ -150,17 +203,23 @@ class KeyframeTracker {
   // The world's scale changed by `factor` (Reconstruction::set_scale).
   void rescale(double factor);
   void reset();
+  // The caller lost the pose of a frame: the next frames are relocalised
+  // (when there is a keyframe to relocalise against).
+  void lose();
+  bool relocalising() const { return relocalising_; }
+  // The kept keyframes, oldest first (sessions save them).
+  const std::deque<KeptKeyframe>& kept() const { return kept_; }
+  // A saved stream's kept keyframes replace this one's: the next frames are
+  // relocalised against them (none: the next frame starts a keyframe, as a
+  // new stream's first). Throws std::invalid_argument for a keyframe whose
+  // parts differ in length or whose descriptors are not ORB's.
+  void restore(std::vector<KeptKeyframe> kept);
   bool has_keyframe() const { return keyframe_.has_value(); }
   int keyframes() const { return keyframes_; }  // made in this stream
   const KeyframeTrackerConfig& config() const { return config_; }
 
  private:
-  struct Keyframe {
-    std::vector<cv::Point2f> pixels;
-    cv::Mat descriptors;
-    std::vector<Eigen::Vector3d> bearings;               // unit, in K's frame
-    std::vector<std::optional<Eigen::Vector3d>> points;  // in K, stream scale
-    Eigen::Isometry3d T_W_K = Eigen::Isometry3d::Identity();
+  struct Keyframe : KeptKeyframe {
     int64_t frames_since = 0;
     int reference_inliers = 0;  // the first frame tracked against it
   };
@@ -172,6 +231,13 @@ class KeyframeTracker {
   TrackResult relative(const Keyframe& kf, const TrackerFrame& frame,
                        const std::vector<cv::KeyPoint>& keypoints,
                        const cv::Mat& descriptors) const;
+  // Relocalising: the frame against the current and the kept keyframes.
+  TrackResult relocalise(const TrackerFrame& frame, const std::vector<cv::KeyPoint>& keypoints,
+                         const cv::Mat& descriptors, const Eigen::Isometry3d& T_W_C_prior);
+  // Why a relocalisation candidate fails the checks (empty: it passes).
+  std::string relocalisation_failure(const TrackResult& r) const;
+  // The current keyframe changed to `k`: kept unless a kept one is near.
+  void keep(const KeptKeyframe& k);
 
   KeyframeTrackerConfig config_;
   cv::Ptr<cv::ORB> orb_;  // made once: OpenCV's ORB defaults but the FAST threshold (theirs: 20)
@@ -182,6 +248,9 @@ class KeyframeTracker {
   double last_scale_ = 1.0;
   int lost_ = 0;  // untracked frames in a row
   int keyframes_ = 0;
+  std::deque<KeptKeyframe> kept_;
+  bool relocalising_ = false;
+  std::size_t next_candidate_ = 0;  // the kept keyframes are tried in turn from here
 };
 
 }  // namespace long3r

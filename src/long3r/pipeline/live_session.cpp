@@ -15,6 +15,13 @@ namespace long3r {
 
 namespace {
 
+// The reconstruction's config as this session uses it: frames placed by
+// odometry measure the scale by their images when the scale comes from it.
+ReconstructionConfig with_scale_source(ReconstructionConfig c, ScaleSource source) {
+  c.scale_from_given_poses = source == ScaleSource::kOdometry;
+  return c;
+}
+
 std::string format(const char* fmt, double a, double b = 0.0) {
   char buf[256];
   std::snprintf(buf, sizeof(buf), fmt, a, b);
@@ -68,7 +75,7 @@ LiveSession::LiveSession(std::unique_ptr<StreamingModel> model,
                          const LiveSessionConfig& config, LiveSessionClient& client)
     : config_(config),
       client_(client),
-      recon_(std::move(model), reconstruction),
+      recon_(std::move(model), with_scale_source(reconstruction, config.scale.source)),
       ended_maps_(reconstruction.map),
       monitor_(config.stream),
       scale_policy_(config.scale),
@@ -552,7 +559,7 @@ void LiveSession::deliver(FrameResult frame) {
   if (const auto& k = f.tracking) {
     if (k->posed()) {
       ++status_.keyframe_tracked;
-    } else {
+    } else if (k->status != TrackStatus::kRefused) {  // refused: track_loss() says so
       ++status_.keyframe_untracked;
       warn("keyframes", "frame " + std::to_string(f.frame_index) +
                             ": not tracked against the keyframes (" + to_string(k->status) + ": " +
@@ -567,14 +574,23 @@ void LiveSession::deliver(FrameResult frame) {
 
 void LiveSession::track_loss(const FrameResult& r) {
   int& lost = status_.lost_frames;
-  if (lost > 0) ++status_.relocalisation_attempts;
+  // Relocalisation by images (pose_method keyframes): tried on this frame.
+  const bool by_images = r.tracking && (r.tracking->status == TrackStatus::kRelocalised ||
+                                        r.tracking->status == TrackStatus::kRefused);
+  if (lost > 0 || by_images) ++status_.relocalisation_attempts;
+  if (by_images && r.tracking->status == TrackStatus::kRefused) ++status_.relocalisations_refused;
   if (r.pose.ok()) {
-    if (lost > 0) {
+    if (lost > 0 || by_images) {
       ++status_.relocalisations;
-      info("tracking", format("relocalised at frame %.0f", static_cast<double>(r.frame_index)) +
-                           " after " + std::to_string(lost) +
-                           format(" unposed frame(s) (%.1f s): the stream goes on in its map",
-                                  r.stamp - lost_since_stamp_));
+      const std::string how = by_images ? " by the images (" + std::to_string(r.tracking->inliers) +
+                                              " inliers against a kept keyframe)"
+                                        : std::string();
+      info("tracking",
+           format("relocalised at frame %.0f", static_cast<double>(r.frame_index)) + how +
+               (lost > 0 ? " after " + std::to_string(lost) +
+                               format(" unposed frame(s) (%.1f s)", r.stamp - lost_since_stamp_)
+                         : std::string()) +
+               ": the stream goes on in its map");
     }
     lost = 0;
   } else {
@@ -607,6 +623,9 @@ void LiveSession::update_scale(LiveResult& result) {
   std::optional<double> sample;
   if (config_.scale.source == ScaleSource::kDepth) {
     sample = depth_sample(result);
+  } else if (config_.scale.source == ScaleSource::kOdometry && r.baseline_scale) {
+    // Placed by odometry: the images over its baseline, not the model's motion.
+    sample = r.baseline_scale->sample;
   } else if (config_.scale.source == ScaleSource::kOdometry) {
     try {
       const Eigen::Vector3d odom = client_.odometry_camera_position_m(result);

@@ -58,6 +58,8 @@ const char* to_string(PnpStatus status) {
       return "too_few_inliers";
     case PnpStatus::kNonFinite:
       return "non_finite";
+    case PnpStatus::kNotRelocalised:
+      return "not_relocalised";
   }
   return "unknown";
 }

@@ -1,8 +1,6 @@
 // Streaming reconstruction pipeline (see reconstruction.hpp).
 #include "long3r/pipeline/reconstruction.hpp"
 
-#include "long3r/mapping/state_geometry.hpp"
-
 #include <ATen/ATen.h>
 #include <c10/core/InferenceMode.h>
 #include <opencv2/imgproc.hpp>
@@ -13,6 +11,9 @@
 #include <stdexcept>
 #include <tuple>
 #include <utility>
+
+#include "long3r/mapping/state_geometry.hpp"
+#include "long3r/pipeline/keyframe_state.hpp"
 
 namespace long3r {
 namespace {
@@ -88,6 +89,7 @@ Reconstruction::Reconstruction(std::unique_ptr<StreamingModel> model,
       config_(effective(config)),
       tracker_(config_.pnp),
       keyframes_(config_.tracker),
+      baseline_scale_(config_.tracker),
       map_(config_.map),
       surface_(config_.surface),
       occupancy_(config_.occupancy) {
@@ -122,6 +124,7 @@ void Reconstruction::reset() {
   intrinsics_failed_ = false;
   tracker_.reset();
   keyframes_.reset();
+  baseline_scale_.reset();
   last_tracked_.reset();
   map_.clear();
   surface_.clear();
@@ -230,6 +233,9 @@ StateDict Reconstruction::state() const {
   }
   out["trajectory.given"] = given;
 
+  if (config_.pose_method == PoseMethod::kKeyframes) {
+    put_keyframes(out, "keyframes.", keyframes_.kept());
+  }
   put_state(out, "map.", map_.state());
   if (config_.occupancy.enabled) out["occupancy.ot"] = bytes_tensor(occupancy_.write());
   if (config_.surface.enabled) put_state(out, "surface.", surface_.state());
@@ -305,6 +311,11 @@ void Reconstruction::restore(const StateDict& state) {
   // start it empty.
   SurfaceMap surface(config_.surface);
   if (config_.surface.enabled && r.has("surface.frames")) surface.restore(r.child("surface."));
+  // The kept keyframes, where the session has them (sessions saved before
+  // them, or with pose_method model, have none: the next frame starts a
+  // keyframe where the model puts it).
+  std::vector<KeptKeyframe> kept;
+  if (r.has("keyframes.version")) kept = read_keyframes(r.child("keyframes."));
   const StateDict previous = model_->stream_state();
   model_->restore_stream_state(model_state);
   try {
@@ -327,6 +338,8 @@ void Reconstruction::restore(const StateDict& state) {
   trajectory_ = std::move(trajectory);
   trajectory_given_ = std::move(trajectory_given);
   surface_.swap(surface);
+  keyframes_.restore(std::move(kept));
+  last_tracked_.reset();
 }
 
 std::optional<FrameResult> Reconstruction::push(const cv::Mat& image, const std::string& encoding,
@@ -346,7 +359,7 @@ std::optional<FrameResult> Reconstruction::push(const cv::Mat& image, const std:
   p.index = frames_pushed_;
   p.stamp = stamp_s;
   p.T_W_C = T_W_C;
-  if (config_.pose_method == PoseMethod::kKeyframes) {
+  if (config_.pose_method == PoseMethod::kKeyframes || (config_.scale_from_given_poses && T_W_C)) {
     // Straight from the source encoding (the same weights as through RGB).
     switch (enc) {
       case ImageEncoding::kMono8:
@@ -476,6 +489,10 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
   if (r.pose.ok()) r.points_C = points_in_camera(r.points_W, r.pose.T_W_C);
   // The keyframe tracker: the frame's shape as its PnP pose sees it, placed
   // by the images' correspondences with the keyframe (a given pose wins).
+  // A frame whose pose failed: the next ones are relocalised by the images.
+  if (config_.pose_method == PoseMethod::kKeyframes && !p.T_W_C && !r.pose.ok()) {
+    keyframes_.lose();
+  }
   if (config_.pose_method == PoseMethod::kKeyframes && !p.T_W_C && r.pose.ok() && intrinsics_) {
     TrackerFrame frame;
     frame.gray = p.gray;
@@ -491,10 +508,28 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
     const double t_tracking = now_ms();
     r.tracking = keyframes_.track(frame, prior);
     r.timings.tracking_ms = now_ms() - t_tracking;
-    r.pose.T_W_C = r.tracking->posed() ? r.tracking->T_W_C : prior;
-    last_tracked_ = {r.pose.T_W_C, r.model_T_W_C};
-    if (r.tracking->scale != 1.0) r.points_C *= r.tracking->scale;
-    r.points_W = transform_points(r.points_C, r.pose.T_W_C);
+    if (r.tracking->status == TrackStatus::kRefused) {
+      // Relocalising, and the images do not say where: not posed, not
+      // mapped, and the path does not jump.
+      r.pose.status = PnpStatus::kNotRelocalised;
+      r.pose.message = "relocalisation refused: " + r.tracking->message;
+      r.pose.T_W_C = last_tracked_ ? last_tracked_->first : r.model_T_W_C;
+      r.points_C = cv::Mat();
+    } else {
+      r.pose.T_W_C = r.tracking->posed() ? r.tracking->T_W_C : prior;
+      last_tracked_ = {r.pose.T_W_C, r.model_T_W_C};
+      if (r.tracking->scale != 1.0) r.points_C *= r.tracking->scale;
+      r.points_W = transform_points(r.points_C, r.pose.T_W_C);
+    }
+  }
+  if (p.T_W_C && config_.scale_from_given_poses && r.pose.ok() && intrinsics_) {
+    // The scale of the model's depth over the given poses' baseline.
+    TrackerFrame frame;
+    frame.gray = p.gray;
+    frame.K = source_camera_matrix(p.image.model_to_source);
+    frame.points_C = r.points_C / scale_;  // model units
+    frame.model_to_image = p.image.model_to_source.matrix();
+    r.baseline_scale = baseline_scale_.add(frame, *p.T_W_C);
   }
   if (p.T_W_C) {  // placed by the given pose, whether PnP found the model's or not
     r.pose_given = true;

@@ -74,9 +74,9 @@ void check_format(const std::map<std::string, std::string>& metadata, const std:
                        "safetensors file?)");
   }
   const std::string& version = need(metadata, "format_version", path);
-  if (version != kSessionFormatVersion) {
+  if (version != kSessionFormatVersion && version != kSessionFormatVersionOldest) {
     throw SessionError(path + ": session format version " + version + ", this build reads " +
-                       kSessionFormatVersion);
+                       kSessionFormatVersionOldest + " to " + kSessionFormatVersion);
   }
 }
 

@@ -1,11 +1,14 @@
 #include "long3r/tracking/keyframe_tracker.hpp"
 
+#include "long3r/tracking/feature_matching.hpp"
+
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/eigen.hpp>
 #include <opencv2/features2d.hpp>
 
 #include <algorithm>
 #include <cmath>
+#include <iterator>
 #include <numeric>
 #include <sstream>
 #include <stdexcept>
@@ -103,6 +106,21 @@ void KeyframeTrackerConfig::validate(const config::FieldCheck& check) const {
   check.require(keyframe_min_overlap >= 0.0 && keyframe_min_overlap <= 1.0, "keyframe_min_overlap",
                 "must be in [0, 1]");
   check.require(keyframe_max_frames >= 1, "keyframe_max_frames", "must be >= 1");
+  check.require(relocalisation_min_inliers >= min_matches, "relocalisation_min_inliers",
+                "must be >= min_matches");
+  check.require(relocalisation_min_inlier_share >= 0.0 && relocalisation_min_inlier_share <= 1.0,
+                "relocalisation_min_inlier_share", "must be in [0, 1]");
+  check.require(
+      relocalisation_max_depth_error > 0.0 && std::isfinite(relocalisation_max_depth_error),
+      "relocalisation_max_depth_error", "must be > 0");
+  check.require(relocalisation_candidates >= 1 && relocalisation_candidates <= 100,
+                "relocalisation_candidates", "must be in [1, 100]");
+  check.require(kept_keyframe_baseline >= 0.0 && std::isfinite(kept_keyframe_baseline),
+                "kept_keyframe_baseline", "must be >= 0");
+  check.require(kept_keyframe_angle_deg >= 0.0 && kept_keyframe_angle_deg <= 180.0,
+                "kept_keyframe_angle_deg", "must be in [0, 180]");
+  check.require(max_kept_keyframes >= 1 && max_kept_keyframes <= 100000, "max_kept_keyframes",
+                "must be in [1, 100000]");
 }
 
 const char* to_string(TrackStatus status) {
@@ -117,14 +135,26 @@ const char* to_string(TrackStatus status) {
       return "too few matches";
     case TrackStatus::kNoDepth:
       return "no depth";
+    case TrackStatus::kRelocalised:
+      return "relocalised";
+    case TrackStatus::kRefused:
+      return "relocalisation refused";
   }
   return "?";
 }
 
 KeyframeTracker::KeyframeTracker(const KeyframeTrackerConfig& config) : config_(config) {
   config_.validate({"tracker config", ""});
-  orb_ = cv::ORB::create(config_.max_features, 1.2f, 8, 31, 0, 2, cv::ORB::HARRIS_SCORE, 31,
-                         config_.fast_threshold);
+  orb_ = make_orb(config_.max_features, config_.fast_threshold);
+}
+
+double median_depth(const std::vector<std::optional<Eigen::Vector3d>>& points) {
+  std::vector<double> z;
+  for (const auto& p : points) {
+    if (p) z.push_back(p->z());
+  }
+  const double m = median(std::move(z));
+  return m > 0.0 && std::isfinite(m) ? m : 1.0;
 }
 
 void KeyframeTracker::reset() {
@@ -133,16 +163,56 @@ void KeyframeTracker::reset() {
   lost_ = 0;
   last_scale_ = 1.0;
   keyframes_ = 0;
+  kept_.clear();
+  relocalising_ = false;
+  next_candidate_ = 0;
+}
+
+void KeyframeTracker::lose() { relocalising_ = keyframe_.has_value() || !kept_.empty(); }
+
+void KeyframeTracker::restore(std::vector<KeptKeyframe> kept) {
+  for (std::size_t i = 0; i < kept.size(); ++i) {
+    const KeptKeyframe& k = kept[i];
+    const std::size_t n = k.pixels.size();
+    if (k.bearings.size() != n || k.points.size() != n ||
+        static_cast<std::size_t>(k.descriptors.rows) != n ||
+        (n > 0 && (k.descriptors.type() != CV_8UC1 || k.descriptors.cols != 32))) {
+      throw std::invalid_argument("KeyframeTracker::restore: kept keyframe " + std::to_string(i) +
+                                  " has parts of different lengths or descriptors that are not "
+                                  "ORB's (32 bytes each)");
+    }
+  }
+  reset();
+  kept_.assign(std::make_move_iterator(kept.begin()), std::make_move_iterator(kept.end()));
+  while (kept_.size() > static_cast<std::size_t>(config_.max_kept_keyframes)) kept_.pop_front();
+  relocalising_ = !kept_.empty();
 }
 
 void KeyframeTracker::rescale(double factor) {
-  for (std::optional<Keyframe>* k : {&keyframe_, &last_}) {
-    if (!*k) continue;
-    (*k)->T_W_K.translation() *= factor;
-    for (auto& p : (*k)->points) {
+  auto rescale_one = [factor](KeptKeyframe& k) {
+    k.T_W_K.translation() *= factor;
+    for (auto& p : k.points) {
       if (p) *p *= factor;
     }
+    k.median_depth *= factor;
+  };
+  for (std::optional<Keyframe>* k : {&keyframe_, &last_}) {
+    if (*k) rescale_one(**k);
   }
+  for (KeptKeyframe& k : kept_) rescale_one(k);
+}
+
+void KeyframeTracker::keep(const KeptKeyframe& k) {
+  for (const KeptKeyframe& o : kept_) {
+    const double baseline = (o.T_W_K.translation() - k.T_W_K.translation()).norm() / k.median_depth;
+    const double angle =
+        Eigen::AngleAxisd(o.T_W_K.linear().transpose() * k.T_W_K.linear()).angle() * kRadToDeg;
+    if (baseline < config_.kept_keyframe_baseline && angle < config_.kept_keyframe_angle_deg) {
+      return;
+    }
+  }
+  kept_.push_back(k);
+  while (kept_.size() > static_cast<std::size_t>(config_.max_kept_keyframes)) kept_.pop_front();
 }
 
 KeyframeTracker::Keyframe KeyframeTracker::make_keyframe(const TrackerFrame& frame,
@@ -169,6 +239,7 @@ KeyframeTracker::Keyframe KeyframeTracker::make_keyframe(const TrackerFrame& fra
       k.points.emplace_back(std::nullopt);
     }
   }
+  k.median_depth = median_depth(k.points);
   return k;
 }
 
@@ -188,12 +259,14 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
   r.features = static_cast<int>(keypoints.size());
   std::ostringstream why;
   if (r.features < config_.min_matches) {
-    r.status = TrackStatus::kTooFewFeatures;
+    // Relocalising, nothing but the images may place a frame.
+    r.status = relocalising_ ? TrackStatus::kRefused : TrackStatus::kTooFewFeatures;
     why << r.features << " features in the image (at least " << config_.min_matches << " needed)";
     r.message = why.str();
     return r;
   }
   const bool in_front = share_in_front(frame.points_C) >= kMinShareInFront;
+  if (relocalising_) return relocalise(frame, keypoints, descriptors, T_W_C_prior);
 
   if (!keyframe_) {
     if (!in_front) {
@@ -202,6 +275,7 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
       return r;
     }
     keyframe_ = make_keyframe(frame, keypoints, descriptors, T_W_C_prior, 1.0);
+    keep(*keyframe_);
     ++keyframes_;
     last_scale_ = 1.0;
     r.status = TrackStatus::kKeyframe;
@@ -217,6 +291,7 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
     if (r_last.posed()) {
       keyframe_ = std::move(*last_);
       last_.reset();
+      keep(*keyframe_);
       ++keyframes_;
       r_kf = r_last;
     }
@@ -229,6 +304,7 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
     if (++lost_ >= kKeyframeAfterLostFrames && in_front) {
       keyframe_ = make_keyframe(frame, keypoints, descriptors, T_W_C_prior, last_scale_);
       last_.reset();
+      keep(*keyframe_);
       ++keyframes_;
       lost_ = 0;
       r.new_keyframe = true;
@@ -251,6 +327,7 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
     Keyframe next = make_keyframe(frame, keypoints, descriptors, r.T_W_C, r.scale);
     if (due) {
       keyframe_ = std::move(next);
+      keep(*keyframe_);
       ++keyframes_;
       r.new_keyframe = true;
     } else {
@@ -267,26 +344,12 @@ TrackResult KeyframeTracker::relative(const Keyframe& kf, const TrackerFrame& fr
   r.scale = last_scale_;  // unless the frame measures its own (4.)
   std::ostringstream why;
   // 1. Matches frame -> keyframe, ratio test, one frame feature per keyframe feature.
-  std::vector<std::vector<cv::DMatch>> knn;
-  cv::BFMatcher(cv::NORM_HAMMING).knnMatch(descriptors, kf.descriptors, knn, 2);
-  std::vector<int> best_for_kf(kf.pixels.size(), -1);
-  std::vector<float> best_distance(kf.pixels.size(), 1e30f);
-  for (const auto& m : knn) {
-    if (m.empty()) continue;
-    if (m.size() == 2 && m[0].distance > config_.ratio_test * m[1].distance) continue;
-    const int k = m[0].trainIdx;
-    if (m[0].distance < best_distance[k]) {
-      best_distance[k] = m[0].distance;
-      best_for_kf[k] = m[0].queryIdx;
-    }
-  }
   std::vector<cv::Point2f> px_k, px_f;
   std::vector<int> idx_k;
-  for (std::size_t k = 0; k < best_for_kf.size(); ++k) {
-    if (best_for_kf[k] < 0) continue;
-    idx_k.push_back(static_cast<int>(k));
-    px_k.push_back(kf.pixels[k]);
-    px_f.push_back(keypoints[static_cast<std::size_t>(best_for_kf[k])].pt);
+  for (const cv::DMatch& m : ratio_matches(descriptors, kf.descriptors, config_.ratio_test)) {
+    idx_k.push_back(m.trainIdx);
+    px_k.push_back(kf.pixels[static_cast<std::size_t>(m.trainIdx)]);
+    px_f.push_back(keypoints[static_cast<std::size_t>(m.queryIdx)].pt);
   }
   r.matches = static_cast<int>(px_k.size());
   if (r.matches < config_.min_matches) {
@@ -370,6 +433,7 @@ TrackResult KeyframeTracker::relative(const Keyframe& kf, const TrackerFrame& fr
     image.push_back(px_f[i]);
     which.push_back(i);
   }
+  r.lifted = static_cast<int>(object.size());
   int pnp_inliers_found = 0;
   if (static_cast<int>(object.size()) >= kMinLiftedInliers) {
     cv::theRNG().state = kRansacSeed;
@@ -451,7 +515,116 @@ TrackResult KeyframeTracker::relative(const Keyframe& kf, const TrackerFrame& fr
     if (own && own->z() > 0.0 && predicted > 0.0) ratios.push_back(predicted / own->z());
   }
   r.scale_measured = !ratios.empty();
-  if (r.scale_measured) r.scale = median(ratios);
+  if (r.scale_measured) {
+    r.scale = median(ratios);
+    // How far the frame's own depth, at its scale, lies from the
+    // keyframe's points: a ratio of their depth.
+    std::vector<double> errors;
+    errors.reserve(ratios.size());
+    for (double q : ratios) errors.push_back(std::abs(r.scale / q - 1.0));
+    r.depth_error = median(std::move(errors));
+  }
+  return r;
+}
+
+std::string KeyframeTracker::relocalisation_failure(const TrackResult& r) const {
+  std::ostringstream why;
+  if (!r.posed()) {
+    why << r.message;
+  } else if (r.inliers < config_.relocalisation_min_inliers) {
+    why << r.inliers << " inliers (at least " << config_.relocalisation_min_inliers << ")";
+  } else if (r.inliers < config_.relocalisation_min_inlier_share * r.lifted) {
+    why << r.inliers << " inliers of " << r.lifted << " lifted matches (at least "
+        << config_.relocalisation_min_inlier_share * 100.0 << " %)";
+  } else if (!r.scale_measured) {
+    why << "no inlier with depth in the frame";
+  } else if (r.depth_error > config_.relocalisation_max_depth_error) {
+    why << "the frame's depth is " << r.depth_error * 100.0
+        << " % off the keyframe's points at the inliers (at most "
+        << config_.relocalisation_max_depth_error * 100.0 << " %)";
+  }
+  return why.str();
+}
+
+TrackResult KeyframeTracker::relocalise(const TrackerFrame& frame,
+                                        const std::vector<cv::KeyPoint>& keypoints,
+                                        const cv::Mat& descriptors,
+                                        const Eigen::Isometry3d& T_W_C_prior) {
+  // The candidates: the current keyframe, then the kept ones nearest the
+  // caller's pose (a baseline of a tenth of the depth weighs as a degree),
+  // then the others in turn across frames, so that a wrong prior (the
+  // model's pose after a load) still reaches every kept keyframe.
+  std::vector<const KeptKeyframe*> candidates;
+  const std::size_t budget = static_cast<std::size_t>(config_.relocalisation_candidates);
+  if (keyframe_) candidates.push_back(&*keyframe_);
+  std::vector<std::pair<double, std::size_t>> near;
+  for (std::size_t i = 0; i < kept_.size(); ++i) {
+    const KeptKeyframe& k = kept_[i];
+    const double baseline =
+        (k.T_W_K.translation() - T_W_C_prior.translation()).norm() / k.median_depth;
+    const double angle =
+        Eigen::AngleAxisd(k.T_W_K.linear().transpose() * T_W_C_prior.linear()).angle() * kRadToDeg;
+    near.emplace_back(10.0 * baseline + angle, i);
+  }
+  std::sort(near.begin(), near.end());
+  std::vector<bool> chosen(kept_.size(), false);
+  const std::size_t nearest = budget > 2 ? budget - 2 : budget / 2;
+  for (std::size_t j = 0; j < near.size() && candidates.size() < nearest; ++j) {
+    chosen[near[j].second] = true;
+    candidates.push_back(&kept_[near[j].second]);
+  }
+  for (std::size_t tried = 0; tried < kept_.size() && candidates.size() < budget; ++tried) {
+    const std::size_t i = next_candidate_++ % kept_.size();
+    if (chosen[i]) continue;
+    chosen[i] = true;
+    candidates.push_back(&kept_[i]);
+  }
+
+  std::optional<std::pair<TrackResult, const KeptKeyframe*>> best;
+  // The failing candidate with the most inliers (then matches), for the message.
+  std::optional<std::pair<TrackResult, std::string>> closest;
+  for (const KeptKeyframe* k : candidates) {
+    Keyframe kf;
+    static_cast<KeptKeyframe&>(kf) = *k;
+    TrackResult r = relative(kf, frame, keypoints, descriptors);
+    std::string why = relocalisation_failure(r);
+    if (why.empty()) {
+      if (!best || r.inliers > best->first.inliers) best.emplace(r, k);
+    } else if (!closest || std::make_pair(r.inliers, r.matches) >
+                               std::make_pair(closest->first.inliers, closest->first.matches)) {
+      closest.emplace(r, std::move(why));
+    }
+  }
+  if (!best) {
+    TrackResult r;
+    r.status = TrackStatus::kRefused;
+    r.scale = last_scale_;
+    r.features = static_cast<int>(keypoints.size());
+    std::ostringstream why;
+    why << "not placed against " << candidates.size() << " of " << kept_.size()
+        << " kept keyframes";
+    if (closest) {
+      const TrackResult& c = closest->first;
+      r.matches = c.matches;
+      r.inliers = c.inliers;
+      r.lifted = c.lifted;
+      r.depth_error = c.depth_error;
+      why << " (the closest: " << closest->second << ")";
+    }
+    r.message = why.str();
+    return r;
+  }
+  // Placed: tracking goes on from the keyframe that placed it.
+  TrackResult r = best->first;
+  r.status = TrackStatus::kRelocalised;
+  r.features = static_cast<int>(keypoints.size());
+  Keyframe kf;
+  static_cast<KeptKeyframe&>(kf) = *best->second;
+  keyframe_ = std::move(kf);
+  last_.reset();
+  lost_ = 0;
+  last_scale_ = r.scale;
+  relocalising_ = false;
   return r;
 }
 
