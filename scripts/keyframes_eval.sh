@@ -3,7 +3,9 @@
 # held-out generated sequences at a camera's resolution (640 x 480): ATE
 # (long3r_eval, Sim(3)-aligned) and its ratio to a camera that never moves
 # (the RMS distance of the true positions from their mean), and the keyframe
-# tracker's time per frame (frames.csv's tracking_ms).
+# tracker's time per frame (frames.csv's tracking_ms). The control: the same
+# tracker given a constant-depth plane instead of the model's depth
+# (--tracker-constant-depth), which the model's depth must beat.
 #   bash scripts/keyframes_eval.sh [--stride N] [--frames N] [--model FILE] [--out DIR]
 # Defaults: stride 2, 60 frames, the shipped model, build/keyframes_eval.
 # Extra arguments after -- go to long3r_reconstruct (e.g. -- --tracker-solver essential).
@@ -47,10 +49,12 @@ print('%.4f' % math.sqrt(sum(sum((a - b) ** 2 for a, b in zip(q, m)) for q in p)
 EOF
 )
   line="seed $seed (still camera $(ratio "$still" 0.0001) cm):"
-  for source in model keyframes; do
+  for source in model keyframes plane; do
     run="$out/${seed}_${source}_s${stride}"
+    args=(--pose-source "$source")
+    [ "$source" = plane ] && args=(--pose-source keyframes --tracker-constant-depth)
     "$bin/long3r_reconstruct" --model "$model" --out "$run" --stride "$stride" \
-      --max-frames "$frames" --pose-source "$source" "${extra[@]}" "$seq" > "$run.log" 2>&1
+      --max-frames "$frames" "${args[@]}" "${extra[@]}" "$seq" > "$run.log" 2>&1
     ate=$("$bin/long3r_eval" --gt "$seq" --est-traj "$run/trajectory.txt" | awk '/ATE RMSE/{print $4}')
     line="$line  $source ATE $ate cm ($(ratio "$ate" "$still")x)"
     if [ "$source" = keyframes ]; then

@@ -265,6 +265,10 @@ int main(int argc, char** argv) {
              "the node's parameter pose_source: model (PnP on the model's pointmap, the "
              "paper's) or keyframes (image correspondences with keyframes, lifted by the "
              "pointmaps)");
+  cli.flag("--tracker-constant-depth", &cfg.tracker_constant_depth,
+           "a control for measuring the tracker: it lifts its keyframes' features by a "
+           "constant-depth plane (each frame's median depth) instead of the model's depth; the "
+           "map keeps the model's");
   cli.section("Pipeline and session (the node's parameters, README \"Parameters\")");
   add_config_options(cli, &cfg);
   add_config_options(cli, &session_cfg);

@@ -154,6 +154,36 @@ TEST(ReconstructionKeyframes, AnUntrackedFrameFollowsTheModelsMotionWithoutAJump
   EXPECT_EQ(results[4].tracking->status, TrackStatus::kTracked);
 }
 
+TEST(ReconstructionKeyframes, TheConstantDepthControlReachesOnlyTheTracker) {
+  const Footage f = render(4, [](int) { return 1.0; });
+  ReconstructionConfig control = keyframes_config();
+  control.tracker_constant_depth = true;
+  Reconstruction plain(std::make_unique<test::FakeModel>(&f.pts_W0), keyframes_config());
+  Reconstruction planar(std::make_unique<test::FakeModel>(&f.pts_W0), control);
+  plain.set_calibration(f.seq.config.intrinsics);
+  planar.set_calibration(f.seq.config.intrinsics);
+  const std::vector<FrameResult> a = run(plain, f.bgr), b = run(planar, f.bgr);
+  ASSERT_EQ(a.size(), b.size());
+  double moved = 0.0;
+  for (std::size_t k = 1; k < a.size(); ++k) {
+    ASSERT_TRUE(b[k].tracking.has_value());
+    moved = std::max(moved, (a[k].pose.T_W_C.translation() - b[k].pose.T_W_C.translation()).norm());
+    // The map's points keep the model's depth (up to the tracker's scale).
+    std::vector<float> za, zb;
+    for (int v = 0; v < kSize; v += 8) {
+      const float da = a[k].points_C.at<cv::Vec3f>(v, kSize / 2)[2];
+      const float db = b[k].points_C.at<cv::Vec3f>(v, kSize / 2)[2];
+      if (std::isfinite(da) && std::isfinite(db)) {
+        za.push_back(da);
+        zb.push_back(db / static_cast<float>(b[k].tracking->scale / a[k].tracking->scale));
+      }
+    }
+    ASSERT_FALSE(za.empty());
+    for (std::size_t i = 0; i < za.size(); ++i) EXPECT_NEAR(za[i], zb[i], 1e-3 * za[i]) << k;
+  }
+  EXPECT_GT(moved, 1e-3);  // the tracker saw another depth
+}
+
 TEST(ReconstructionKeyframes, TheModelsPoseMethodRunsNoTracker) {
   const Footage f = render(3, [](int) { return 1.0; });
   Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0),

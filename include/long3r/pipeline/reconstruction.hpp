@@ -83,6 +83,11 @@ struct ReconstructionConfig {
   // (tracking/baseline_scale.hpp; FrameResult::baseline_scale). Set by
   // LiveSession for scale_source odometry, not a parameter of its own.
   bool scale_from_given_poses = false;
+  // A control for measurements (long3r_reconstruct --tracker-constant-depth):
+  // the keyframe tracker gets the model's rays at each frame's median depth,
+  // so that what the model's depth adds to the poses shows; the map keeps
+  // the model's depth. Not a parameter of the node.
+  bool tracker_constant_depth = false;
 
   // Throws ConfigError naming the field.
   void validate(const config::FieldCheck& check) const;

@@ -5,6 +5,7 @@
 #include <c10/core/InferenceMode.h>
 #include <opencv2/imgproc.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -66,6 +67,24 @@ std::pair<cv::Mat, cv::Mat> to_mats(const at::Tensor& pts3d, const at::Tensor& c
     conf_out[i] = src[4 * i + 3];
   }
   return {points, confidence};
+}
+
+// The pointmap's rays at its median depth (a constant-depth plane per frame).
+cv::Mat at_median_depth(const cv::Mat& points_C) {
+  std::vector<float> z;
+  for (int i = 0; i < points_C.rows * points_C.cols; ++i) {
+    const float d = points_C.at<cv::Vec3f>(i)[2];
+    if (std::isfinite(d) && d > 0.0f) z.push_back(d);
+  }
+  cv::Mat out = points_C.clone();
+  if (z.empty()) return out;
+  std::nth_element(z.begin(), z.begin() + static_cast<std::ptrdiff_t>(z.size() / 2), z.end());
+  const float median = z[z.size() / 2];
+  for (int i = 0; i < out.rows * out.cols; ++i) {
+    cv::Vec3f& p = out.at<cv::Vec3f>(i);
+    if (std::isfinite(p[2]) && p[2] > 0.0f) p *= median / p[2];
+  }
+  return out;
 }
 
 }  // namespace
@@ -497,7 +516,7 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
     TrackerFrame frame;
     frame.gray = p.gray;
     frame.K = source_camera_matrix(p.image.model_to_source);
-    frame.points_C = r.points_C;
+    frame.points_C = config_.tracker_constant_depth ? at_median_depth(r.points_C) : r.points_C;
     frame.model_to_image = p.image.model_to_source.matrix();
     // Where the frame goes should it not be tracked: the model's motion
     // since the last frame, from where that frame went (the model's own
