@@ -55,7 +55,7 @@ EOF
     [ "$source" = plane ] && args=(--pose-source keyframes --tracker-constant-depth)
     "$bin/long3r_reconstruct" --model "$model" --out "$run" --stride "$stride" \
       --max-frames "$frames" "${args[@]}" "${extra[@]}" "$seq" > "$run.log" 2>&1
-    ate=$("$bin/long3r_eval" --gt "$seq" --est-traj "$run/trajectory.txt" | awk '/ATE RMSE/{print $4}')
+    ate=$("$bin/long3r_eval" --gt "$seq" --est-traj "$run/trajectory.txt" --out "$run/eval" | awk '/ATE RMSE/{print $4}')
     line="$line  $source ATE $ate cm ($(ratio "$ate" "$still")x)"
     if [ "$source" = keyframes ]; then
       ms=$(/usr/bin/python3 - "$run/frames.csv" <<'EOF'
