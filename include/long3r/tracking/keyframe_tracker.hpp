@@ -186,6 +186,11 @@ struct KeptKeyframe {
 };
 // The median depth of a keyframe's points (1 without any).
 double median_depth(const std::vector<std::optional<Eigen::Vector3d>>& points);
+// The frame's pointmap point under an image pixel (the nearest model pixel),
+// if finite; image_to_model is frame.model_to_image's inverse.
+std::optional<Eigen::Vector3d> point_at(const TrackerFrame& frame,
+                                        const Eigen::Matrix3d& image_to_model,
+                                        const cv::Point2f& pixel);
 
 class KeyframeTracker {
  public:
@@ -228,7 +233,7 @@ class KeyframeTracker {
                          double scale) const;
 
   // Steps 1-5 against one keyframe (no state changes).
-  TrackResult relative(const Keyframe& kf, const TrackerFrame& frame,
+  TrackResult relative(const KeptKeyframe& kf, const TrackerFrame& frame,
                        const std::vector<cv::KeyPoint>& keypoints,
                        const cv::Mat& descriptors) const;
   // Relocalising: the frame against the current and the kept keyframes.

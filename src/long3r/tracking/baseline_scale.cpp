@@ -37,15 +37,10 @@ BaselineScale::Reference BaselineScale::make_reference(const TrackerFrame& frame
   for (const cv::KeyPoint& kp : keypoints) {
     r.pixels.push_back(kp.pt);
     r.bearings.push_back((K_inv * Eigen::Vector3d(kp.pt.x, kp.pt.y, 1.0)).normalized());
-    // The model's depth under the feature (nearest model pixel).
-    const Eigen::Vector3d m = image_to_model * Eigen::Vector3d(kp.pt.x, kp.pt.y, 1.0);
-    const int u = static_cast<int>(std::lround(m.x() / m.z()));
-    const int v = static_cast<int>(std::lround(m.y() / m.z()));
+    // The model's depth under the feature.
+    const std::optional<Eigen::Vector3d> p = point_at(frame, image_to_model, kp.pt);
     std::optional<double> z;
-    if (u >= 0 && v >= 0 && u < frame.points_C.cols && v < frame.points_C.rows) {
-      const float d = frame.points_C.at<cv::Vec3f>(v, u)[2];
-      if (std::isfinite(d) && d > 0.0f) z = d;
-    }
+    if (p && p->z() > 0.0) z = p->z();
     r.depths.push_back(z);
   }
   return r;

@@ -47,19 +47,6 @@ double weighted_median(std::vector<std::pair<double, double>> value_weight) {
   return value_weight.empty() ? 0.0 : value_weight.back().first;
 }
 
-// The pointmap's point under an image pixel (nearest model pixel), if finite.
-std::optional<Eigen::Vector3d> point_at(const TrackerFrame& f,
-                                        const Eigen::Matrix3d& image_to_model,
-                                        const cv::Point2f& px) {
-  const Eigen::Vector3d m = image_to_model * Eigen::Vector3d(px.x, px.y, 1.0);
-  const int u = static_cast<int>(std::lround(m.x() / m.z()));
-  const int v = static_cast<int>(std::lround(m.y() / m.z()));
-  if (u < 0 || v < 0 || u >= f.points_C.cols || v >= f.points_C.rows) return std::nullopt;
-  const cv::Vec3f p = f.points_C.at<cv::Vec3f>(v, u);
-  if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) return std::nullopt;
-  return Eigen::Vector3d(p[0], p[1], p[2]);
-}
-
 // Share of the pointmap's finite points in front of the camera (z > 0).
 double share_in_front(const cv::Mat& points_C) {
   std::size_t finite = 0, front = 0;
@@ -146,6 +133,18 @@ const char* to_string(TrackStatus status) {
 KeyframeTracker::KeyframeTracker(const KeyframeTrackerConfig& config) : config_(config) {
   config_.validate({"tracker config", ""});
   orb_ = make_orb(config_.max_features, config_.fast_threshold);
+}
+
+std::optional<Eigen::Vector3d> point_at(const TrackerFrame& f,
+                                        const Eigen::Matrix3d& image_to_model,
+                                        const cv::Point2f& px) {
+  const Eigen::Vector3d m = image_to_model * Eigen::Vector3d(px.x, px.y, 1.0);
+  const int u = static_cast<int>(std::lround(m.x() / m.z()));
+  const int v = static_cast<int>(std::lround(m.y() / m.z()));
+  if (u < 0 || v < 0 || u >= f.points_C.cols || v >= f.points_C.rows) return std::nullopt;
+  const cv::Vec3f p = f.points_C.at<cv::Vec3f>(v, u);
+  if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) return std::nullopt;
+  return Eigen::Vector3d(p[0], p[1], p[2]);
 }
 
 double median_depth(const std::vector<std::optional<Eigen::Vector3d>>& points) {
@@ -337,7 +336,7 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
   return r;
 }
 
-TrackResult KeyframeTracker::relative(const Keyframe& kf, const TrackerFrame& frame,
+TrackResult KeyframeTracker::relative(const KeptKeyframe& kf, const TrackerFrame& frame,
                                       const std::vector<cv::KeyPoint>& keypoints,
                                       const cv::Mat& descriptors) const {
   TrackResult r;
@@ -584,9 +583,7 @@ TrackResult KeyframeTracker::relocalise(const TrackerFrame& frame,
   // The failing candidate with the most inliers (then matches), for the message.
   std::optional<std::pair<TrackResult, std::string>> closest;
   for (const KeptKeyframe* k : candidates) {
-    Keyframe kf;
-    static_cast<KeptKeyframe&>(kf) = *k;
-    TrackResult r = relative(kf, frame, keypoints, descriptors);
+    TrackResult r = relative(*k, frame, keypoints, descriptors);
     std::string why = relocalisation_failure(r);
     if (why.empty()) {
       if (!best || r.inliers > best->first.inliers) best.emplace(r, k);
