@@ -264,8 +264,8 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
     r.message = why.str();
     return r;
   }
-  const bool in_front = share_in_front(frame.points_C) >= kMinShareInFront;
   if (relocalising_) return relocalise(frame, keypoints, descriptors, T_W_C_prior);
+  const bool in_front = share_in_front(frame.points_C) >= kMinShareInFront;
 
   if (!keyframe_) {
     if (!in_front) {
