@@ -3,14 +3,21 @@
 # (grid_pixel_step) gives up: the demo's robot sequence (seed 7, 60 frames,
 # 224 x 224, the shipped model, frames placed by the ground truth, scale
 # from depth) through long3r_reconstruct with the occupancy off and with
-# grid_pixel_step 1, 2, 4 and 8. Prints, side by side, the map stage's median
-# time a frame (frames.csv map_ms: the voxel map, plus the occupancy when
-# on), the voxels known, the grid's occupied and free cells, and each grid
+# grid_pixel_step 1, 2, 4 and 8, the maps updated in line. Prints, side by
+# side, the map stage's median time a frame (frames.csv map_ms: the voxel
+# map, plus the occupancy when on), the voxels known, the grid's occupied and
+# free cells, and each grid
 # against the true surfaces in its band (the depth images placed by the
 # ground truth): the share of its occupied cells within one cell of a true
 # one, of the true cells within one cell of an occupied one (walls found),
 # and of its free cells on a true surface (free where a wall is).
+# Then the default step with the occupancy updated in line and on its own
+# thread (maps_in_background), with the model on 2 torch threads and on 1,
+# alternating for --rounds rounds: the stream's mean FPS (long3r_reconstruct's
+# summary: the model's thread's time a frame, plus the map thread's catch-up
+# at the end), and the median model, map and total milliseconds a frame.
 #   bash scripts/occupancy_cost.sh [--frames N] [--model FILE] [--out DIR]
+#                                  [--rounds N]
 # Run it on a quiet machine: the figures are times.
 set -euo pipefail
 source "$(dirname "$0")/env.sh"
@@ -18,12 +25,14 @@ root=$LONG3R_ROOT
 frames=60
 model="$root/models/default.safetensors"
 out="$root/build/occupancy_cost"
+rounds=3
 while [ $# -gt 0 ]; do
   case "$1" in
     --frames) frames=$2; shift 2 ;;
     --model) model=$2; shift 2 ;;
     --out) out=$2; shift 2 ;;
-    -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
+    --rounds) rounds=$2; shift 2 ;;
+    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
     *) echo "occupancy_cost.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
@@ -43,8 +52,8 @@ for step in off 1 2 4 8; do
   grid=(--grid-enabled true --grid-pixel-step "$step")
   [ "$step" = off ] && grid=(--grid-enabled false)
   "$bin/long3r_reconstruct" "$seq" --model "$model" --out "$run" --img-size 224 --threads 2 \
-    --scale-source depth --poses groundtruth "${grid[@]}" >"$run.log" 2>&1 ||
-    { echo "long3r_reconstruct failed: see $run.log" >&2; exit 1; }
+    --scale-source depth --poses groundtruth --maps-in-background false "${grid[@]}" \
+    >"$run.log" 2>&1 || { echo "long3r_reconstruct failed: see $run.log" >&2; exit 1; }
 done
 /usr/bin/python3 - "$out" "$seq" <<'PY'
 import csv, os, re, statistics, sys
@@ -122,3 +131,29 @@ for step in ["off", "1", "2", "4", "8"]:
         100.0 * sum(near(k, occ) for k in gt) / max(1, len(gt)),
         100.0 * sum(k in gt for k in free) / max(1, len(free))))
 PY
+
+echo
+echo "the occupancy (grid_pixel_step 4) in line and in the background, $rounds rounds:"
+printf '%-6s %-8s %-11s %9s %9s %9s %9s\n' round threads background mean_FPS model_ms map_ms \
+  total_ms
+for round in $(seq 1 "$rounds"); do
+  for setting in "2 false" "2 true" "1 false" "1 true"; do
+    read -r threads background <<<"$setting"
+    run="$out/background_${background}_${threads}_$round"
+    "$bin/long3r_reconstruct" "$seq" --model "$model" --out "$run" --img-size 224 \
+      --threads "$threads" \
+      --scale-source depth --poses groundtruth --grid-pixel-step 4 \
+      --maps-in-background "$background" >"$run.log" 2>&1 ||
+      { echo "long3r_reconstruct failed: see $run.log" >&2; exit 1; }
+    fps=$(sed -nE 's/.*mean ([0-9.]+) FPS.*/\1/p' "$run.log" | head -1)
+    read -r model_ms map_ms total_ms < <(/usr/bin/python3 - "$run/frames.csv" <<'PY'
+import csv, statistics, sys
+rows = list(csv.DictReader(open(sys.argv[1])))
+print(" ".join("%.1f" % statistics.median(float(r[k]) for r in rows)
+               for k in ("model_ms", "map_ms", "total_ms")))
+PY
+)
+    printf '%-6s %-8s %-11s %9s %9s %9s %9s\n' "$round" "$threads" "$background" "$fps" \
+      "$model_ms" "$map_ms" "$total_ms"
+  done
+done

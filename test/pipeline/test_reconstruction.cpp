@@ -190,6 +190,37 @@ TEST(Reconstruction, FusesMappedFramesIntoTheSurface) {
   EXPECT_EQ(rec.surface().frames_kept(), 0u);
 }
 
+// maps_in_background (the default) runs the surface's and the occupancy's
+// updates on a thread of their own; every reader waits for them, so the maps,
+// the sessions and a rescale read the same as with the updates in line.
+TEST(Reconstruction, MapsInBackgroundReadTheSameAsInLine) {
+  const GtSequence g = make_sequence(8);
+  ReconstructionConfig config = test::gt_reconstruction_config();
+  config.surface.enabled = TsdfVolume::available();
+  config.surface.tsdf.voxel_size_m = 0.05;
+  config.surface.tsdf.truncation_m = 0.2;
+  auto run = [&](bool background) {
+    ReconstructionConfig c = config;
+    c.maps_in_background = background;
+    auto rec = std::make_unique<Reconstruction>(std::make_unique<FakeModel>(&g.pts_W0), c);
+    rec->set_calibration(g.seq.config.intrinsics);
+    for (size_t k = 0; k < g.bgr.size(); ++k) rec->push(g.bgr[k], "bgr8", 0.1 * k);
+    EXPECT_TRUE(rec->flush().has_value());
+    return rec;
+  };
+  const std::unique_ptr<Reconstruction> inline_rec = run(false), background = run(true);
+  ASSERT_GT(inline_rec->occupancy().voxels(), 0u);
+  EXPECT_EQ(background->occupancy().write(), inline_rec->occupancy().write());
+  EXPECT_EQ(background->surface().frames_kept(), inline_rec->surface().frames_kept());
+  EXPECT_EQ(background->surface().points().points.size(),
+            inline_rec->surface().points().points.size());
+  const StateDict a = inline_rec->state(), b = background->state();
+  EXPECT_EQ(StateReader(b, "b").bytes("occupancy.ot"), StateReader(a, "a").bytes("occupancy.ot"));
+  inline_rec->set_scale(2.0);
+  background->set_scale(2.0);
+  EXPECT_EQ(background->occupancy().write(), inline_rec->occupancy().write());
+}
+
 // The occupancy of the mapped views (on by default) in W: what the views saw
 // is occupied, rescaled with the stream, and kept by state() / restore().
 TEST(Reconstruction, KeepsTheOccupancyOfTheMappedViews) {

@@ -41,6 +41,7 @@
 #include "long3r/pipeline/intrinsics.hpp"
 #include "long3r/pipeline/pose.hpp"
 #include "long3r/pipeline/preprocess.hpp"
+#include "long3r/pipeline/serial_worker.hpp"
 #include "long3r/tracking/baseline_scale.hpp"
 #include "long3r/tracking/keyframe_tracker.hpp"
 
@@ -88,6 +89,12 @@ struct ReconstructionConfig {
   // so that what the model's depth adds to the poses shows; the map keeps
   // the model's depth. Not a parameter of the node.
   bool tracker_constant_depth = false;
+  // The fused surface's and the occupancy's updates run on a thread of their
+  // own, so that the model's thread goes on to the next frame (at most two
+  // frames wait for them; a slower map slows the stream, it loses no view).
+  // Every reader of the two waits for the frames handed over so far, so the
+  // results are the same either way (docs/performance.md, "Occupancy").
+  bool maps_in_background = true;
 
   // Throws ConfigError naming the field.
   void validate(const config::FieldCheck& check) const;
@@ -97,6 +104,7 @@ struct ReconstructionConfig {
 template <class S, class V>
 config::FieldsOf<S, ReconstructionConfig> visit_fields(S& s, V& v) {
   v("conf_threshold", s.conf_threshold);
+  v("maps_in_background", s.maps_in_background);
   v.nested("preprocess", s.preprocess, "model_");
   v.nested("map", s.map, "");
   v.nested("pnp", s.pnp, "pnp_");
@@ -169,13 +177,18 @@ class Reconstruction {
   VoxelMap& map() { return map_; }
   // The fused surface of the mapped frames (empty unless surface.enabled);
   // rescaled with the stream, kept in sessions (rebuilt from its kept frames).
-  const SurfaceMap& surface() const { return surface_; }
+  // With maps_in_background, waits for the frames handed to it so far.
+  const SurfaceMap& surface() const;
   // The surface handed over whole (an ending stream's, kept apart); an empty
   // one takes its place.
   std::unique_ptr<SurfaceMap> take_surface();
   // The 3-D occupancy of the mapped views in W (empty unless
   // occupancy.enabled); rescaled with the stream, kept in sessions.
-  const OccupancyMap& occupancy() const { return occupancy_; }
+  // With maps_in_background, waits for the frames handed to it so far.
+  const OccupancyMap& occupancy() const;
+  // Returns when the surface and the occupancy hold every frame mapped so
+  // far (at once unless maps_in_background).
+  void settle_maps() const;
   // (stamp, T_W_C) of the frames with a good pose or a given one, in order.
   std::vector<std::pair<double, Eigen::Isometry3d>> trajectory() const { return trajectory_; }
   // Frames pushed in the current stream.
@@ -227,6 +240,9 @@ class Reconstruction {
   VoxelMap map_;
   SurfaceMap surface_;
   OccupancyMap occupancy_;
+  // Runs the surface's and the occupancy's updates (maps_in_background);
+  // after them, so that it finishes its jobs before they go.
+  std::unique_ptr<SerialWorker> map_worker_;
   std::deque<Pending> pending_;
   std::vector<std::pair<double, Eigen::Isometry3d>> trajectory_;
   std::vector<bool> trajectory_given_;  // per entry: the pose was given to push()

@@ -113,6 +113,9 @@ Reconstruction::Reconstruction(std::unique_ptr<StreamingModel> model,
       surface_(config_.surface),
       occupancy_(config_.occupancy) {
   if (!model_) throw std::invalid_argument("Reconstruction: null model");
+  if (config_.maps_in_background && (config_.surface.enabled || config_.occupancy.enabled)) {
+    map_worker_ = std::make_unique<SerialWorker>(2);
+  }
   // A landscape-only Spann3R returns portrait maps transposed on a scrambled
   // token grid (as the official model does); refuse rather than mislead.
   if (config_.preprocess.height > config_.preprocess.width && !model_->accepts_portrait()) {
@@ -124,6 +127,20 @@ Reconstruction::Reconstruction(std::unique_ptr<StreamingModel> model,
 }
 
 Reconstruction::~Reconstruction() = default;
+
+void Reconstruction::settle_maps() const {
+  if (map_worker_) map_worker_->wait_idle();
+}
+
+const SurfaceMap& Reconstruction::surface() const {
+  settle_maps();
+  return surface_;
+}
+
+const OccupancyMap& Reconstruction::occupancy() const {
+  settle_maps();
+  return occupancy_;
+}
 
 void Reconstruction::set_calibration(const std::optional<PinholeIntrinsics>& calib) {
   if (calib && !calib->valid()) {
@@ -146,6 +163,7 @@ void Reconstruction::reset() {
   baseline_scale_.reset();
   last_tracked_.reset();
   map_.clear();
+  settle_maps();
   surface_.clear();
   occupancy_.clear();
   trajectory_.clear();
@@ -163,6 +181,7 @@ void Reconstruction::set_scale(double scale) {
   const double factor = scale / scale_;
   if (factor == 1.0) return;
   map_.rescale(factor);
+  settle_maps();
   surface_.rescale(factor);
   occupancy_.rescale(factor);
   // Given poses are the caller's (odometry: metres), not the model's.
@@ -204,6 +223,7 @@ void Reconstruction::rescale(FrameResult& r, double scale) {
 
 std::unique_ptr<SurfaceMap> Reconstruction::take_surface() {
   auto taken = std::make_unique<SurfaceMap>(config_.surface);
+  settle_maps();
   taken->swap(surface_);
   return taken;
 }
@@ -256,6 +276,7 @@ StateDict Reconstruction::state() const {
     put_keyframes(out, "keyframes.", keyframes_.kept());
   }
   put_state(out, "map.", map_.state());
+  settle_maps();
   if (config_.occupancy.enabled) out["occupancy.ot"] = bytes_tensor(occupancy_.write());
   if (config_.surface.enabled) put_state(out, "surface.", surface_.state());
   put_state(out, "model.", model_->stream_state());
@@ -343,6 +364,7 @@ void Reconstruction::restore(const StateDict& state) {
     model_->restore_stream_state(previous);
     throw;
   }
+  settle_maps();
   occupancy_.swap(occupancy);
   pending_.clear();
   frames_pushed_ = frames;
@@ -560,10 +582,20 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
   t = now_ms();
   if (r.pose.ok() && mapping_) {  // only with points_C, which PnP's pose gives
     map_.integrate(r.points_W, r.conf, r.rgb, r.frame_index);
-    surface_.integrate(r.points_C, r.rgb, r.conf, config_.map.conf_threshold, r.intrinsics,
-                       r.pose.T_W_C);
-    if (config_.occupancy.enabled) {
-      occupancy_.insert(r.points_W, r.conf, config_.map.conf_threshold, r.pose.T_W_C.translation());
+    // The surface and the occupancy get copies: the caller owns r.
+    auto update = [this, points_C = r.points_C.clone(), points_W = r.points_W.clone(),
+                   rgb = r.rgb.clone(), conf = r.conf.clone(), intrinsics = r.intrinsics,
+                   T_W_C = r.pose.T_W_C] {
+      const float threshold = config_.map.conf_threshold;
+      surface_.integrate(points_C, rgb, conf, threshold, intrinsics, T_W_C);
+      if (config_.occupancy.enabled) {
+        occupancy_.insert(points_W, conf, threshold, T_W_C.translation());
+      }
+    };
+    if (map_worker_) {
+      map_worker_->post(std::move(update));
+    } else {
+      update();
     }
     r.added_to_map = true;
   }
