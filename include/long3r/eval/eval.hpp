@@ -46,7 +46,6 @@ struct ErrorStatistics {
 // numpy conventions: median averages the middle pair, std has ddof = 0.
 // All zeros for an empty input.
 ErrorStatistics error_statistics(const std::vector<double>& errors);
-double median_of(std::vector<double> values);
 
 // ------------------------------------------------------------- point clouds
 // (files: long3r/geometry/cv/point_cloud_io.hpp)

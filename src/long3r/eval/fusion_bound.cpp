@@ -5,6 +5,8 @@
 #include <limits>
 #include <stdexcept>
 
+#include "long3r/geometry/statistics.hpp"
+
 namespace long3r {
 
 namespace {
@@ -76,7 +78,7 @@ void FusionBound::add(const cv::Mat& predicted_C, const cv::Mat& true_C,
     ++frames_;
     return;
   }
-  const double ratio = median_of(ratios);
+  const double ratio = median(ratios);
   depth_ratios_.push_back(ratio);
   for (int v = 0; v < predicted_C.rows; ++v) {
     for (int u = 0; u < predicted_C.cols; ++u) {
@@ -133,10 +135,10 @@ FusionBoundSummary FusionBound::summary() const {
   s.averaged_rescaled_m = error_statistics(rescaled);
   s.depth_ratio = depth_ratios_;
   if (!depth_ratios_.empty()) {
-    s.depth_ratio_median = median_of(depth_ratios_);
+    s.depth_ratio_median = median(depth_ratios_);
     std::vector<double> dev;
     for (double r : depth_ratios_) dev.push_back(std::abs(r - s.depth_ratio_median));
-    s.depth_ratio_mad = median_of(dev);
+    s.depth_ratio_mad = median(dev);
   }
   return s;
 }

@@ -10,21 +10,12 @@
 #include "long3r/eval/kdtree3.hpp"
 #include "long3r/eval/nearest_carry.hpp"
 #include "long3r/eval/parallel.hpp"
+#include "long3r/geometry/statistics.hpp"
 
 namespace long3r {
 
 using detail::NearestCarry;
 using detail::parallel_for;
-
-double median_of(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  const size_t n = v.size(), mid = n / 2;
-  std::nth_element(v.begin(), v.begin() + mid, v.end());
-  const double upper = v[mid];
-  if (n % 2 == 1) return upper;
-  const double lower = *std::max_element(v.begin(), v.begin() + mid);
-  return 0.5 * (lower + upper);
-}
 
 ErrorStatistics error_statistics(const std::vector<double>& e) {
   ErrorStatistics s;
@@ -46,14 +37,14 @@ ErrorStatistics error_statistics(const std::vector<double>& e) {
   double var = 0;
   for (double x : e) var += (x - s.mean) * (x - s.mean);
   s.std = std::sqrt(var / n);
-  s.median = median_of(e);
+  s.median = median(e);
   return s;
 }
 
 namespace {
 
 double median_f(const std::vector<float>& v) {
-  return median_of(std::vector<double>(v.begin(), v.end()));
+  return median(std::vector<double>(v.begin(), v.end()));
 }
 double mean_f(const std::vector<float>& v) {
   if (v.empty()) return 0.0;

@@ -6,17 +6,11 @@
 #include <limits>
 #include <stdexcept>
 
+#include "long3r/geometry/statistics.hpp"
+
 namespace long3r {
 
 namespace {
-
-double median(std::vector<double> v) {
-  const std::size_t n = v.size();
-  std::nth_element(v.begin(), v.begin() + n / 2, v.end());
-  const double hi = v[n / 2];
-  if (n % 2 == 1) return hi;
-  return 0.5 * (hi + *std::max_element(v.begin(), v.begin() + n / 2));
-}
 
 // MAD to the standard deviation of a Gaussian; and the median's standard
 // error over the mean's for Gaussian samples (sqrt(pi / 2)).

@@ -13,6 +13,7 @@
 #include <tuple>
 #include <utility>
 
+#include "long3r/geometry/statistics.hpp"
 #include "long3r/mapping/state_geometry.hpp"
 #include "long3r/pipeline/keyframe_state.hpp"
 
@@ -71,18 +72,17 @@ std::pair<cv::Mat, cv::Mat> to_mats(const at::Tensor& pts3d, const at::Tensor& c
 
 // The pointmap's rays at its median depth (a constant-depth plane per frame).
 cv::Mat at_median_depth(const cv::Mat& points_C) {
-  std::vector<float> z;
+  std::vector<double> z;
   for (int i = 0; i < points_C.rows * points_C.cols; ++i) {
     const float d = points_C.at<cv::Vec3f>(i)[2];
     if (std::isfinite(d) && d > 0.0f) z.push_back(d);
   }
   cv::Mat out = points_C.clone();
   if (z.empty()) return out;
-  std::nth_element(z.begin(), z.begin() + static_cast<std::ptrdiff_t>(z.size() / 2), z.end());
-  const float median = z[z.size() / 2];
+  const float depth = static_cast<float>(median(std::move(z)));
   for (int i = 0; i < out.rows * out.cols; ++i) {
     cv::Vec3f& p = out.at<cv::Vec3f>(i);
-    if (std::isfinite(p[2]) && p[2] > 0.0f) p *= median / p[2];
+    if (std::isfinite(p[2]) && p[2] > 0.0f) p *= depth / p[2];
   }
   return out;
 }

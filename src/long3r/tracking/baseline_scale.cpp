@@ -5,6 +5,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "long3r/geometry/statistics.hpp"
 #include "long3r/tracking/feature_matching.hpp"
 
 namespace long3r {
@@ -12,13 +13,6 @@ namespace long3r {
 namespace {
 
 constexpr double kRadToDeg = 180.0 / M_PI;
-
-double median(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
-  std::nth_element(v.begin(), mid, v.end());
-  return *mid;
-}
 
 }  // namespace
 

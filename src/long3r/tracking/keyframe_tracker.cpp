@@ -1,5 +1,6 @@
 #include "long3r/tracking/keyframe_tracker.hpp"
 
+#include "long3r/geometry/statistics.hpp"
 #include "long3r/tracking/feature_matching.hpp"
 
 #include <opencv2/calib3d.hpp>
@@ -26,13 +27,6 @@ constexpr double kMinShareInFront = 0.9;
 constexpr int kRansacSeed = 7;
 // Untracked frames in a row after which the last becomes the keyframe.
 constexpr int kKeyframeAfterLostFrames = 2;
-
-double median(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
-  std::nth_element(v.begin(), mid, v.end());
-  return *mid;
-}
 
 // The value at half the total weight.
 double weighted_median(std::vector<std::pair<double, double>> value_weight) {
