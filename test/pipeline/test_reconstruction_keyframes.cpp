@@ -320,6 +320,50 @@ TEST(Relocalisation, AFrameAfterALostPoseIsRelocalisedByTheImages) {
   }
 }
 
+// A cut to another scene mid-stream (tracker_when_lost relocalise): its
+// frames are neither posed nor mapped and the path does not
+// move; back in the first scene the images place the stream again.
+TEST(Relocalisation, ACutToAnotherSceneNeitherMovesThePathNorTheMap) {
+  const Footage a = render(8, one);
+  const Footage b = render(4, one, /*seed=*/77);
+  std::vector<cv::Mat> images, points;
+  auto add = [&](const Footage& f, int from, int to) {
+    for (int k = from; k < to; ++k) {
+      images.push_back(f.bgr[static_cast<std::size_t>(k)]);
+      points.push_back(f.pts_W0[static_cast<std::size_t>(k)]);
+    }
+  };
+  add(a, 0, 6);
+  add(b, 0, 4);
+  add(a, 6, 8);
+  ReconstructionConfig config = keyframes_config();
+  config.tracker.when_lost = WhenLost::kRelocalise;
+  Reconstruction rec(std::make_unique<test::FakeModel>(&points), config);
+  rec.set_calibration(a.seq.config.intrinsics);
+  const std::vector<FrameResult> results = run(rec, images);
+  ASSERT_EQ(results.size(), 12u);
+  ASSERT_TRUE(results[6].tracking.has_value());
+  EXPECT_EQ(results[6].tracking->status, TrackStatus::kLost) << results[6].tracking->message;
+  EXPECT_NE(results[6].pose.message.find("tracking lost: "), std::string::npos);
+  for (int k = 6; k < 10; ++k) {
+    const FrameResult& f = results[static_cast<std::size_t>(k)];
+    if (k > 6) {
+      EXPECT_EQ(f.tracking->status, TrackStatus::kRefused) << k;
+    }
+    EXPECT_EQ(f.pose.status, PnpStatus::kNotRelocalised) << k;
+    EXPECT_FALSE(f.added_to_map) << k;
+  }
+  EXPECT_EQ(results[10].tracking->status, TrackStatus::kRelocalised)
+      << results[10].tracking->message;
+  EXPECT_EQ(results[11].tracking->status, TrackStatus::kTracked);
+  // The path: a's 8 frames, each where it is.
+  const auto path = rec.trajectory();
+  ASSERT_EQ(path.size(), 8u);
+  for (std::size_t i = 0; i < path.size(); ++i) {
+    EXPECT_LT((path[i].second.translation() - a.T_0_k[i].translation()).norm(), 0.03) << i;
+  }
+}
+
 TEST(Relocalisation, AnotherPlaceIsRefusedNotPostedAndNotMapped) {
   const Footage a = render(kSaved, one);
   const Footage b = render(6, one, /*seed=*/77);

@@ -262,6 +262,39 @@ TEST(KeyframeTracker, HostileFramesAreNotPosed) {
   EXPECT_EQ(tracker.track(frame(f, 0)).status, TrackStatus::kTracked);
 }
 
+// when_lost relocalise: a cut to another scene is not posed,
+// nor are the frames after it, until one is placed by the images against a
+// keyframe of the first scene; the path never moves to the other scene.
+TEST(KeyframeTracker, ACutToAnotherSceneIsNeverPosedUntilTheImagesPlaceAFrame) {
+  const Footage f = render(synth::TrajectoryType::kWalk, 8, 17);
+  const Footage other = render(synth::TrajectoryType::kWalk, 4, 98);
+  KeyframeTrackerConfig config;
+  config.when_lost = WhenLost::kRelocalise;
+  KeyframeTracker tracker(config);
+  for (int k = 0; k < 6; ++k) {
+    const Eigen::Isometry3d truth = f.T_W_C[0].inverse() * f.T_W_C[k];
+    ASSERT_TRUE(tracker.track(frame(f, k), truth).posed()) << k;
+  }
+  // The model's prior for the other scene's frames: anywhere.
+  const Eigen::Isometry3d elsewhere = Eigen::Translation3d(3, 0, 1) * Eigen::Isometry3d::Identity();
+  const TrackResult cut = tracker.track(frame(other, 0), elsewhere);
+  EXPECT_EQ(cut.status, TrackStatus::kLost) << cut.message;
+  EXPECT_FALSE(cut.new_keyframe);
+  for (int k = 1; k < 4; ++k) {
+    const TrackResult r = tracker.track(frame(other, k), elsewhere);
+    EXPECT_EQ(r.status, TrackStatus::kRefused) << k << ": " << r.message;
+    EXPECT_FALSE(r.new_keyframe);
+  }
+  // Back in the first scene: placed where it is.
+  const Eigen::Isometry3d truth = f.T_W_C[0].inverse() * f.T_W_C[7];
+  const TrackResult back = tracker.track(frame(f, 7), elsewhere);
+  ASSERT_EQ(back.status, TrackStatus::kRelocalised) << back.message;
+  EXPECT_LT((back.T_W_C.translation() - truth.translation()).norm(), 0.05);
+  EXPECT_FALSE(tracker.relocalising());
+}
+
+// when_lost model_motion (the default): frames that lose the keyframe are
+// placed by the caller; the second in a row starts a keyframe there.
 TEST(KeyframeTracker, LostForFramesInARowStartsAgainWhereTheCallerPutsTheFrame) {
   const Footage f = render(synth::TrajectoryType::kWalk, 1, 15);
   const Footage other = render(synth::TrajectoryType::kWalk, 2, 99);

@@ -70,7 +70,8 @@ enum class PnpStatus {
   kTooFewInliers,  // a pose, but fewer than min_inliers inliers
   kNonFinite,      // the solver returned NaN/inf
   // Relocalising (pose_method keyframes): PnP posed the pointmap, but no
-  // kept keyframe's image correspondences confirm where (KeyframeTracker).
+  // kept keyframe's image correspondences confirm where (KeyframeTracker);
+  // also the frame that lost tracking, after which relocalising starts.
   kNotRelocalised,
 };
 const char* to_string(PnpStatus status);

@@ -75,6 +75,25 @@ inline const std::array<std::pair<TrackingSolver, const char*>, 2>& enum_names(T
   return names;
 }
 
+// What a textured frame that shares too few matches with the keyframe and
+// the last tracked frame leads to: the tracker cannot tell a cut to another
+// scene from a fast move out of the mapped view.
+enum class WhenLost {
+  // Not posed, and the next frames are relocalised against the current, the
+  // last and the kept keyframes (posed only where the images agree; after
+  // the live session's relocalise_for_s a new stream starts). A cut never
+  // moves the path or the map.
+  kRelocalise,
+  // Placed by the caller's prior (the model's motion); the second such frame
+  // in a row becomes a new keyframe there.
+  kModelMotion,
+};
+inline const std::array<std::pair<WhenLost, const char*>, 2>& enum_names(WhenLost) {
+  static const std::array<std::pair<WhenLost, const char*>, 2> names{
+      {{WhenLost::kRelocalise, "relocalise"}, {WhenLost::kModelMotion, "model_motion"}}};
+  return names;
+}
+
 // Defaults by measurement on generated footage (docs/model_card.md,
 // "Poses from keyframes").
 struct KeyframeTrackerConfig {
@@ -106,6 +125,11 @@ struct KeyframeTrackerConfig {
   double kept_keyframe_baseline = 0.15;
   double kept_keyframe_angle_deg = 10.0;
   int max_kept_keyframes = 500;
+  // model_motion by measurement: on real frames a second apart the frames
+  // that lose the keyframe share as many matches with it (21-23) as another
+  // scene's do (0-29), and relocalising posed 2 of 25 of them against 25
+  // (docs/model_card.md, "A cut to another scene").
+  WhenLost when_lost = WhenLost::kModelMotion;
 
   // Throws ConfigError naming the field.
   void validate(const config::FieldCheck& check) const;
@@ -131,6 +155,7 @@ config::FieldsOf<S, KeyframeTrackerConfig> visit_fields(S& s, V& v) {
   v("kept_keyframe_baseline", s.kept_keyframe_baseline);
   v("kept_keyframe_angle_deg", s.kept_keyframe_angle_deg);
   v("max_kept_keyframes", s.max_kept_keyframes);
+  v("when_lost", s.when_lost);
 }
 
 // One frame as the tracker sees it.
@@ -149,6 +174,8 @@ enum class TrackStatus {
   kNoDepth,         // too few matched keyframe points with depth to give the length
   kRelocalised,     // relocalising: posed against a kept keyframe, the checks passed
   kRefused,         // relocalising: no kept keyframe places the frame (not posed)
+  kLost,            // too few matches in a textured image (when_lost relocalise): not
+                    // posed, and the next frames are relocalised
 };
 const char* to_string(TrackStatus status);
 
@@ -198,9 +225,11 @@ class KeyframeTracker {
 
   // T_W_C_prior: the caller's pose for the frame should it not be tracked.
   // The first frame of a stream (or the first after reset()) becomes the
-  // keyframe there; later ones are tracked, and the second untracked frame
-  // in a row becomes the keyframe at its prior (one bad frame does not
-  // replace the keyframe). Throws std::invalid_argument
+  // keyframe there; later ones are tracked. A frame with too few matches
+  // is lost (config.when_lost: relocalising from the next frame, or placed
+  // at its prior, the second such frame in a row becoming the keyframe
+  // there); so is the second frame in a row without depth. Throws
+  // std::invalid_argument
   // for a frame of the wrong types.
   TrackResult track(const TrackerFrame& frame,
                     const Eigen::Isometry3d& T_W_C_prior = Eigen::Isometry3d::Identity());

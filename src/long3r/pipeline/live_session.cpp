@@ -559,6 +559,8 @@ void LiveSession::deliver(FrameResult frame) {
   if (const auto& k = f.tracking) {
     if (k->posed()) {
       ++status_.keyframe_tracked;
+    } else if (k->status == TrackStatus::kLost) {  // track_loss() says so
+      ++status_.keyframe_lost;
     } else if (k->status != TrackStatus::kRefused) {  // refused: track_loss() says so
       ++status_.keyframe_untracked;
       warn("keyframes", "frame " + std::to_string(f.frame_index) +

@@ -549,11 +549,14 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
     const double t_tracking = now_ms();
     r.tracking = keyframes_.track(frame, prior);
     r.timings.tracking_ms = now_ms() - t_tracking;
-    if (r.tracking->status == TrackStatus::kRefused) {
-      // Relocalising, and the images do not say where: not posed, not
-      // mapped, and the path does not jump.
+    if (r.tracking->status == TrackStatus::kRefused || r.tracking->status == TrackStatus::kLost) {
+      // Relocalising (or lost, relocalising from the next frame), and the
+      // images do not say where: not posed, not mapped, and the path does
+      // not jump.
       r.pose.status = PnpStatus::kNotRelocalised;
-      r.pose.message = "relocalisation refused: " + r.tracking->message;
+      r.pose.message = (r.tracking->status == TrackStatus::kLost ? "tracking lost: "
+                                                                 : "relocalisation refused: ") +
+                       r.tracking->message;
       r.pose.T_W_C = last_tracked_ ? last_tracked_->first : r.model_T_W_C;
       r.points_C = cv::Mat();
     } else {

@@ -120,6 +120,8 @@ const char* to_string(TrackStatus status) {
       return "relocalised";
     case TrackStatus::kRefused:
       return "relocalisation refused";
+    case TrackStatus::kLost:
+      return "lost";
   }
   return "?";
 }
@@ -292,6 +294,15 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
   r = r_kf;
   r.features = static_cast<int>(keypoints.size());
   if (!r.posed()) {
+    if (r.status == TrackStatus::kTooFewMatches && config_.when_lost == WhenLost::kRelocalise) {
+      // The view changed too much to say where it went (a cut to another
+      // scene, or a fast move): only the images may place the next frames.
+      relocalising_ = true;
+      lost_ = 0;
+      r.status = TrackStatus::kLost;
+      r.message += "; relocalising against the kept keyframes";
+      return r;
+    }
     // Lost for a while (fast motion, a new scene): start again from here, at
     // the caller's pose for the frame, rather than wait for the old view.
     if (++lost_ >= kKeyframeAfterLostFrames && in_front) {
