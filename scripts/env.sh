@@ -10,3 +10,11 @@ LONG3R_CMAKE_PY_ARGS=(-DPYTHON_EXECUTABLE=/usr/bin/python3 -DPython3_EXECUTABLE=
 # torch starts with one intra-op thread on Debian; OpenBLAS reads its own count.
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-$(nproc)}
 export OPENBLAS_NUM_THREADS=${OPENBLAS_NUM_THREADS:-1}
+# The ROS-free core build that the evaluation scripts run (Release, no ROS):
+# long3r_build_core TARGET... configures it and builds those targets.
+LONG3R_CORE=$LONG3R_ROOT/build/core
+long3r_build_core() {
+  cmake -S "$LONG3R_ROOT" -B "$LONG3R_CORE" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release \
+    >/dev/null
+  cmake --build "$LONG3R_CORE" -j "$LONG3R_JOBS" --target "$@" >/dev/null
+}

@@ -27,9 +27,8 @@ while [ $# -gt 0 ]; do
     *) echo "keyframes_eval.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
-bin="$root/build/core"
-cmake -S "$root" -B "$bin" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
-cmake --build "$bin" -j "$LONG3R_JOBS" --target app_long3r_synth app_long3r_reconstruct app_long3r_eval >/dev/null
+bin=$LONG3R_CORE
+long3r_build_core app_long3r_synth app_long3r_reconstruct app_long3r_eval
 mkdir -p "$out"
 ratio() { /usr/bin/python3 -c "import sys; print('%.3f' % (float(sys.argv[1]) / 100 / float(sys.argv[2])))" "$1" "$2"; }
 for seed in 2000000 2000001 2000002; do

@@ -40,9 +40,8 @@ while [ $# -gt 0 ]; do
   esac
 done
 if [ -z "$bin" ]; then
-  bin="$LONG3R_ROOT/build/core"
-  cmake -S "$LONG3R_ROOT" -B "$bin" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
-  cmake --build "$bin" -j "$LONG3R_JOBS" --target app_long3r_model_eval >/dev/null
+  bin=$LONG3R_CORE
+  long3r_build_core app_long3r_model_eval
 fi
 mkdir -p "$out"
 

@@ -25,9 +25,8 @@ while [ $# -gt 0 ]; do
     *) out=$1; shift ;;
   esac
 done
-build="$LONG3R_ROOT/build/core"
-cmake -S "$LONG3R_ROOT" -B "$build" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
-cmake --build "$build" -j "$LONG3R_JOBS" --target app_long3r_model_eval
+build=$LONG3R_CORE
+long3r_build_core app_long3r_model_eval
 mkdir -p "$out"
 
 row() {  # name args...

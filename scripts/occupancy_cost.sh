@@ -36,9 +36,8 @@ while [ $# -gt 0 ]; do
     *) echo "occupancy_cost.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
-bin="$root/build/core"
-cmake -S "$root" -B "$bin" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
-cmake --build "$bin" -j "$LONG3R_JOBS" --target app_long3r_synth app_long3r_reconstruct >/dev/null
+bin=$LONG3R_CORE
+long3r_build_core app_long3r_synth app_long3r_reconstruct
 mkdir -p "$out"
 seq="$out/seq_robot_$frames"
 if [ ! -f "$seq/groundtruth.txt" ]; then

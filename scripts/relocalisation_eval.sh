@@ -26,9 +26,8 @@ while [ $# -gt 0 ]; do
     *) echo "relocalisation_eval.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
-bin="$root/build/core"
-cmake -S "$root" -B "$bin" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
-cmake --build "$bin" -j "$LONG3R_JOBS" --target app_long3r_synth app_long3r_reconstruct >/dev/null
+bin=$LONG3R_CORE
+long3r_build_core app_long3r_synth app_long3r_reconstruct
 mkdir -p "$out"
 sequence() {  # seed -> folder of 120 frames at 640 x 480
   local seq="$out/seq_$1"

@@ -36,9 +36,8 @@ while [ $# -gt 0 ]; do
     *) echo "surface_eval.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
-bin="$root/build/core"
-cmake -S "$root" -B "$bin" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
-cmake --build "$bin" -j "$LONG3R_JOBS" --target app_long3r_synth app_long3r_reconstruct app_long3r_eval >/dev/null
+bin=$LONG3R_CORE
+long3r_build_core app_long3r_synth app_long3r_reconstruct app_long3r_eval
 mkdir -p "$out"
 field() { grep -m1 "$1" "$2" | awk '{print $4}'; }
 printf "%-10s %-10s %9s %9s %9s %9s\n" sequence cloud "Acc cm" "Acc med" "Comp cm" "points"

@@ -32,9 +32,8 @@ while [ $# -gt 0 ]; do
   esac
 done
 
-build="$LONG3R_ROOT/build/core"
-cmake -S "$LONG3R_ROOT" -B "$build" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
-cmake --build "$build" -j "$LONG3R_JOBS" --target app_long3r_train app_long3r_model_eval
+build=$LONG3R_CORE
+long3r_build_core app_long3r_train app_long3r_model_eval
 
 stage() {  # name config [extra args]
   local name=$1 config=$2; shift 2
