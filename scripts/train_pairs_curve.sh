@@ -46,9 +46,8 @@ name=$(basename "$config" .json)
 [ -n "$run" ] || run="$LONG3R_ROOT/build/runs/${name#train_}"
 [ "$ranks" -ge 1 ] || { echo "--ranks must be >= 1" >&2; exit 2; }
 
-build="$LONG3R_ROOT/build/core"
-cmake -S "$LONG3R_ROOT" -B "$build" -DLONG3R_WITH_ROS=OFF -DCMAKE_BUILD_TYPE=Release >/dev/null
-cmake --build "$build" -j "$LONG3R_JOBS" --target app_long3r_train app_long3r_frame_cache
+build=$LONG3R_CORE
+long3r_build_core app_long3r_train app_long3r_frame_cache
 
 # The model config path in the training config is relative to the repository.
 cd "$LONG3R_ROOT"
