@@ -45,7 +45,6 @@ class SerialWorker {
   mutable std::mutex mutex_;
   mutable std::condition_variable changed_;
   std::deque<std::function<void()>> jobs_;
-  bool running_job_ = false;
   std::uint64_t posted_ = 0, done_ = 0;  // jobs queued and finished, ever
   bool stopping_ = false;
   std::exception_ptr failure_;

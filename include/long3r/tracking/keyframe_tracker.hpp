@@ -79,8 +79,8 @@ inline const std::array<std::pair<TrackingSolver, const char*>, 2>& enum_names(T
 // the last tracked frame leads to: the tracker cannot tell a cut to another
 // scene from a fast move out of the mapped view.
 enum class WhenLost {
-  // Not posed, and the next frames are relocalised against the current, the
-  // last and the kept keyframes (posed only where the images agree; after
+  // Not posed, and the next frames are relocalised against the current and
+  // the kept keyframes (posed only where the images agree; after
   // the live session's relocalise_for_s a new stream starts). A cut never
   // moves the path or the map.
   kRelocalise,

@@ -585,15 +585,18 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
   t = now_ms();
   if (r.pose.ok() && mapping_) {  // only with points_C, which PnP's pose gives
     map_.integrate(r.points_W, r.conf, r.rgb, r.frame_index);
-    // The surface and the occupancy get copies: the caller owns r.
-    auto update = [this, points_C = r.points_C.clone(), points_W = r.points_W.clone(),
-                   rgb = r.rgb.clone(), conf = r.conf.clone(), intrinsics = r.intrinsics,
-                   T_W_C = r.pose.T_W_C] {
+    // A job on the map thread gets copies of what it reads (the caller owns
+    // r), and only of what the enabled maps read.
+    const bool surface = config_.surface.enabled, occupancy = config_.occupancy.enabled;
+    auto held = [&](const cv::Mat& m, bool needed) {
+      return !needed ? cv::Mat() : map_worker_ ? m.clone() : m;
+    };
+    auto update = [this, surface, occupancy, points_C = held(r.points_C, surface),
+                   rgb = held(r.rgb, surface), points_W = held(r.points_W, occupancy),
+                   conf = held(r.conf, true), intrinsics = r.intrinsics, T_W_C = r.pose.T_W_C] {
       const float threshold = config_.map.conf_threshold;
-      surface_.integrate(points_C, rgb, conf, threshold, intrinsics, T_W_C);
-      if (config_.occupancy.enabled) {
-        occupancy_.insert(points_W, conf, threshold, T_W_C.translation());
-      }
+      if (surface) surface_.integrate(points_C, rgb, conf, threshold, intrinsics, T_W_C);
+      if (occupancy) occupancy_.insert(points_W, conf, threshold, T_W_C.translation());
     };
     if (map_worker_) {
       map_worker_->post(std::move(update));

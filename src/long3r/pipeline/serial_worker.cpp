@@ -41,7 +41,7 @@ void SerialWorker::wait_idle() const {
 
 std::size_t SerialWorker::pending() const {
   std::lock_guard<std::mutex> lock(mutex_);
-  return jobs_.size() + (running_job_ ? 1 : 0);
+  return static_cast<std::size_t>(posted_ - done_);
 }
 
 void SerialWorker::run() {
@@ -51,7 +51,6 @@ void SerialWorker::run() {
     if (jobs_.empty()) return;  // stopping, nothing left
     std::function<void()> job = std::move(jobs_.front());
     jobs_.pop_front();
-    running_job_ = true;
     lock.unlock();
     changed_.notify_all();  // a slot is free for post()
     std::exception_ptr failure;
@@ -61,7 +60,6 @@ void SerialWorker::run() {
       failure = std::current_exception();
     }
     lock.lock();
-    running_job_ = false;
     ++done_;
     if (failure && !failure_) failure_ = failure;
     changed_.notify_all();  // wait_idle() may return
