@@ -12,13 +12,7 @@ source "$(dirname "$0")/env.sh"
 root=$LONG3R_ROOT
 model="$root/models/default.safetensors"
 out="$root/build/baseline_scale_eval"
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --model) model=$2; shift 2 ;;
-    --out) out=$2; shift 2 ;;
-    *) echo "baseline_scale_eval.sh: unknown argument $1" >&2; exit 2 ;;
-  esac
-done
+long3r_parse_args --model=model --out=out -- "$@"
 bin=$LONG3R_CORE
 long3r_build_core app_long3r_synth app_long3r_reconstruct
 mkdir -p "$out"

@@ -20,15 +20,7 @@ baseline=f65af4e
 points=200000
 repeats=5
 callgrind=0
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --baseline) baseline=$2; shift 2 ;;
-    --points) points=$2; shift 2 ;;
-    --repeats) repeats=$2; shift 2 ;;
-    --callgrind) callgrind=1; shift ;;
-    *) echo "unknown option $1 (see the header of $0)" >&2; exit 2 ;;
-  esac
-done
+long3r_parse_args --baseline=baseline --points=points --repeats=repeats --callgrind?callgrind -- "$@"
 
 # Outside the package: a checkout of another revision inside it would give
 # roslaunch two files of each launch name.

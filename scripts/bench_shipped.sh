@@ -14,16 +14,9 @@
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 rounds=2 threads=2 frames=100
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --rounds) rounds="$2"; shift 2 ;;
-    --threads) threads="$2"; shift 2 ;;
-    --frames) frames="$2"; shift 2 ;;
-    *) echo "usage: $0 [--rounds N] [--threads N] [--frames N]" >&2; exit 2 ;;
-  esac
-done
 # shellcheck source=/dev/null
 source "$root/scripts/env.sh" >/dev/null
+long3r_parse_args --rounds=rounds --threads=threads --frames=frames -- "$@"
 bin="$root/build/.ws/devel/lib/long3r_ros"
 [ -x "$bin/long3r_reconstruct" ] || { echo "build first: scripts/build.sh" >&2; exit 1; }
 work="$(mktemp -d)"

@@ -40,28 +40,22 @@
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 
-usage() { sed -n '2,/^set -euo/p' "$0" | sed '$d' | sed 's/^# \{0,1\}//'; }
-[ $# -ge 1 ] || { usage >&2; exit 2; }
-case "$1" in -h|--help) usage; exit 0 ;; esac
-official=$(cd "$1" && pwd); shift
+official=""
 frames=6
 threads=$(nproc)
 precisions="float32 bfloat16"
 allow_emulated=0
 keep=0
 ours_blas=""
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --frames) frames=$2; shift 2 ;;
-    --threads) threads=$2; shift 2 ;;
-    --precisions) precisions=$2; shift 2 ;;
-    --allow-emulated) allow_emulated=1; shift ;;
-    --keep) keep=1; shift ;;
-    --ours-openblas) ours_blas=/usr/lib/x86_64-linux-gnu/openblas-$2; shift 2
-      [ -e "$ours_blas/libopenblas.so.0" ] || { echo "no $ours_blas/libopenblas.so.0" >&2; exit 2; } ;;
-    *) echo "unknown option $1 (see --help)" >&2; exit 2 ;;
-  esac
-done
+ours_openblas=""
+long3r_parse_args @official --frames=frames --threads=threads --precisions=precisions \
+  --allow-emulated?allow_emulated --keep?keep --ours-openblas=ours_openblas -- "$@"
+[ -n "$official" ] || { echo "bench_vs_official.sh: the official checkout is missing (see --help)" >&2; exit 2; }
+official=$(cd "$official" && pwd)
+if [ -n "$ours_openblas" ]; then
+  ours_blas=/usr/lib/x86_64-linux-gnu/openblas-$ours_openblas
+  [ -e "$ours_blas/libopenblas.so.0" ] || { echo "no $ours_blas/libopenblas.so.0" >&2; exit 2; }
+fi
 [ "$frames" -ge 3 ] || { echo "--frames must be >= 3" >&2; exit 2; }
 
 bin=${LONG3R_BIN:-$LONG3R_WS/devel/lib/long3r_ros}

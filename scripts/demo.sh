@@ -20,17 +20,8 @@ model=""
 robot=0
 pose_source=odometry
 scale_source=depth
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --frames) frames=$2; shift 2 ;;
-    --model) model=$2; shift 2 ;;
-    --robot) robot=1; shift ;;
-    --pose-source) pose_source=$2; shift 2 ;;
-    --scale-source) scale_source=$2; shift 2 ;;
-    -*) echo "unknown option $1" >&2; exit 2 ;;
-    *) out=$1; shift ;;
-  esac
-done
+long3r_parse_args --frames=frames --model=model --robot?robot --pose-source=pose_source \
+  --scale-source=scale_source @out -- "$@"
 
 "$LONG3R_ROOT/scripts/install_deps.sh"
 # Only what the demo runs: the nodelet, the generator, the scorer (no tests,

@@ -18,3 +18,7 @@ long3r_build_core() {
     >/dev/null
   cmake --build "$LONG3R_CORE" -j "$LONG3R_JOBS" --target "$@" >/dev/null
 }
+
+# The option parser every script uses.
+# shellcheck source=scripts/parse_args.sh
+source "$LONG3R_ROOT/scripts/parse_args.sh"

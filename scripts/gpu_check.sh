@@ -31,18 +31,8 @@ source "$root/scripts/torch_only.sh"
 start=$(date +%s)
 
 out="" frames=20 torch_dir="" build="$root/build-gpu-check" jobs=$(nproc) dry=0
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --out) out=$2; shift 2 ;;
-    --frames) frames=$2; shift 2 ;;
-    --torch-dir) torch_dir=$2; shift 2 ;;
-    --build-dir) build=$2; shift 2 ;;
-    --jobs) jobs=$2; shift 2 ;;
-    --cpu-dry-run) dry=1; shift ;;
-    -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d' | sed 's/^# \{0,1\}//'; exit 0 ;;
-    *) echo "gpu_check.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
-  esac
-done
+long3r_parse_args --out=out --frames=frames --torch-dir=torch_dir --build-dir=build \
+  --jobs=jobs --cpu-dry-run?dry -- "$@"
 mkdir -p "$build"
 out=${out:-$build/report.txt}
 report_open "$out"

@@ -17,16 +17,8 @@ model=""
 strides="2 8"
 threads=1
 out="$LONG3R_ROOT/build/long_stream_eval"
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --model) model=$(realpath "$2"); shift 2 ;;
-    --strides) strides=$2; shift 2 ;;
-    --threads) threads=$2; shift 2 ;;
-    --out) out=$2; shift 2 ;;
-    -h|--help) sed -n '2,13p' "$0"; exit 0 ;;
-    *) echo "long_stream_eval.sh: unknown argument $1" >&2; exit 2 ;;
-  esac
-done
+long3r_parse_args --model=model --strides=strides --threads=threads --out=out -- "$@"
+[ -n "$model" ] && model=$(realpath "$model")
 [ -n "$model" ] || { echo "long_stream_eval.sh: --model FILE is needed" >&2; exit 2; }
 long3r_build_core app_long3r_model_eval
 mkdir -p "$out"

@@ -26,19 +26,8 @@ sequences=4
 img_size=224
 threads=$(nproc)
 bin=""
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --model) model=$2; shift 2 ;;
-    --frames) frames=$2; shift 2 ;;
-    --strides) strides=$2; shift 2 ;;
-    --sequences) sequences=$2; shift 2 ;;
-    --img-size) img_size=$2; shift 2 ;;
-    --threads) threads=$2; shift 2 ;;
-    --bin) bin=$2; shift 2 ;;
-    -*) echo "unknown option $1" >&2; exit 2 ;;
-    *) out=$1; shift ;;
-  esac
-done
+long3r_parse_args --model=model --frames=frames --strides=strides --sequences=sequences \
+  --img-size=img_size --threads=threads --bin=bin @out -- "$@"
 if [ -z "$bin" ]; then
   bin=$LONG3R_CORE
   long3r_build_core app_long3r_model_eval

@@ -15,16 +15,8 @@ model="$LONG3R_ROOT/models/default.safetensors"
 threads=$(nproc)
 retrained="$LONG3R_ROOT/build/train_ablations"
 only_retrained=0
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --model) model=$2; shift 2 ;;
-    --threads) threads=$2; shift 2 ;;
-    --retrained) retrained=$2; shift 2 ;;
-    --only-retrained) only_retrained=1; shift ;;
-    -*) echo "unknown option $1" >&2; exit 2 ;;
-    *) out=$1; shift ;;
-  esac
-done
+long3r_parse_args --model=model --threads=threads --retrained=retrained \
+  --only-retrained?only_retrained @out -- "$@"
 build=$LONG3R_CORE
 long3r_build_core app_long3r_model_eval
 mkdir -p "$out"

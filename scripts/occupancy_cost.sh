@@ -26,16 +26,7 @@ frames=60
 model="$root/models/default.safetensors"
 out="$root/build/occupancy_cost"
 rounds=3
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --frames) frames=$2; shift 2 ;;
-    --model) model=$2; shift 2 ;;
-    --out) out=$2; shift 2 ;;
-    --rounds) rounds=$2; shift 2 ;;
-    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
-    *) echo "occupancy_cost.sh: unknown argument $1" >&2; exit 2 ;;
-  esac
-done
+long3r_parse_args --frames=frames --model=model --out=out --rounds=rounds -- "$@"
 bin=$LONG3R_CORE
 long3r_build_core app_long3r_synth app_long3r_reconstruct
 mkdir -p "$out"

@@ -9,13 +9,7 @@ set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 runs=5
 busy=2
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --runs) runs=$2; shift 2 ;;
-    --busy) busy=$2; shift 2 ;;
-    *) echo "ros_label_loaded.sh: unknown argument $1" >&2; exit 2 ;;
-  esac
-done
+long3r_parse_args --runs=runs --busy=busy -- "$@"
 loops=()
 cleanup() { [ ${#loops[@]} -eq 0 ] || kill "${loops[@]}" 2>/dev/null || true; }
 trap cleanup EXIT

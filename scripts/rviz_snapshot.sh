@@ -13,16 +13,7 @@ model=""
 out="$LONG3R_ROOT/build/rviz_snapshot.png"
 frames=60
 size=1280x800
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --bag) bag=$2; shift 2 ;;
-    --model) model=$2; shift 2 ;;
-    --out) out=$2; shift 2 ;;
-    --frames) frames=$2; shift 2 ;;
-    --size) size=$2; shift 2 ;;
-    *) echo "unknown argument $1" >&2; exit 2 ;;
-  esac
-done
+long3r_parse_args --bag=bag --model=model --out=out --frames=frames --size=size -- "$@"
 
 "$LONG3R_ROOT/scripts/install_deps.sh"
 "$LONG3R_ROOT/scripts/build.sh" >/dev/null

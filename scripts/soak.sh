@@ -11,15 +11,7 @@ frames=10000
 rate=8
 every=500
 queue=1
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --frames) frames=$2; shift 2 ;;
-    --rate) rate=$2; shift 2 ;;
-    --every) every=$2; shift 2 ;;
-    --queue-size) queue=$2; shift 2 ;;
-    *) echo "unknown option $1 (see the header of $0)" >&2; exit 2 ;;
-  esac
-done
+long3r_parse_args --frames=frames --rate=rate --every=every --queue-size=queue -- "$@"
 
 "$LONG3R_ROOT/scripts/build.sh" >/dev/null
 set +u; source "$LONG3R_WS/devel/setup.bash"; set -u

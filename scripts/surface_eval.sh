@@ -25,17 +25,8 @@ img_size=224
 out="$root/build/surface_eval"
 model_poses=0
 extra=()
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --frames) frames=$2; shift 2 ;;
-    --model) model=$2; shift 2 ;;
-    --img-size) img_size=$2; shift 2 ;;
-    --out) out=$2; shift 2 ;;
-    --model-poses) model_poses=1; shift ;;
-    --) shift; extra=("$@"); break ;;
-    *) echo "surface_eval.sh: unknown argument $1" >&2; exit 2 ;;
-  esac
-done
+long3r_parse_args --frames=frames --model=model --img-size=img_size --out=out \
+  --model-poses?model_poses --=extra -- "$@"
 bin=$LONG3R_CORE
 long3r_build_core app_long3r_synth app_long3r_reconstruct app_long3r_eval
 mkdir -p "$out"

@@ -7,6 +7,10 @@
 # Sets for the caller: device, torch_dir, json_dir, eigen_dir, cmake_args.
 # shellcheck shell=bash disable=SC2154,SC2034
 
+# The option parser every script uses.
+# shellcheck source=scripts/parse_args.sh
+source "$(dirname "${BASH_SOURCE[0]}")/parse_args.sh"
+
 # report_open PATH: starts the record that say MESSAGE (prints it and
 # records it) adds to and finish CODE (records the wall time, copies the
 # record to PATH, exits) ends.

@@ -20,15 +20,10 @@ run="$LONG3R_ROOT/build/train_ablations"
 ship_run="$LONG3R_ROOT/build/train_ship"
 only=
 pass=()
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --ship-run) ship_run=$2; shift 2 ;;
-    --only) only=$2; shift 2 ;;
-    --device|--threads) pass+=("$1" "$2"); shift 2 ;;
-    -*) echo "unknown option $1" >&2; exit 2 ;;
-    *) run=$1; shift ;;
-  esac
-done
+device="" threads=""
+long3r_parse_args --ship-run=ship_run --only=only --device=device --threads=threads @run -- "$@"
+[ -n "$device" ] && pass+=(--device "$device")
+[ -n "$threads" ] && pass+=(--threads "$threads")
 case "$only" in ""|no_long_term|spann3r_memory) ;; *) echo "unknown ablation $only" >&2; exit 2 ;; esac
 
 if [ -z "$only" ] || [ "$only" = no_long_term ]; then

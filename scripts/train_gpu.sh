@@ -35,24 +35,9 @@ start=$(date +%s)
 out="" config="$root/config/train_gpu.json" model="" minutes=9 render_threads=""
 torch_dir="" build="$root/build-train-gpu" deps="$root/build/gpu-deps" jobs=$(nproc)
 max_steps="" dry=0 pack=0
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --out) out=$2; shift 2 ;;
-    --config) config=$2; shift 2 ;;
-    --model-config) model=$2; shift 2 ;;
-    --minutes) minutes=$2; shift 2 ;;
-    --render-threads) render_threads=$2; shift 2 ;;
-    --torch-dir) torch_dir=$2; shift 2 ;;
-    --build-dir) build=$2; shift 2 ;;
-    --deps-dir) deps=$2; shift 2 ;;
-    --jobs) jobs=$2; shift 2 ;;
-    --max-steps) max_steps=$2; shift 2 ;;
-    --cpu-dry-run) dry=1; shift ;;
-    --pack-deps) pack=1; shift ;;
-    -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d' | sed 's/^# \{0,1\}//'; exit 0 ;;
-    *) echo "train_gpu.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
-  esac
-done
+long3r_parse_args --out=out --config=config --model-config=model --minutes=minutes \
+  --render-threads=render_threads --torch-dir=torch_dir --build-dir=build --deps-dir=deps \
+  --jobs=jobs --max-steps=max_steps --cpu-dry-run?dry --pack-deps?pack -- "$@"
 if [ "$pack" = 1 ]; then
   header_deps_pack "$deps"
   exit $?

@@ -19,18 +19,11 @@ device=cpu
 threads=$(nproc)
 install=0
 model_config=()
+model_config_file=""
 stage1_from=
-while [ $# -gt 0 ]; do
-  case "$1" in
-    --device) device=$2; shift 2 ;;
-    --threads) threads=$2; shift 2 ;;
-    --install) install=1; shift ;;
-    --model-config) model_config=(--model-config "$2"); shift 2 ;;
-    --stage1-from) stage1_from=$2; shift 2 ;;
-    -*) echo "unknown option $1" >&2; exit 2 ;;
-    *) run=$1; shift ;;
-  esac
-done
+long3r_parse_args --device=device --threads=threads --install?install --model-config=model_config_file \
+  --stage1-from=stage1_from @run -- "$@"
+[ -n "$model_config_file" ] && model_config=(--model-config "$model_config_file")
 
 build=$LONG3R_CORE
 long3r_build_core app_long3r_train app_long3r_model_eval

@@ -55,6 +55,7 @@
 #include "long3r/io/atomic_file.hpp"
 #include "long3r/mapping/occupancy_map.hpp"
 #include "long3r/model/loading/safetensors.hpp"
+#include "long3r/model/runtime/inference.hpp"
 #include "long3r/model/runtime/inference_config.hpp"
 #include "long3r/model/runtime/threads.hpp"
 #include "long3r/pipeline/live_session.hpp"
@@ -576,12 +577,13 @@ int main(int argc, char** argv) {
         "map %zu points\n"
         "         mean %.2f FPS, median %.2f FPS, peak RSS %.1f MiB, %s, %s %s\n"
         "         scale %.6g m per model unit (%s), %llu stream(s)\n"
+        "         cpu %s\n"
         "         outputs in %s\n",
         used, skipped, frame_ms.size(), traj.size(), rec.map().size(), mean_fps,
         median_ms > 0 ? 1000.0 / median_ms : 0.0, peak_rss / 1024.0, describe(thread_state).c_str(),
         inference.device.c_str(), config::enum_name(inference.precision), status.scale,
         status.scale_metric ? "metric" : "model units",
-        static_cast<unsigned long long>(status.streams), out_dir.c_str());
+        static_cast<unsigned long long>(status.streams), describe_cpu().c_str(), out_dir.c_str());
     if (!client.suppressed().empty()) {
       std::printf("warnings not repeated: %s\n", client.suppressed().c_str());
     }

@@ -1,0 +1,2 @@
+# The scripts' one option parser (scripts/env.sh).
+add_test(NAME scripts_parse_args COMMAND bash ${PROJECT_SOURCE_DIR}/test/scripts/test_parse_args.sh)
