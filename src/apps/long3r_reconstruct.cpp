@@ -357,7 +357,7 @@ int main(int argc, char** argv) {
         "pose_ms,map_ms,total_ms,mem_short,mem_long,mem_relevant,pnp_status,pnp_inliers,"
         "added_to_map,map_points,scale,rss_kb,tracking,tracking_solver,tracking_matches,"
         "tracking_inliers,tracking_parallax_deg,tracking_scale,keyframe,tracking_ms,"
-        "baseline_scale_sample,baseline_triangulated\n");
+        "tracking_features_ms,baseline_scale_sample,baseline_triangulated\n");
     const bool tty = isatty(fileno(stdout));
     std::vector<double> frame_ms;
     long peak_rss = 0;
@@ -368,11 +368,12 @@ int main(int argc, char** argv) {
       peak_rss = std::max(peak_rss, rss);
       frame_ms.push_back(t.total_ms);
       // pose_source keyframes: what the tracker made of the frame (else empty).
-      char tracking[192] = ",,,,,,,";
+      char tracking[192] = ",,,,,,,,";
       if (const auto& k = r.tracking) {
-        std::snprintf(tracking, sizeof tracking, "%s,%s,%d,%d,%.3f,%.6g,%d,%.3f",
+        std::snprintf(tracking, sizeof tracking, "%s,%s,%d,%d,%.3f,%.6g,%d,%.3f,%.3f",
                       to_string(k->status), config::enum_name(k->solver), k->matches, k->inliers,
-                      k->parallax_deg, k->scale, k->new_keyframe ? 1 : 0, t.tracking_ms);
+                      k->parallax_deg, k->scale, k->new_keyframe ? 1 : 0, t.tracking_ms,
+                      k->features_ms);
       }
       // Placed by given poses with --scale-source odometry: the images' sample
       // of metres per model unit over the baseline (else empty).

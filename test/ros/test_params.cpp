@@ -188,6 +188,10 @@ TEST_F(ParamsTest, PoseSourceChoosesThePipelinesPoseMethod) {
   expectError("tracker_fast_threshold");
   pnh_.setParam("tracker_fast_threshold", 12);
   EXPECT_EQ(readParams(pnh_).reconstruction.tracker.fast_threshold, 12);
+  pnh_.setParam("tracker_pyramid_levels", 0);
+  expectError("tracker_pyramid_levels");
+  pnh_.setParam("tracker_pyramid_levels", 4);
+  EXPECT_EQ(readParams(pnh_).reconstruction.tracker.pyramid_levels, 4);
   EXPECT_EQ(readParams(pnh_).reconstruction.tracker.solver, long3r::TrackingSolver::kEssential);
 }
 

@@ -330,6 +330,27 @@ TEST(KeyframeTracker, RejectsWrongTypes) {
   KeyframeTrackerConfig c;
   c.min_matches = 3;
   EXPECT_THROW(KeyframeTracker{c}, ConfigError);
+  for (int levels : {0, 17}) {
+    KeyframeTrackerConfig p;
+    p.pyramid_levels = levels;
+    EXPECT_THROW(KeyframeTracker{p}, ConfigError) << levels;
+  }
+}
+
+TEST(KeyframeTracker, FewerPyramidLevelsStillFollowAWalkAndDetectionIsTimed) {
+  const Footage f = render(synth::TrajectoryType::kWalk, 30, 11);
+  KeyframeTrackerConfig c;
+  c.pyramid_levels = 4;
+  const PathError e = track_all(f, c, false);
+  EXPECT_EQ(e.tracked, 30);
+  EXPECT_LT(e.rmse, 0.05 * e.static_rmse) << e.rmse << " m against " << e.static_rmse;
+  // The detection's share of track() is reported, whatever the outcome.
+  KeyframeTracker tracker(c);
+  const TrackResult first = tracker.track(frame(f, 0));
+  const TrackResult second = tracker.track(frame(f, 1));
+  EXPECT_GT(first.features_ms, 0.0);
+  EXPECT_GT(second.features_ms, 0.0);
+  EXPECT_GT(second.features, c.min_matches);
 }
 
 // ------------------------------------------------------------ baseline scale

@@ -10,8 +10,9 @@
 namespace long3r {
 
 // OpenCV's ORB defaults but the FAST threshold (theirs: 20, which finds too
-// few corners on smooth surfaces; docs/model_card.md, "Poses from keyframes").
-cv::Ptr<cv::ORB> make_orb(int max_features, int fast_threshold);
+// few corners on smooth surfaces; docs/model_card.md, "Poses from keyframes")
+// and the pyramid's levels (theirs: 8, the tracker's default).
+cv::Ptr<cv::ORB> make_orb(int max_features, int fast_threshold, int pyramid_levels);
 
 // Matches of `query` descriptors to `train` ones by Hamming distance: Lowe's
 // ratio test of the best against the second best, then for each train

@@ -100,6 +100,7 @@ struct KeyframeTrackerConfig {
   TrackingSolver solver = TrackingSolver::kPnp;
   int max_features = 1000;                 // ORB features per frame
   int fast_threshold = 10;                 // ORB's FAST corner threshold (grey levels)
+  int pyramid_levels = 8;                  // ORB's scale pyramid (factor 1.2 a level)
   double ratio_test = 0.8;                 // Lowe's ratio of best to second-best distance
   int min_matches = 30;                    // fewer (after RANSAC): the frame is not tracked
   double ransac_threshold_px = 1.0;        // essential-matrix RANSAC, source pixels
@@ -140,6 +141,7 @@ config::FieldsOf<S, KeyframeTrackerConfig> visit_fields(S& s, V& v) {
   v("solver", s.solver);
   v("max_features", s.max_features);
   v("fast_threshold", s.fast_threshold);
+  v("pyramid_levels", s.pyramid_levels);
   v("ratio_test", s.ratio_test);
   v("min_matches", s.min_matches);
   v("ransac_threshold_px", s.ransac_threshold_px);
@@ -199,6 +201,7 @@ struct TrackResult {
   // Median over the inliers of |own depth x scale / keyframe point's depth - 1|.
   double depth_error = 0.0;
   bool new_keyframe = false;
+  double features_ms = 0.0;  // of track(), ORB's detection and descriptors
 };
 
 // A keyframe as kept for relocalisation and saved with sessions: its ORB
@@ -261,6 +264,9 @@ class KeyframeTracker {
                          const cv::Mat& descriptors, const Eigen::Isometry3d& T_W_C,
                          double scale) const;
 
+  // track() after step 1's detection.
+  TrackResult track_detected(const TrackerFrame& frame, const std::vector<cv::KeyPoint>& keypoints,
+                             const cv::Mat& descriptors, const Eigen::Isometry3d& T_W_C_prior);
   // Steps 1-5 against one keyframe (no state changes).
   TrackResult relative(const KeptKeyframe& kf, const TrackerFrame& frame,
                        const std::vector<cv::KeyPoint>& keypoints,

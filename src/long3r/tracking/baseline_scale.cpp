@@ -17,7 +17,8 @@ constexpr double kRadToDeg = 180.0 / M_PI;
 }  // namespace
 
 BaselineScale::BaselineScale(const KeyframeTrackerConfig& features)
-    : features_(features), orb_(make_orb(features.max_features, features.fast_threshold)) {}
+    : features_(features),
+      orb_(make_orb(features.max_features, features.fast_threshold, features.pyramid_levels)) {}
 
 BaselineScale::Reference BaselineScale::make_reference(const TrackerFrame& frame,
                                                        const std::vector<cv::KeyPoint>& keypoints,

@@ -2,8 +2,8 @@
 
 namespace long3r {
 
-cv::Ptr<cv::ORB> make_orb(int max_features, int fast_threshold) {
-  return cv::ORB::create(max_features, 1.2f, 8, 31, 0, 2, cv::ORB::HARRIS_SCORE, 31,
+cv::Ptr<cv::ORB> make_orb(int max_features, int fast_threshold, int pyramid_levels) {
+  return cv::ORB::create(max_features, 1.2f, pyramid_levels, 31, 0, 2, cv::ORB::HARRIS_SCORE, 31,
                          fast_threshold);
 }
 

@@ -8,6 +8,7 @@
 #include <opencv2/features2d.hpp>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <iterator>
 #include <numeric>
@@ -73,6 +74,8 @@ void KeyframeTrackerConfig::validate(const config::FieldCheck& check) const {
                 "must be in [50, 100000]");
   check.require(fast_threshold >= 1 && fast_threshold <= 255, "fast_threshold",
                 "must be in [1, 255]");
+  check.require(pyramid_levels >= 1 && pyramid_levels <= 16, "pyramid_levels",
+                "must be in [1, 16]");
   check.require(ratio_test > 0.0 && ratio_test <= 1.0, "ratio_test", "must be in (0, 1]");
   check.require(min_matches >= 8, "min_matches",
                 "must be >= 8 (the essential matrix needs 5, PnP 6)");
@@ -128,7 +131,7 @@ const char* to_string(TrackStatus status) {
 
 KeyframeTracker::KeyframeTracker(const KeyframeTrackerConfig& config) : config_(config) {
   config_.validate({"tracker config", ""});
-  orb_ = make_orb(config_.max_features, config_.fast_threshold);
+  orb_ = make_orb(config_.max_features, config_.fast_threshold, config_.pyramid_levels);
 }
 
 std::optional<Eigen::Vector3d> point_at(const TrackerFrame& f,
@@ -246,11 +249,24 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
   if (frame.points_C.empty() || frame.points_C.type() != CV_32FC3) {
     throw std::invalid_argument("KeyframeTracker::track: the pointmap must be CV_32FC3");
   }
-  TrackResult r;
-  r.scale = last_scale_;  // unless this frame measures its own
   std::vector<cv::KeyPoint> keypoints;
   cv::Mat descriptors;
+  const auto t0 = std::chrono::steady_clock::now();
   orb_->detectAndCompute(frame.gray, cv::noArray(), keypoints, descriptors);
+  const std::chrono::duration<double, std::milli> features_time =
+      std::chrono::steady_clock::now() - t0;
+  TrackResult r = track_detected(frame, keypoints, descriptors, T_W_C_prior);
+  r.features = static_cast<int>(keypoints.size());
+  r.features_ms = features_time.count();
+  return r;
+}
+
+TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
+                                            const std::vector<cv::KeyPoint>& keypoints,
+                                            const cv::Mat& descriptors,
+                                            const Eigen::Isometry3d& T_W_C_prior) {
+  TrackResult r;
+  r.scale = last_scale_;  // unless this frame measures its own
   r.features = static_cast<int>(keypoints.size());
   std::ostringstream why;
   if (r.features < config_.min_matches) {
