@@ -1,2 +1,2 @@
-# The scripts' one option parser (scripts/env.sh).
+# The scripts' one option parser (scripts/parse_args.sh).
 add_test(NAME scripts_parse_args COMMAND bash ${PROJECT_SOURCE_DIR}/test/scripts/test_parse_args.sh)

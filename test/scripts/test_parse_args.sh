@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The scripts' option parser (scripts/env.sh, long3r_parse_args): values,
+# The scripts' option parser (scripts/parse_args.sh, long3r_parse_args): values,
 # flags, the positional argument, the rest after --, --help, and the errors.
 set -uo pipefail
 source "$(dirname "$0")/../../scripts/parse_args.sh"
@@ -32,7 +32,7 @@ out=$(parse one two 2>&1); rc=$?
 check "second positional rc" 2 "$rc"
 out=$(parse --help); rc=$?
 check "help rc" 0 "$rc"
-check "help text" "The scripts' option parser (scripts/env.sh, long3r_parse_args): values," \
+check "help text" "The scripts' option parser (scripts/parse_args.sh, long3r_parse_args): values," \
   "$(echo "$out" | head -1)"
 out=$( (long3r_parse_args --x=y -- --z 1) 2>&1); rc=$?
 check "no positional rc" 2 "$rc"

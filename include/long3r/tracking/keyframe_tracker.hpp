@@ -264,7 +264,8 @@ class KeyframeTracker {
                          const cv::Mat& descriptors, const Eigen::Isometry3d& T_W_C,
                          double scale) const;
 
-  // track() after step 1's detection.
+  // track() after step 1's detection (track() sets the result's features
+  // and features_ms).
   TrackResult track_detected(const TrackerFrame& frame, const std::vector<cv::KeyPoint>& keypoints,
                              const cv::Mat& descriptors, const Eigen::Isometry3d& T_W_C_prior);
   // Steps 1-5 against one keyframe (no state changes).

@@ -256,7 +256,7 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
   const std::chrono::duration<double, std::milli> features_time =
       std::chrono::steady_clock::now() - t0;
   TrackResult r = track_detected(frame, keypoints, descriptors, T_W_C_prior);
-  r.features = static_cast<int>(keypoints.size());
+  r.features = static_cast<int>(keypoints.size());  // whichever path made r
   r.features_ms = features_time.count();
   return r;
 }
@@ -308,7 +308,6 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
     }
   }
   r = r_kf;
-  r.features = static_cast<int>(keypoints.size());
   if (!r.posed()) {
     if (r.status == TrackStatus::kTooFewMatches && config_.when_lost == WhenLost::kRelocalise) {
       // The view changed too much to say where it went (a cut to another
@@ -617,7 +616,6 @@ TrackResult KeyframeTracker::relocalise(const TrackerFrame& frame,
     TrackResult r;
     r.status = TrackStatus::kRefused;
     r.scale = last_scale_;
-    r.features = static_cast<int>(keypoints.size());
     std::ostringstream why;
     why << "not placed against " << candidates.size() << " of " << kept_.size()
         << " kept keyframes";
@@ -635,7 +633,6 @@ TrackResult KeyframeTracker::relocalise(const TrackerFrame& frame,
   // Placed: tracking goes on from the keyframe that placed it.
   TrackResult r = best->first;
   r.status = TrackStatus::kRelocalised;
-  r.features = static_cast<int>(keypoints.size());
   Keyframe kf;
   static_cast<KeptKeyframe&>(kf) = *best->second;
   keyframe_ = std::move(kf);
