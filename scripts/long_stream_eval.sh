@@ -22,12 +22,15 @@ long3r_parse_args --model=model --strides=strides --threads=threads --out=out --
 [ -n "$model" ] || { echo "long_stream_eval.sh: --model FILE is needed" >&2; exit 2; }
 long3r_build_core app_long3r_model_eval
 mkdir -p "$out"
-# The model's own resolution (its config's img_size), for the plane too.
+# The model's own resolution (the size it records it was trained at, else its
+# config's img_size, as long3r_model_eval takes it), for the plane too.
 img_size=$(/usr/bin/python3 - "$model" <<'PY'
 import json, struct, sys
 with open(sys.argv[1], "rb") as f:
     header = json.loads(f.read(struct.unpack("<Q", f.read(8))[0]))
-print(max(json.loads(header["__metadata__"]["config"])["dust3r"]["img_size"]))
+config = json.loads(header["__metadata__"]["config"])
+print(max(config.get("input_width", 0), config.get("input_height", 0))
+      or max(config["dust3r"]["img_size"]))
 PY
 )
 

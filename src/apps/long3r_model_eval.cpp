@@ -78,7 +78,9 @@ int main(int argc, char** argv) {
              "first scene seed (training uses 1000.., validation 1000000..)");
   cli.option("--img-size", "N", &img_size, "model input N x N")
       .min(0)
-      .shown_default("the model's own (its config's img_size), 224 for a baseline");
+      .shown_default(
+          "the model's own (its recorded input size, else its config's img_size), 224 "
+          "for a baseline");
   cli.option("--pixel-step", "N", &pixel_step, "cloud subsampling for the metrics").min(1);
   cli.flag("--no-normals", &normals, "skip NC", false);
   cli.flag("--estimate-intrinsics", &estimate_intrinsics,
@@ -142,8 +144,12 @@ int main(int argc, char** argv) {
       model = std::make_unique<long3r::Long3rModel>(mc);
       if (!weights.empty()) model->load_weights(weights, model_path);
       model->to(target);
-      // The model's own resolution unless asked: what it was trained at.
-      if (img_size == 0) img_size = std::max(mc.dust3r.img_size[0], mc.dust3r.img_size[1]);
+      // The model's own resolution unless asked: what it was trained at (the
+      // recorded input size; files from before it was recorded: img_size).
+      if (img_size == 0) {
+        img_size = mc.input_width > 0 ? std::max(mc.input_width, mc.input_height)
+                                      : std::max(mc.dust3r.img_size[0], mc.dust3r.img_size[1]);
+      }
       if (img_size % mc.dust3r.patch_size != 0) {
         throw std::invalid_argument("--img-size must be a multiple of the patch size");
       }

@@ -243,7 +243,7 @@ int main(int argc, char** argv) {
            cfg.preprocess.width = cfg.preprocess.height = parse_cli_value<int>("--img-size", v[0]);
          },
          "model input size N x N (--model-width and --model-height)")
-      .shown_default("224");
+      .shown_default("the size the checkpoint was trained at where it records one, else 224");
   add_thread_options(cli, &threads);
   InferenceConfig inference;
   add_inference_options(cli, &inference);
@@ -576,11 +576,13 @@ int main(int argc, char** argv) {
     std::printf(
         "summary: %ld frames used (%ld unreadable skipped), %zu results, %zu with a good pose, "
         "map %zu points\n"
-        "         mean %.2f FPS, median %.2f FPS, peak RSS %.1f MiB, %s, %s %s\n"
+        "         model input %dx%d, mean %.2f FPS, median %.2f FPS, peak RSS %.1f MiB, %s, %s "
+        "%s\n"
         "         scale %.6g m per model unit (%s), %llu stream(s)\n"
         "         cpu %s\n"
         "         outputs in %s\n",
-        used, skipped, frame_ms.size(), traj.size(), rec.map().size(), mean_fps,
+        used, skipped, frame_ms.size(), traj.size(), rec.map().size(),
+        rec.config().preprocess.width, rec.config().preprocess.height, mean_fps,
         median_ms > 0 ? 1000.0 / median_ms : 0.0, peak_rss / 1024.0, describe(thread_state).c_str(),
         inference.device.c_str(), config::enum_name(inference.precision), status.scale,
         status.scale_metric ? "metric" : "model units",

@@ -112,9 +112,14 @@ void Long3rNodelet::loadModel() {
     logFatal(getName(), what);
     throw std::runtime_error(what);
   }
-  NODELET_INFO("model loaded from %s, running on %s in %s", path.c_str(),
+  const long3r::PreprocessConfig& input = session_->reconstruction().config().preprocess;
+  const bool recorded = session_->reconstruction().model().recorded_input_size()[0] > 0;
+  NODELET_INFO("model loaded from %s, running on %s in %s at %dx%d (%s)", path.c_str(),
                params_.inference.device.c_str(),
-               long3r::config::enum_name(params_.inference.precision));
+               long3r::config::enum_name(params_.inference.precision), input.width, input.height,
+               !params_.reconstruction.preprocess.follows_checkpoint()
+                   ? "~model_width, ~model_height"
+                   : (recorded ? "the size the checkpoint was trained at" : "the default"));
 }
 
 // A session named at start must continue, or the node must not start:

@@ -163,6 +163,9 @@ TEST(ModelConfig, ErrorsNameTheField) {
       {{"spatial_memory", "work_mem_size"}, "0", "work_mem_size: must be at least 1"},
       {{"spatial_memory", "mem_dropout"}, "0.1", "training setting"},
       {{"model"}, "\"CroCoNet\"", "unknown model"},
+      {{"input_width"}, "24", "input_width: must be a positive multiple of dust3r.patch_size (16)"},
+      // Both sizes or neither.
+      {{"input_width"}, "32", "input_height: must be a positive multiple"},
       {{"dust3r"}, nullptr, "dust3r: missing"},
   };
   for (const BadCase& c : cases) {
@@ -214,6 +217,20 @@ TEST(ModelConfig, WritesTheOfficialEncodings) {
   EXPECT_NE(error_of(bad).find("long3r.long_term_policy: must be \"voxel\" or \"spann3r\", got "
                                "\"lru\""),
             std::string::npos);
+}
+
+// The size a file was trained at is written only where it is known, so the
+// files of official checkpoints read and write as before.
+TEST(ModelConfig, InputSizeIsWrittenOnlyWhereRecorded) {
+  ModelConfig c = parse_model_config(tiny_spann3r());
+  EXPECT_EQ(c.input_width, 0);
+  EXPECT_EQ(c.input_height, 0);
+  EXPECT_FALSE(Json::parse(long3r::model_config_to_json(c)).contains("input_width"));
+  c.input_width = 64;
+  c.input_height = 48;
+  const ModelConfig back = parse_model_config(long3r::model_config_to_json(c));
+  EXPECT_EQ(back.input_width, 64);
+  EXPECT_EQ(back.input_height, 48);
 }
 
 // DUSt3R's linear head (official head_type 'linear', LinearPts3d): no DPT

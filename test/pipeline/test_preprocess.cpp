@@ -135,9 +135,30 @@ TEST(Preprocess, BadModelSizeThrows) {
   const cv::Mat img(32, 32, CV_8UC3, cv::Scalar(1, 2, 3));
   PreprocessConfig config;
   config.width = 100;
+  config.height = 224;
   EXPECT_THROW(preprocess_image(img, ImageEncoding::kRgb8, config), std::invalid_argument);
-  config.width = 0;
+  config.width = 0;  // one size left to the checkpoint, the other given
   EXPECT_THROW(preprocess_image(img, ImageEncoding::kRgb8, config), std::invalid_argument);
+  EXPECT_THROW(config.validate({"preprocess", ""}), ConfigError);
+}
+
+// 0 x 0 follows the checkpoint: its recorded size, else 224 x 224 (also
+// where no checkpoint is known, as in preprocess_image alone).
+TEST(Preprocess, SizeFollowsTheCheckpoint) {
+  PreprocessConfig config;
+  EXPECT_TRUE(config.follows_checkpoint());
+  EXPECT_NO_THROW(config.validate({"preprocess", ""}));
+  EXPECT_EQ(config.resolved(64, 48).width, 64);
+  EXPECT_EQ(config.resolved(64, 48).height, 48);
+  EXPECT_EQ(config.resolved().width, kDefaultModelInputSide);
+  EXPECT_EQ(config.resolved().height, kDefaultModelInputSide);
+  const PreprocessedImage out =
+      preprocess_image(cv::Mat(480, 640, CV_8UC3, cv::Scalar::all(9)), ImageEncoding::kRgb8);
+  EXPECT_EQ(out.width, kDefaultModelInputSide);
+  config.width = 320;
+  config.height = 240;
+  EXPECT_EQ(config.resolved(64, 48).width, 320);  // a named size wins
+  EXPECT_EQ(config.resolved(64, 48).height, 240);
 }
 
 TEST(Preprocess, ResizeCropPlans) {

@@ -483,6 +483,42 @@ TEST(Reconstruction, RandomSpann3rRunsEndToEnd) {
   EXPECT_TRUE(last->pose.T_W_C.matrix().allFinite());
 }
 
+// A model runs at the size its checkpoint was trained at unless the
+// configuration names one; a file that records none runs at 224 x 224.
+TEST(Reconstruction, InputSizeFollowsTheCheckpoint) {
+  const std::string json =
+      R"({"model": "Spann3R", "input_width": 48, "input_height": 32,
+      "dust3r": {"enc_embed_dim": 32, "enc_depth": 2, "enc_num_heads": 2,
+      "dec_embed_dim": 16, "dec_depth": 2, "dec_num_heads": 2, "depth_mode": ["exp", "-inf", "inf"],
+      "dpt_head": {"feature_dim": 12, "last_dim": 8, "layer_dims": [8, 12, 16, 16]}},
+      "spann3r": {"value_encoder": {"depth": 1, "embed_dim": 32, "num_heads": 2, "out_dim": 32}},
+      "spatial_memory": {"long_mem_size": 200, "top_k": 200, "work_mem_size": 3}})";
+  const GtSequence g = make_sequence(3);
+  ReconstructionConfig follows = test::gt_reconstruction_config();
+  follows.conf_threshold = 1.0f;
+  follows.preprocess.width = follows.preprocess.height = 0;
+  const auto first_size = [&](ReconstructionConfig cfg, ModelConfig model) {
+    Reconstruction rec(std::make_unique<Spann3rModel>(model), cfg);
+    std::optional<FrameResult> r;
+    for (size_t k = 0; k < g.bgr.size() && !r; ++k) r = rec.push(g.bgr[k], "bgr8", k);
+    if (!r) r = rec.flush();
+    EXPECT_TRUE(r.has_value());
+    const PreprocessConfig& used = rec.config().preprocess;
+    EXPECT_EQ(r->points_W.size(), cv::Size(used.width, used.height));
+    return r->points_W.size();
+  };
+  const ModelConfig recorded = parse_model_config(json);
+  EXPECT_EQ(first_size(follows, recorded), cv::Size(48, 32));
+  ModelConfig unrecorded = recorded;
+  unrecorded.input_width = unrecorded.input_height = 0;
+  EXPECT_EQ(first_size(follows, unrecorded),
+            cv::Size(kDefaultModelInputSide, kDefaultModelInputSide));
+  ReconstructionConfig named = follows;
+  named.preprocess.width = 64;
+  named.preprocess.height = 48;
+  EXPECT_EQ(first_size(named, recorded), cv::Size(64, 48));
+}
+
 TEST(Reconstruction, LoadStreamingModelErrors) {
   EXPECT_THROW(make_streaming_model("/nonexistent/model.safetensors"), CheckpointError);
 }

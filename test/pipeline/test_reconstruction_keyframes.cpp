@@ -134,7 +134,9 @@ TEST(ReconstructionKeyframes, AnUntrackedFrameFollowsTheModelsMotionWithoutAJump
   const Footage f = render(5, [](int k) { return k >= 2 ? 0.6 : 1.0; });
   std::vector<cv::Mat> images = f.bgr;
   images[3] = cv::Mat(kH, kW, CV_8UC3, cv::Scalar(0, 0, 0));  // no features at all
-  Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0), keyframes_config());
+  ReconstructionConfig config = keyframes_config();
+  config.tracker.motion_prior = MotionPrior::kModel;
+  Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0), config);
   rec.set_calibration(f.seq.config.intrinsics);
   const std::vector<FrameResult> results = run(rec, images);
   ASSERT_EQ(results.size(), 5u);
@@ -152,6 +154,54 @@ TEST(ReconstructionKeyframes, AnUntrackedFrameFollowsTheModelsMotionWithoutAJump
             2.0 * step);
   EXPECT_NEAR(dark.tracking->scale, 1.0 / 0.6, 0.05);  // the last tracked frame's
   EXPECT_EQ(results[4].tracking->status, TrackStatus::kTracked);
+}
+
+// tracker_motion_prior constant_velocity: the untracked frame continues the
+// last step of the tracked ones, whatever the model's own pose says.
+TEST(ReconstructionKeyframes, AnUntrackedFrameCanContinueTheTrackedMotion) {
+  const Footage f = render(5, [](int k) { return k >= 2 ? 0.6 : 1.0; });
+  std::vector<cv::Mat> images = f.bgr;
+  images[3] = cv::Mat(kH, kW, CV_8UC3, cv::Scalar(0, 0, 0));
+  ReconstructionConfig config = keyframes_config();
+  config.tracker.motion_prior = MotionPrior::kConstantVelocity;
+  Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0), config);
+  rec.set_calibration(f.seq.config.intrinsics);
+  const std::vector<FrameResult> results = run(rec, images);
+  ASSERT_EQ(results.size(), 5u);
+  ASSERT_EQ(results[3].tracking->status, TrackStatus::kTooFewFeatures);
+  const Eigen::Isometry3d& T1 = results[1].pose.T_W_C;
+  const Eigen::Isometry3d& T2 = results[2].pose.T_W_C;
+  const Eigen::Isometry3d expected = T2 * (T1.inverse() * T2);
+  const Eigen::Isometry3d d = expected.inverse() * results[3].pose.T_W_C;
+  EXPECT_LT(d.translation().norm(), 1e-9);
+  EXPECT_LT(Eigen::AngleAxisd(d.rotation()).angle(), 1e-9);
+  // The generated path is smooth: continued, the step lands as near the
+  // truth as the tracked frames (their bound in the first test).
+  EXPECT_LT((results[3].pose.T_W_C.translation() - f.T_0_k[3].translation()).norm(), 0.03);
+  EXPECT_EQ(results[4].tracking->status, TrackStatus::kTracked);
+}
+
+// An isolated failure of the model's own pose (a frame with no depth in its
+// camera) does not lose the stream: the next frame is tracked against the
+// keyframe as before (where lost frames relocalise, it is relocalised; the
+// next test).
+TEST(ReconstructionKeyframes, AFrameAfterALostModelPoseIsTrackedAsBefore) {
+  Footage f = render(6, [](int) { return 1.0; });
+  f.pts_W0[3].setTo(cv::Scalar::all(NAN));
+  Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0), keyframes_config());
+  rec.set_calibration(f.seq.config.intrinsics);
+  const std::vector<FrameResult> results = run(rec, f.bgr);
+  ASSERT_EQ(results.size(), 6u);
+  EXPECT_FALSE(results[3].pose.ok());
+  EXPECT_FALSE(results[3].tracking.has_value());
+  for (int k : {4, 5}) {
+    const FrameResult& r = results[static_cast<std::size_t>(k)];
+    ASSERT_TRUE(r.tracking.has_value()) << k;
+    EXPECT_EQ(r.tracking->status, TrackStatus::kTracked) << k << ": " << r.tracking->message;
+    const Eigen::Isometry3d d = f.T_0_k[static_cast<std::size_t>(k)].inverse() * r.pose.T_W_C;
+    EXPECT_LT(d.translation().norm(), 0.03) << k;
+    EXPECT_LT(Eigen::AngleAxisd(d.rotation()).angle(), 0.01) << k;
+  }
 }
 
 TEST(ReconstructionKeyframes, TheConstantDepthControlReachesOnlyTheTracker) {
@@ -303,7 +353,9 @@ TEST(Relocalisation, ARestoredStreamPlacesTheSamePlaceByItsImagesNotByTheModel) 
 TEST(Relocalisation, AFrameAfterALostPoseIsRelocalisedByTheImages) {
   Footage f = render(6, one);
   f.pts_W0[3].setTo(cv::Scalar::all(NAN));  // the model's pose fails on frame 3
-  Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0), keyframes_config());
+  ReconstructionConfig config = keyframes_config();
+  config.tracker.when_lost = WhenLost::kRelocalise;
+  Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0), config);
   rec.set_calibration(f.seq.config.intrinsics);
   const std::vector<FrameResult> results = run(rec, f.bgr);
   ASSERT_EQ(results.size(), 6u);

@@ -193,6 +193,21 @@ TEST_F(ParamsTest, PoseSourceChoosesThePipelinesPoseMethod) {
   pnh_.setParam("tracker_pyramid_levels", 4);
   EXPECT_EQ(readParams(pnh_).reconstruction.tracker.pyramid_levels, 4);
   EXPECT_EQ(readParams(pnh_).reconstruction.tracker.solver, long3r::TrackingSolver::kEssential);
+  EXPECT_EQ(readParams(pnh_).reconstruction.tracker.motion_prior,
+            long3r::MotionPrior::kConstantVelocity);
+  pnh_.setParam("tracker_motion_prior", "model");
+  EXPECT_EQ(readParams(pnh_).reconstruction.tracker.motion_prior, long3r::MotionPrior::kModel);
+  // tracker_when_lost's older name of "prior" still reads; it is not offered.
+  pnh_.setParam("tracker_when_lost", "model_motion");
+  EXPECT_EQ(readParams(pnh_).reconstruction.tracker.when_lost, long3r::WhenLost::kPrior);
+  pnh_.setParam("tracker_when_lost", "stop");
+  try {
+    readParams(pnh_);
+    FAIL() << "no error for tracker_when_lost stop";
+  } catch (const ParamError& e) {
+    EXPECT_NE(std::string(e.what()).find("\"relocalise\" or \"prior\","), std::string::npos)
+        << e.what();
+  }
 }
 
 TEST_F(ParamsTest, RejectsCameraFrameEqualToMap) {
@@ -314,22 +329,33 @@ TEST_F(ParamsTest, RejectsNegativeThreads) {
 
 TEST_F(ParamsTest, ReconstructionDefaultsAndValues) {
   auto d = readParams(pnh_).reconstruction;
-  EXPECT_EQ(d.preprocess.width, 224);
-  EXPECT_EQ(d.preprocess.height, 224);
+  EXPECT_TRUE(d.preprocess.follows_checkpoint());  // 0 x 0: the checkpoint's size
+  EXPECT_EQ(d.preprocess.width, 0);
+  EXPECT_EQ(d.preprocess.height, 0);
   EXPECT_FLOAT_EQ(d.conf_threshold, 1.0f);
   pnh_.setParam("model_width", 320);
+  pnh_.setParam("model_height", 240);
   pnh_.setParam("conf_threshold", 2);  // int for a double
   pnh_.setParam("voxel_size_m", 0.05);
   pnh_.setParam("max_map_points", 1000);
   auto c = readParams(pnh_).reconstruction;
   EXPECT_EQ(c.preprocess.width, 320);
+  EXPECT_EQ(c.preprocess.height, 240);
   EXPECT_FLOAT_EQ(c.conf_threshold, 2.0f);
   EXPECT_DOUBLE_EQ(c.map.voxel_size_m, 0.05);
   EXPECT_EQ(c.map.max_points, 1000u);
 }
 
 TEST_F(ParamsTest, RejectsModelSizeNotMultipleOf16) {
+  pnh_.setParam("model_width", 224);
   pnh_.setParam("model_height", 200);
+  expectError("model_height");
+}
+
+// One size alone would leave the other to the checkpoint: an aspect ratio
+// nobody chose.
+TEST_F(ParamsTest, RejectsOneModelSizeWithoutTheOther) {
+  pnh_.setParam("model_width", 320);
   expectError("model_height");
 }
 

@@ -93,7 +93,7 @@ TEST(NodeStatus, FiguresAreReported) {
   n.session.keyframe_lost = 2;
   const auto stat = diagnose(n);
   EXPECT_EQ(value(stat, "frames tracked by keyframes (total)"), "40");
-  EXPECT_EQ(value(stat, "frames not tracked: the model's motion (total)"), "3");
+  EXPECT_EQ(value(stat, "frames not tracked: placed by the motion prior (total)"), "3");
   EXPECT_EQ(value(stat, "frames that lost the keyframes: relocalising (total)"), "2");
   EXPECT_EQ(value(stat, "scale source"), "odometry");
   EXPECT_EQ(value(stat, "scale in use (m per model unit)"), "0.5");

@@ -293,7 +293,7 @@ TEST(KeyframeTracker, ACutToAnotherSceneIsNeverPosedUntilTheImagesPlaceAFrame) {
   EXPECT_FALSE(tracker.relocalising());
 }
 
-// when_lost model_motion (the default): frames that lose the keyframe are
+// when_lost prior (the default): frames that lose the keyframe are
 // placed by the caller; the second in a row starts a keyframe there.
 TEST(KeyframeTracker, LostForFramesInARowStartsAgainWhereTheCallerPutsTheFrame) {
   const Footage f = render(synth::TrajectoryType::kWalk, 1, 15);

@@ -6,6 +6,7 @@ import argparse
 import csv
 import json
 import os
+import re
 import sys
 import zipfile
 
@@ -99,13 +100,18 @@ def main():
     model = os.path.join(out, "model.safetensors")
     rc, log = run([a.ckpt_info, "--no-tensors", model])
     check(rc == 0 and "LONG3R" in log, "ckpt_info: " + log)
+    # The file records the size it was trained at, and the pipeline runs it
+    # there (no --img-size below).
+    check(re.search(r'"input_width": ?64\b', log) and re.search(r'"input_height": ?64\b', log),
+          "the trained file records its input size: " + log)
     seq = os.path.join(a.workdir, "seq")
     rc, log = run([a.synth, "--out", seq, "--frames", "5", "--width", "64", "--height", "64",
                    "--seed", "77", "--quiet"])
     check(rc == 0, "long3r_synth: " + log)
     rc, log = run([a.reconstruct, "--model", model, "--out", os.path.join(a.workdir, "rec"),
-                   "--threads", "2", "--img-size", "64", "--conf-threshold", "1", seq])
+                   "--threads", "2", "--conf-threshold", "1", seq])
     check(rc == 0 and "summary: 5 frames used" in log, "reconstruct with the trained model: " + log)
+    check("model input 64x64" in log, "reconstruct runs the model at its trained size: " + log)
 
     # The blind control of the trained model, per length and stride.
     bj = os.path.join(a.workdir, "blind.json")

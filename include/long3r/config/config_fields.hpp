@@ -4,6 +4,7 @@
 // lists and the JSON side).
 #pragma once
 
+#include <algorithm>
 #include <stdexcept>
 #include <string>
 #include <type_traits>
@@ -82,12 +83,16 @@ bool enum_from_name(const std::string& name, E* value) {
   }
   return false;
 }
-// "\"a\" or \"b\"", for messages.
+// "\"a\" or \"b\"", for messages. A value named twice in the table has an
+// older name after its own, still read (enum_from_name) but not offered.
 template <class E>
 std::string enum_choices() {
   std::string s;
-  for (const auto& entry : enum_names(E{})) {
-    s += std::string(s.empty() ? "" : " or ") + "\"" + entry.second + "\"";
+  const auto& names = enum_names(E{});
+  for (auto it = names.begin(); it != names.end(); ++it) {
+    const auto same = [&](const auto& e) { return e.first == it->first; };
+    if (std::find_if(names.begin(), it, same) != it) continue;  // an older name
+    s += std::string(s.empty() ? "" : " or ") + "\"" + it->second + "\"";
   }
   return s;
 }

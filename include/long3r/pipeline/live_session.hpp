@@ -176,7 +176,7 @@ struct LiveStatus {
   std::uint64_t relocalisations = 0;
   std::uint64_t relocalisations_refused = 0;
   // pose_method keyframes: frames the keyframe tracker posed, and those it
-  // could not (placed by the model's motion since the last frame); and the
+  // could not (placed by the motion prior, tracker_motion_prior); and the
   // frames that lost it (tracker_when_lost relocalise: a cut to another
   // scene or a fast move, not posed, relocalising from the next frame).
   std::uint64_t keyframe_tracked = 0, keyframe_untracked = 0, keyframe_lost = 0;

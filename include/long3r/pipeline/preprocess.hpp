@@ -39,13 +39,25 @@ enum class Mono16Scaling {
   kDiv256,    // v / 256 (the high byte, rounded): fixed, frame-independent
 };
 
+// The model input side when neither the configuration nor the checkpoint
+// gives a size (the size the official Spann3R runs at).
+constexpr int kDefaultModelInputSide = 224;
+
 struct PreprocessConfig {
-  int width = 224;   // model input width, a positive multiple of 16
-  int height = 224;  // model input height, a positive multiple of 16
+  // Model input size, positive multiples of 16. 0 x 0 (the default) follows
+  // the checkpoint: the size it was trained at where it records one
+  // (ModelConfig::input_width / input_height), else 224 x 224. A model runs
+  // well only at the size it was trained at.
+  int width = 0;
+  int height = 0;
   Mono16Scaling mono16 = Mono16Scaling::kImageMax;
 
-  // Throws ConfigError naming the field.
+  // Both sizes or neither. Throws ConfigError naming the field.
   void validate(const config::FieldCheck& check) const;
+  bool follows_checkpoint() const { return width == 0 && height == 0; }
+  // This configuration with a 0 x 0 size replaced by the checkpoint's
+  // recorded size, or by 224 x 224 where there is none (recorded 0 x 0).
+  PreprocessConfig resolved(int recorded_width = 0, int recorded_height = 0) const;
 };
 
 // mono16 is the input's to choose (a TUM depth-like mono16 camera), not a setting.
@@ -85,6 +97,8 @@ struct PreprocessedImage {
   PixelMapping source_to_model;  // its inverse
 };
 
+// A config that follows the checkpoint (0 x 0) gives 224 x 224 here, where no
+// checkpoint is known: resolve it first (Reconstruction does).
 // Throws std::invalid_argument for a bad config, an empty image, or a cv::Mat
 // whose type does not match the encoding (rgb8/bgr8: CV_8UC3, rgba8/bgra8:
 // CV_8UC4, mono8: CV_8UC1, mono16: CV_16UC1).

@@ -65,7 +65,7 @@ struct ReconstructionConfig {
   // (docs/model_card.md, "Poses from keyframes").
   PoseMethod pose_method = PoseMethod::kKeyframes;
   KeyframeTrackerConfig tracker;
-  PreprocessConfig preprocess;  // model input size
+  PreprocessConfig preprocess;  // model input size (0 x 0: the checkpoint's)
   PnpConfig pnp;
   VoxelMapConfig map;
   // The fused surface beside the voxel map (off by default: docs/performance.md,
@@ -209,6 +209,8 @@ class Reconstruction {
   void restore(const StateDict& state);
 
   const StreamingModel& model() const { return *model_; }
+  // As given, with the model input size resolved (PreprocessConfig::resolved
+  // by the checkpoint's recorded size).
   const ReconstructionConfig& config() const { return config_; }
   // Intrinsics of the current stream at model resolution, once known.
   const std::optional<ResolvedIntrinsics>& intrinsics() const { return intrinsics_; }
@@ -234,9 +236,16 @@ class Reconstruction {
   PoseTracker tracker_;
   KeyframeTracker keyframes_;
   BaselineScale baseline_scale_;
-  // The last frame the keyframe tracker saw: (its T_W_C, tracked or placed
-  // by the model's motion; the model's own).
-  std::optional<std::pair<Eigen::Isometry3d, Eigen::Isometry3d>> last_tracked_;
+  // Where the keyframe tracker's frame goes should it not be tracked
+  // (tracker.motion_prior), from the frames it placed before.
+  Eigen::Isometry3d tracker_prior(int64_t frame_index, const Eigen::Isometry3d& model_T_W_C) const;
+  // A frame the keyframe tracker posed or the prior placed.
+  struct Placed {
+    int64_t frame_index = 0;
+    Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
+    Eigen::Isometry3d model_T_W_C = Eigen::Isometry3d::Identity();  // the model's own pose
+  };
+  std::deque<Placed> placed_;  // the last two, oldest first
   VoxelMap map_;
   SurfaceMap surface_;
   OccupancyMap occupancy_;

@@ -565,9 +565,7 @@ void LiveSession::deliver(FrameResult frame) {
       ++status_.keyframe_untracked;
       warn("keyframes", "frame " + std::to_string(f.frame_index) +
                             ": not tracked against the keyframes (" + to_string(k->status) + ": " +
-                            k->message +
-                            "); placed by the model's motion since the last "
-                            "frame");
+                            k->message + "); placed by the motion prior (tracker_motion_prior)");
     }
   }
   if (f.pose.ok()) update_scale(r);

@@ -9,9 +9,22 @@
 namespace long3r {
 
 void PreprocessConfig::validate(const config::FieldCheck& check) const {
+  if (follows_checkpoint()) return;
   const auto multiple_of_16 = [](int v) { return v >= 16 && v <= 4096 && v % 16 == 0; };
-  check.require(multiple_of_16(width), "width", "must be a multiple of 16 in [16, 4096]");
-  check.require(multiple_of_16(height), "height", "must be a multiple of 16 in [16, 4096]");
+  const char* what =
+      "must be a multiple of 16 in [16, 4096], or 0 with the other size 0 too (the checkpoint's "
+      "input size)";
+  check.require(multiple_of_16(width), "width", what);
+  check.require(multiple_of_16(height), "height", what);
+}
+
+PreprocessConfig PreprocessConfig::resolved(int recorded_width, int recorded_height) const {
+  PreprocessConfig out = *this;
+  if (!follows_checkpoint()) return out;
+  const bool recorded = recorded_width > 0 && recorded_height > 0;
+  out.width = recorded ? recorded_width : kDefaultModelInputSide;
+  out.height = recorded ? recorded_height : kDefaultModelInputSide;
+  return out;
 }
 
 namespace {
@@ -116,7 +129,8 @@ cv::Mat to_rgb8(const cv::Mat& image, ImageEncoding encoding, Mono16Scaling mono
 }
 
 ResizeCropPlan plan_resize_crop(int source_width, int source_height,
-                                const PreprocessConfig& config) {
+                                const PreprocessConfig& requested) {
+  const PreprocessConfig config = requested.resolved();
   check_config(config);
   if (source_width <= 0 || source_height <= 0) {
     throw std::invalid_argument("preprocess: empty source image");
@@ -141,7 +155,8 @@ ResizeCropPlan plan_resize_crop(int source_width, int source_height,
 }
 
 PreprocessedImage preprocess_image(const cv::Mat& image, ImageEncoding encoding,
-                                   const PreprocessConfig& config) {
+                                   const PreprocessConfig& requested) {
+  const PreprocessConfig config = requested.resolved();
   check_config(config);
   const cv::Mat rgb_src = to_rgb8(image, encoding, config.mono16);
   const ResizeCropPlan plan = plan_resize_crop(rgb_src.cols, rgb_src.rows, config);

@@ -26,8 +26,13 @@ double now_ms() {
       .count();
 }
 
-ReconstructionConfig effective(ReconstructionConfig c) {
+ReconstructionConfig effective(ReconstructionConfig c, const StreamingModel* model) {
   c.validate({"reconstruction config", ""});
+  if (model) {  // a null model is refused by the constructor
+    const std::array<int64_t, 2> recorded = model->recorded_input_size();
+    c.preprocess =
+        c.preprocess.resolved(static_cast<int>(recorded[0]), static_cast<int>(recorded[1]));
+  }
   if (c.conf_threshold >= 0.0f) {
     c.pnp.conf_threshold = c.conf_threshold;
     c.map.conf_threshold = c.conf_threshold;
@@ -105,7 +110,7 @@ bool has_random_weights(const std::map<std::string, std::string>& metadata) {
 Reconstruction::Reconstruction(std::unique_ptr<StreamingModel> model,
                                const ReconstructionConfig& config)
     : model_(std::move(model)),
-      config_(effective(config)),
+      config_(effective(config, model_.get())),
       tracker_(config_.pnp),
       keyframes_(config_.tracker),
       baseline_scale_(config_.tracker),
@@ -161,7 +166,7 @@ void Reconstruction::reset() {
   tracker_.reset();
   keyframes_.reset();
   baseline_scale_.reset();
-  last_tracked_.reset();
+  placed_.clear();
   map_.clear();
   settle_maps();
   surface_.clear();
@@ -190,9 +195,9 @@ void Reconstruction::set_scale(double scale) {
   }
   tracker_.rescale(factor);
   keyframes_.rescale(factor);
-  if (last_tracked_) {
-    last_tracked_->first.translation() *= factor;
-    last_tracked_->second.translation() *= factor;
+  for (Placed& p : placed_) {
+    p.T_W_C.translation() *= factor;
+    p.model_T_W_C.translation() *= factor;
   }
   scale_ = scale;
 }
@@ -380,7 +385,7 @@ void Reconstruction::restore(const StateDict& state) {
   trajectory_given_ = std::move(trajectory_given);
   surface_.swap(surface);
   keyframes_.restore(std::move(kept));
-  last_tracked_.reset();
+  placed_.clear();
 }
 
 std::optional<FrameResult> Reconstruction::push(const cv::Mat& image, const std::string& encoding,
@@ -477,6 +482,27 @@ Eigen::Matrix3d Reconstruction::source_camera_matrix(const PixelMapping& model_t
   return model_to_source.matrix() * K;
 }
 
+Eigen::Isometry3d Reconstruction::tracker_prior(int64_t frame_index,
+                                                const Eigen::Isometry3d& model_T_W_C) const {
+  if (placed_.empty()) return model_T_W_C;
+  const Placed& last = placed_.back();
+  if (config_.tracker.motion_prior == MotionPrior::kConstantVelocity && placed_.size() == 2 &&
+      last.frame_index > placed_.front().frame_index) {
+    // The last step's motion per frame, continued for the frames since.
+    const Eigen::Isometry3d step = placed_.front().T_W_C.inverse() * last.T_W_C;
+    const double f = static_cast<double>(frame_index - last.frame_index) /
+                     static_cast<double>(last.frame_index - placed_.front().frame_index);
+    const Eigen::AngleAxisd rotation(step.rotation());
+    Eigen::Isometry3d motion = Eigen::Isometry3d::Identity();
+    motion.linear() = Eigen::AngleAxisd(rotation.angle() * f, rotation.axis()).toRotationMatrix();
+    motion.translation() = step.translation() * f;
+    return last.T_W_C * motion;
+  }
+  // The model's motion since the last frame, from where that frame went (the
+  // model's own world would jump).
+  return last.T_W_C * last.model_T_W_C.inverse() * model_T_W_C;
+}
+
 FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms, double model_ms) {
   if (pending_.empty() || pending_.front().index != out.frame_index) {
     throw std::logic_error("Reconstruction: model returned frame " +
@@ -530,8 +556,12 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
   if (r.pose.ok()) r.points_C = points_in_camera(r.points_W, r.pose.T_W_C);
   // The keyframe tracker: the frame's shape as its PnP pose sees it, placed
   // by the images' correspondences with the keyframe (a given pose wins).
-  // A frame whose pose failed: the next ones are relocalised by the images.
-  if (config_.pose_method == PoseMethod::kKeyframes && !p.T_W_C && !r.pose.ok()) {
+  // A frame whose model pose failed has no depth in its own camera frame to
+  // track with; the next frames are tracked against the keyframe as before
+  // (an isolated failure must not lose a stream the images still place), or,
+  // where lost frames relocalise (a cut to another scene), relocalised.
+  if (config_.pose_method == PoseMethod::kKeyframes && !p.T_W_C && !r.pose.ok() &&
+      config_.tracker.when_lost == WhenLost::kRelocalise) {
     keyframes_.lose();
   }
   if (config_.pose_method == PoseMethod::kKeyframes && !p.T_W_C && r.pose.ok() && intrinsics_) {
@@ -540,12 +570,7 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
     frame.K = source_camera_matrix(p.image.model_to_source);
     frame.points_C = config_.tracker_constant_depth ? at_median_depth(r.points_C) : r.points_C;
     frame.model_to_image = p.image.model_to_source.matrix();
-    // Where the frame goes should it not be tracked: the model's motion
-    // since the last frame, from where that frame went (the model's own
-    // world would jump).
-    const Eigen::Isometry3d prior =
-        last_tracked_ ? last_tracked_->first * last_tracked_->second.inverse() * r.model_T_W_C
-                      : r.model_T_W_C;
+    const Eigen::Isometry3d prior = tracker_prior(r.frame_index, r.model_T_W_C);
     const double t_tracking = now_ms();
     r.tracking = keyframes_.track(frame, prior);
     r.timings.tracking_ms = now_ms() - t_tracking;
@@ -557,11 +582,12 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
       r.pose.message = (r.tracking->status == TrackStatus::kLost ? "tracking lost: "
                                                                  : "relocalisation refused: ") +
                        r.tracking->message;
-      r.pose.T_W_C = last_tracked_ ? last_tracked_->first : r.model_T_W_C;
+      r.pose.T_W_C = placed_.empty() ? r.model_T_W_C : placed_.back().T_W_C;
       r.points_C = cv::Mat();
     } else {
       r.pose.T_W_C = r.tracking->posed() ? r.tracking->T_W_C : prior;
-      last_tracked_ = {r.pose.T_W_C, r.model_T_W_C};
+      placed_.push_back({r.frame_index, r.pose.T_W_C, r.model_T_W_C});
+      if (placed_.size() > 2) placed_.pop_front();
       if (r.tracking->scale != 1.0) r.points_C *= r.tracking->scale;
       r.points_W = transform_points(r.points_C, r.pose.T_W_C);
     }

@@ -266,10 +266,14 @@ Trainer::Trainer(const TrainConfig& config, const TrainOptions& options)
   if (!options_.model_override.empty()) config_.model = options_.model_override;
   if (is_root()) fs::create_directories(fs::path(options_.out_dir) / "checkpoint");
   at::manual_seed(options_.seed);
-  model_ = std::make_unique<Long3rModel>(resolve_model_config(config_.model));
-  if (config_.image_size % model_->config().dust3r.patch_size != 0) {
+  ModelConfig model_config = resolve_model_config(config_.model);
+  if (config_.image_size % model_config.dust3r.patch_size != 0) {
     throw std::invalid_argument("image_size must be a multiple of the model's patch size");
   }
+  // The weights run well only at the size they are trained at: the files
+  // written record it, and the pipeline follows it by default.
+  model_config.input_width = model_config.input_height = config_.image_size;
+  model_ = std::make_unique<Long3rModel>(model_config);
   if (config_.weight_init == "croco") init_croco_weights(*model_);
   if (!options_.init_checkpoint.empty()) {
     init_report_ = init_from_checkpoint(*model_, options_.init_checkpoint);
@@ -671,9 +675,14 @@ void Trainer::load_checkpoint(const std::string& path) {
   bundle.load_from(path, device_);
   c10::IValue value;
   bundle.read("model_config", value);
-  // Compared as configurations, not as text.
-  if (model_config_to_json(parse_model_config(value.toStringRef())) !=
-      model_config_to_json(model_->config())) {
+  // Compared as configurations, not as text. Checkpoints written before the
+  // input size was recorded hold none: theirs is this run's image_size.
+  ModelConfig stored = parse_model_config(value.toStringRef());
+  if (stored.input_width == 0 && stored.input_height == 0) {
+    stored.input_width = model_->config().input_width;
+    stored.input_height = model_->config().input_height;
+  }
+  if (model_config_to_json(stored) != model_config_to_json(model_->config())) {
     throw std::runtime_error("checkpoint " + path +
                              " holds a different model configuration than --model-config/config");
   }

@@ -82,6 +82,9 @@ class Long3rModel : public StreamingModel, public ModelShell {
   StateDict stream_state() const override;
   void restore_stream_state(const StateDict& state) override;
   ModelIdentity identity() const override;
+  std::array<int64_t, 2> recorded_input_size() const override {
+    return {config().input_width, config().input_height};
+  }
 
   // One whole sequence in a single graph (reset, push every frame, flush):
   // returns N outputs, frames 0..N-2 from head1 and frame N-1 from head2. With

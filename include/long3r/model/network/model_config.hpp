@@ -115,6 +115,13 @@ struct ModelConfig {
   // official long_mem_size when the section does not give it.
   Spann3rMemoryConfig spatial_memory{/*long_mem_size=*/4000, /*top_k=*/4000};
   SpatioTemporalMemoryConfig long3r;  // kLong3r only (JSON "long3r")
+  // The input size the weights were trained at and run at (JSON top-level
+  // "input_width" / "input_height", written by the trainer); 0 when the file
+  // does not say (official checkpoints: dust3r.img_size is their backbone's
+  // pretraining size, not always the size they run at; Spann3R's says 512 and
+  // runs at 224). Both or neither, multiples of the patch size.
+  int64_t input_width = 0;
+  int64_t input_height = 0;
 
   // Width of the memory tokens (C_m) of a Spann3R model.
   int64_t memory_dim() const { return spann3r.value_encoder.out_dim; }

@@ -57,6 +57,9 @@ class Spann3rModel : public StreamingModel, public ModelShell {
   StateDict stream_state() const override;
   void restore_stream_state(const StateDict& state) override;
   ModelIdentity identity() const override;
+  std::array<int64_t, 2> recorded_input_size() const override {
+    return {config().input_width, config().input_height};
+  }
   // False with landscape_only (the official setting).
   bool accepts_portrait() const override;
 

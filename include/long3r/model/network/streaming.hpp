@@ -10,6 +10,7 @@
 
 #include <ATen/core/Tensor.h>
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -97,6 +98,11 @@ class StreamingModel {
   // Spann3R (the official setting) runs them, as the official model does, on a
   // scrambled grid and returns transposed maps; callers refuse such input.
   virtual bool accepts_portrait() const { return true; }
+
+  // The input size the checkpoint records as the one it was trained at
+  // (ModelConfig::input_width / input_height), width then height; {0, 0}
+  // where it records none.
+  virtual std::array<int64_t, 2> recorded_input_size() const { return {0, 0}; }
 };
 
 // Loads a checkpoint and builds the StreamingModel variant its metadata config

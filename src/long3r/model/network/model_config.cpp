@@ -357,6 +357,15 @@ void validate_model_config(const ModelConfig& config) {
                 (channels == 4 ? " + confidence)" : ", no confidence)"));
   }
 
+  const bool sized = config.input_width != 0 || config.input_height != 0;
+  for (const auto& [v, name] : {std::pair{config.input_width, "input_width"},
+                                std::pair{config.input_height, "input_height"}}) {
+    require(!sized || (v > 0 && v % d.patch_size == 0), name,
+            "must be a positive multiple of dust3r.patch_size (" + std::to_string(d.patch_size) +
+                "), with both input_width and input_height given or neither, got " +
+                std::to_string(v));
+  }
+
   if (config.kind == ModelKind::kDust3r) return;
   const Spann3rConfig& s = config.spann3r;
   const ValueEncoderConfig& e = s.value_encoder;
@@ -407,6 +416,8 @@ ModelConfig parse_model_config(const Json& root) {
   } else {
     fail("model", "unknown model \"" + model + "\" (AsymmetricCroCo3DStereo, Spann3R, LONG3R)");
   }
+  top("input_width", out.input_width);
+  top("input_height", out.input_height);
   if (top.take("dust3r") == nullptr) fail("dust3r", "missing");
   top.section("dust3r", [&](Reader& r) { dust3r_fields(out.dust3r, r); });
   if (out.kind != ModelKind::kDust3r) {
@@ -447,6 +458,10 @@ ModelConfig model_config_from_metadata(const std::map<std::string, std::string>&
 std::string model_config_to_json(const ModelConfig& c) {
   config::Writer w;
   w("model", model_kind_name(c.kind));
+  if (c.input_width != 0 || c.input_height != 0) {  // only where recorded: other files unchanged
+    w("input_width", c.input_width);
+    w("input_height", c.input_height);
+  }
   w.section("dust3r", [&](config::Writer& s) { dust3r_fields(c.dust3r, s); });
   if (c.kind != ModelKind::kDust3r) {
     w.section("spann3r", [&](config::Writer& s) { spann3r_fields(c.spann3r, s, c.dust3r); });
