@@ -457,17 +457,21 @@ TEST(Reconstruction, ResetRestartsAndSizeChangeThrows) {
   EXPECT_DOUBLE_EQ(r->stamp, 1.0);
 }
 
-TEST(Reconstruction, RandomSpann3rRunsEndToEnd) {
-  const std::string json =
+// A tiny Spann3R (random weights).
+ModelConfig tiny_spann3r() {
+  return parse_model_config(std::string(
       R"({"model": "Spann3R", "dust3r": {"enc_embed_dim": 32, "enc_depth": 2, "enc_num_heads": 2,
       "dec_embed_dim": 16, "dec_depth": 2, "dec_num_heads": 2, "depth_mode": ["exp", "-inf", "inf"],
       "dpt_head": {"feature_dim": 12, "last_dim": 8, "layer_dims": [8, 12, 16, 16]}},
       "spann3r": {"value_encoder": {"depth": 1, "embed_dim": 32, "num_heads": 2, "out_dim": 32}},
-      "spatial_memory": {"long_mem_size": 200, "top_k": 200, "work_mem_size": 3}})";
+      "spatial_memory": {"long_mem_size": 200, "top_k": 200, "work_mem_size": 3}})"));
+}
+
+TEST(Reconstruction, RandomSpann3rRunsEndToEnd) {
   const GtSequence g = make_sequence(4);
   ReconstructionConfig cfg = test::gt_reconstruction_config();
   cfg.conf_threshold = 1.0f;  // random confidences: let every pixel through
-  Reconstruction rec(std::make_unique<Spann3rModel>(parse_model_config(json)), cfg);
+  Reconstruction rec(std::make_unique<Spann3rModel>(tiny_spann3r()), cfg);
   int64_t expected = 0;
   for (size_t k = 0; k < g.bgr.size(); ++k) {
     if (auto r = rec.push(g.bgr[k], "bgr8", k)) {
@@ -486,13 +490,6 @@ TEST(Reconstruction, RandomSpann3rRunsEndToEnd) {
 // A model runs at the size its checkpoint was trained at unless the
 // configuration names one; a file that records none runs at 224 x 224.
 TEST(Reconstruction, InputSizeFollowsTheCheckpoint) {
-  const std::string json =
-      R"({"model": "Spann3R", "input_width": 48, "input_height": 32,
-      "dust3r": {"enc_embed_dim": 32, "enc_depth": 2, "enc_num_heads": 2,
-      "dec_embed_dim": 16, "dec_depth": 2, "dec_num_heads": 2, "depth_mode": ["exp", "-inf", "inf"],
-      "dpt_head": {"feature_dim": 12, "last_dim": 8, "layer_dims": [8, 12, 16, 16]}},
-      "spann3r": {"value_encoder": {"depth": 1, "embed_dim": 32, "num_heads": 2, "out_dim": 32}},
-      "spatial_memory": {"long_mem_size": 200, "top_k": 200, "work_mem_size": 3}})";
   const GtSequence g = make_sequence(3);
   ReconstructionConfig follows = test::gt_reconstruction_config();
   follows.conf_threshold = 1.0f;
@@ -507,11 +504,11 @@ TEST(Reconstruction, InputSizeFollowsTheCheckpoint) {
     EXPECT_EQ(r->points_W.size(), cv::Size(used.width, used.height));
     return r->points_W.size();
   };
-  const ModelConfig recorded = parse_model_config(json);
+  ModelConfig recorded = tiny_spann3r();
+  recorded.input_width = 48;
+  recorded.input_height = 32;
   EXPECT_EQ(first_size(follows, recorded), cv::Size(48, 32));
-  ModelConfig unrecorded = recorded;
-  unrecorded.input_width = unrecorded.input_height = 0;
-  EXPECT_EQ(first_size(follows, unrecorded),
+  EXPECT_EQ(first_size(follows, tiny_spann3r()),
             cv::Size(kDefaultModelInputSide, kDefaultModelInputSide));
   ReconstructionConfig named = follows;
   named.preprocess.width = 64;

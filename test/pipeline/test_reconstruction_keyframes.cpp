@@ -90,6 +90,18 @@ std::vector<FrameResult> run(Reconstruction& rec, const std::vector<cv::Mat>& im
   return results;
 }
 
+// The footage with frame 3 black (no features at all): the tracker cannot
+// place it, the motion prior does.
+std::vector<FrameResult> run_with_frame_3_dark(const Footage& f, MotionPrior prior) {
+  std::vector<cv::Mat> images = f.bgr;
+  images[3] = cv::Mat(kH, kW, CV_8UC3, cv::Scalar(0, 0, 0));
+  ReconstructionConfig config = keyframes_config();
+  config.tracker.motion_prior = prior;
+  Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0), config);
+  rec.set_calibration(f.seq.config.intrinsics);
+  return run(rec, images);
+}
+
 TEST(ReconstructionKeyframes, TheTrackersPoseAndScaleReachTheResult) {
   // Frames 3 and 4 come at 0.6 of the stream's scale: their PnP pose and
   // camera points are 0.6 the size; the tracker's Sim(3) brings them back.
@@ -132,13 +144,7 @@ TEST(ReconstructionKeyframes, AnUntrackedFrameFollowsTheModelsMotionWithoutAJump
   // From frame 2 on the model's scale is 0.6: its own poses jump towards
   // the origin, the tracker's do not.
   const Footage f = render(5, [](int k) { return k >= 2 ? 0.6 : 1.0; });
-  std::vector<cv::Mat> images = f.bgr;
-  images[3] = cv::Mat(kH, kW, CV_8UC3, cv::Scalar(0, 0, 0));  // no features at all
-  ReconstructionConfig config = keyframes_config();
-  config.tracker.motion_prior = MotionPrior::kModel;
-  Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0), config);
-  rec.set_calibration(f.seq.config.intrinsics);
-  const std::vector<FrameResult> results = run(rec, images);
+  const std::vector<FrameResult> results = run_with_frame_3_dark(f, MotionPrior::kModel);
   ASSERT_EQ(results.size(), 5u);
   const FrameResult& dark = results[3];
   ASSERT_TRUE(dark.tracking.has_value());
@@ -160,13 +166,7 @@ TEST(ReconstructionKeyframes, AnUntrackedFrameFollowsTheModelsMotionWithoutAJump
 // last step of the tracked ones, whatever the model's own pose says.
 TEST(ReconstructionKeyframes, AnUntrackedFrameCanContinueTheTrackedMotion) {
   const Footage f = render(5, [](int k) { return k >= 2 ? 0.6 : 1.0; });
-  std::vector<cv::Mat> images = f.bgr;
-  images[3] = cv::Mat(kH, kW, CV_8UC3, cv::Scalar(0, 0, 0));
-  ReconstructionConfig config = keyframes_config();
-  config.tracker.motion_prior = MotionPrior::kConstantVelocity;
-  Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0), config);
-  rec.set_calibration(f.seq.config.intrinsics);
-  const std::vector<FrameResult> results = run(rec, images);
+  const std::vector<FrameResult> results = run_with_frame_3_dark(f, MotionPrior::kConstantVelocity);
   ASSERT_EQ(results.size(), 5u);
   ASSERT_EQ(results[3].tracking->status, TrackStatus::kTooFewFeatures);
   const Eigen::Isometry3d& T1 = results[1].pose.T_W_C;
