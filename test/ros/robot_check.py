@@ -249,13 +249,18 @@ class RobotCheck(unittest.TestCase):
         # ~odometry for every posed frame in metres, with a PD covariance;
         # the model's poses in model units are held.
         held = [p for p in pms if ARGS.pose_source == 'model' and not p.metric]
-        # The last frame's ~odometry may still be on its way when its
-        # ~pointmap has been counted: wait for the messages checked, not for quiet.
+        # The ~odometry of the last frames may still be on its way when their
+        # ~pointmaps have been counted (the recorder's TF lookup on the same
+        # topic waits up to a second a message): wait for the messages
+        # checked, not for quiet.
         wanted = {p.header.stamp.to_nsec() for p in pms if p not in held}
-        deadline = time.time() + 10.0
-        while time.time() < deadline and not wanted <= {
-                o.header.stamp.to_nsec() for o in rec.get('odometry')}:
+        start = time.time()
+        missing = wanted
+        while missing and time.time() < start + ARGS.timeout:
             time.sleep(0.05)
+            missing = wanted - {o.header.stamp.to_nsec() for o in rec.get('odometry')}
+        rospy.loginfo('~odometry of %d posed frames in metres after %.1f s more, %d missing',
+                      len(wanted), time.time() - start, len(missing))
         odom = {o.header.stamp.to_nsec(): o for o in rec.get('odometry')}
         rospy.loginfo('%d of %d posed frames before the metric scale', len(held), len(pms))
         for p in held:
