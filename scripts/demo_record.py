@@ -103,6 +103,16 @@ class FrameAccounting:
                     'received' % (self.accounted, frames, self.received, self.results, self.processed))
 
 
+def lookup_transform_wall(buffer, target, source, stamp, timeout_s):
+    """tf2_ros.Buffer.lookup_transform with a timeout in wall time: tf2's own
+    waits in ROS time, which stands still once a replayed bag's /clock has
+    ended, so a transform not there yet would be waited for forever."""
+    deadline = time.time() + timeout_s
+    while not buffer.can_transform(target, source, stamp) and time.time() < deadline:
+        time.sleep(0.01)
+    return buffer.lookup_transform(target, source, stamp)  # raises if still not there
+
+
 def write_json(path, value):
     tmp = path + '.tmp'
     with open(tmp, 'w') as f:

@@ -9,7 +9,10 @@
 // published (plus tf_tolerance_s), as SLAM nodes do (rtabmap's tf_tolerance):
 // a lookup at an image's stamp sees the correction in force then, and
 // map -> base resolves at the odometry's latest stamps (a stream's first
-// one also at its image's stamp). It is sent when a frame changes it and by
+// one also at its image's stamp). A frame's correction is never stamped
+// before the frame, so that map -> base resolves at every posed frame's
+// stamp even where the clock lags the images (a replayed bag's last frame:
+// its /clock ends before it). It is sent when a frame changes it and by
 // a timer (tf_publish_rate_hz, on roscpp's callback
 // thread; rtabmap's tf_delay is that period). map -> base and map -> camera
 // (no odometry to correct) are stamped at their image's stamp, sent with
@@ -63,7 +66,8 @@ class TransformPublisher {
   // The one way out; mutex_ held. Skips a stamp that is not after the last
   // one sent (equal stamps: TF_REPEATED_DATA in every listener).
   void send(geometry_msgs::TransformStamped t);
-  void sendMapToOdom();  // mutex_ held: map_to_odom_ stamped now (+ tolerance)
+  // mutex_ held: map_to_odom_ stamped now (+ tolerance), and not before `not_before`.
+  void sendMapToOdom(const ros::Time& not_before = ros::Time());
 
   const Config config_;
   Warn warn_;

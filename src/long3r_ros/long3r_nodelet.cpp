@@ -485,10 +485,11 @@ void Long3rNodelet::publishOutputs(const long3r::FrameResult& r, const std_msgs:
     c.given_covariance_map =
         stamped_->odometryCovarianceInMap(header.stamp, frames_->T_map_odom().linear());
   }
+  const bool pose_out = r.posed() && !c.units.poses_held;
+  // TF first, so that the frame's messages resolve in map as they arrive.
+  if (pose_out) tf_pub_->publish(*frames_, r.pose.T_W_C, header.stamp);
   frame_pub_->publish(r, c);
-  if (!r.posed() || c.units.poses_held) return;
-  path_pub_.publish(pathMessage());
-  tf_pub_->publish(*frames_, r.pose.T_W_C, header.stamp);
+  if (pose_out) path_pub_.publish(pathMessage());
 }
 
 OutputUnits Long3rNodelet::outputUnits(bool scale_metric, bool pose_given) const {

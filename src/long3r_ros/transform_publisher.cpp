@@ -1,5 +1,7 @@
 #include "long3r_ros/transform_publisher.hpp"
 
+#include <algorithm>
+
 #include "long3r_ros/log_throttle.hpp"
 
 namespace long3r_ros {
@@ -39,7 +41,7 @@ void TransformPublisher::publish(const RobotFrames& frames, const Eigen::Isometr
         // map -> base resolves at every posed frame's stamp.
         if (!map_to_odom_) send(*t);
         map_to_odom_ = *t;
-        sendMapToOdom();  // now, not at the next tick
+        sendMapToOdom(stamp);  // now, not at the next tick
       } else {
         send(*t);
       }
@@ -61,9 +63,9 @@ void TransformPublisher::timerCallback(const ros::TimerEvent&) {
   if (map_to_odom_) sendMapToOdom();
 }
 
-void TransformPublisher::sendMapToOdom() {
+void TransformPublisher::sendMapToOdom(const ros::Time& not_before) {
   geometry_msgs::TransformStamped t = *map_to_odom_;
-  t.header.stamp = ros::Time::now() + ros::Duration(config_.tolerance_s);
+  t.header.stamp = std::max(ros::Time::now() + ros::Duration(config_.tolerance_s), not_before);
   send(t);
 }
 

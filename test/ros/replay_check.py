@@ -42,7 +42,7 @@ from map_checks import cloud_points, lost_points
 from long3r_ros.srv import SaveMap, SaveTrajectory
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'scripts'))
-from demo_record import FrameAccounting, bag_images  # noqa: E402
+from demo_record import FrameAccounting, bag_images, lookup_transform_wall  # noqa: E402
 
 ARGS = None
 
@@ -169,8 +169,8 @@ class ReplayCheck(unittest.TestCase):
         self.assertEqual({p.map_frame_id for p in pms}, {'map_model_units'})
         self.assertEqual(paths[-1].header.frame_id, 'map_model_units')
         for p in pms:  # TF resolves at every published stamp
-            self.tf_buffer.lookup_transform('map_model_units', p.header.frame_id, p.header.stamp,
-                                            rospy.Duration(2.0))
+            lookup_transform_wall(self.tf_buffer, 'map_model_units', p.header.frame_id,
+                                  p.header.stamp, 2.0)
         if ARGS.expect_all_frames:
             self.assertEqual(n, ARGS.frames, 'one pointmap per input frame')
             sizes = [m.width * m.height for m in self.rec.get('maps')]

@@ -41,6 +41,7 @@ import argparse
 import json
 import math
 import os
+import queue
 import subprocess
 import sys
 import threading
@@ -62,7 +63,7 @@ from long3r_ros.msg import Pointmap
 from long3r_ros.srv import SaveMap, SaveMesh, SaveTrajectory
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'scripts'))
-from demo_record import FrameAccounting, bag_images  # noqa: E402
+from demo_record import FrameAccounting, bag_images, lookup_transform_wall  # noqa: E402
 
 ARGS = None
 
@@ -143,10 +144,16 @@ class Recorder:
         rospy.Subscriber('/odom', Odometry, self._add('wheel'), queue_size=1000)
         self.map_odom_rotations = []  # map -> odom as published, (x, y, z, w)
         self.map_odom_stamps = {}  # publisher -> the stamps of its map -> odom, as they arrived
-        # map -> base looked up at each ~odometry's stamp as it arrives.
+        # map -> base looked up at each ~odometry's stamp within a second of
+        # its arrival, on a thread of its own: a subscriber's callbacks run one
+        # after another, so a lookup waiting there would hold back the next
+        # ~odometry's recording.
         self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(600))
         self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
         self.window_lookups = []  # (stamp, transform or the error's text)
+        self.lookups_asked = 0
+        self._to_look_up = queue.Queue()
+        threading.Thread(target=self._look_up, daemon=True).start()
         self.units = []  # the diagnostics' units, as reported
         rospy.Subscriber('/long3r/odometry', Odometry, self._lookup, queue_size=100)
 
@@ -169,14 +176,25 @@ class Recorder:
                     self.units.extend(kv.value for kv in st.values if kv.key == 'units')
 
     def _lookup(self, msg):
-        try:
-            t = self.tf_buffer.lookup_transform('map', ARGS.base_frame, msg.header.stamp,
-                                                rospy.Duration(1.0))
-            found = transform_tuple(t.transform)
-        except tf2_ros.TransformException as e:
-            found = str(e)
         with self.lock:
-            self.window_lookups.append((msg.header.stamp, found))
+            self.lookups_asked += 1
+        self._to_look_up.put((msg.header.stamp, time.time()))
+
+    def _look_up(self):
+        while True:
+            stamp, arrived = self._to_look_up.get()
+            try:
+                t = lookup_transform_wall(self.tf_buffer, 'map', ARGS.base_frame, stamp,
+                                          arrived + 1.0 - time.time())
+                found = transform_tuple(t.transform)
+            except tf2_ros.TransformException as e:
+                found = str(e)
+            with self.lock:
+                self.window_lookups.append((stamp, found))
+
+    def lookups_done(self):
+        with self.lock:
+            return len(self.window_lookups) == self.lookups_asked
 
     def _add(self, name):
         def cb(msg):
@@ -250,9 +268,8 @@ class RobotCheck(unittest.TestCase):
         # the model's poses in model units are held.
         held = [p for p in pms if ARGS.pose_source == 'model' and not p.metric]
         # The ~odometry of the last frames may still be on its way when their
-        # ~pointmaps have been counted (the recorder's TF lookup on the same
-        # topic waits up to a second a message): wait for the messages
-        # checked, not for quiet.
+        # ~pointmaps have been counted: wait for the messages checked, not for
+        # quiet.
         wanted = {p.header.stamp.to_nsec() for p in pms if p not in held}
         start = time.time()
         missing = wanted
@@ -396,6 +413,10 @@ class RobotCheck(unittest.TestCase):
                           caller, len(stamps), len(back))
             self.assertFalse(back, 'map -> odom from %s went back in time: %s'
                              % (caller, ['%.3f after %.3f' % (b * 1e-9, a * 1e-9) for a, b in back[:5]]))
+        deadline = time.time() + ARGS.timeout
+        while not rec.lookups_done() and time.time() < deadline:
+            time.sleep(0.05)
+        self.assertTrue(rec.lookups_done(), 'map -> %s lookups still pending' % ARGS.base_frame)
         lookups = rec.get('window_lookups')
         failed = [(s.to_sec(), f) for s, f in lookups if isinstance(f, str)]
         self.assertFalse(failed, 'map -> %s not found at posed frames\' stamps: %s'
