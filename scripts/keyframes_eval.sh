@@ -4,9 +4,11 @@
 # (long3r_eval, Sim(3)-aligned) and its ratio to a camera that never moves
 # (the RMS distance of the true positions from their mean), and the keyframe
 # tracker's time per frame (frames.csv's tracking_ms: median and 90th
-# percentile, the median of its ORB detection, and the CPU). The control: the same tracker given a
-# constant-depth plane instead of the model's depth
-# (--tracker-constant-depth), which the model's depth must beat.
+# percentile, the median of its ORB detection, and the CPU). The controls:
+# the same tracker given a constant-depth plane instead of the model's depth
+# (--tracker-constant-depth), which the model's depth must beat, and given
+# the sequence's true depth (--tracker-true-depth), what a perfect depth
+# would leave of the error (the tracker's own).
 #   bash scripts/keyframes_eval.sh [--stride N] [--frames N] [--model FILE] [--out DIR]
 # Defaults: stride 2, 60 frames, the shipped model, build/keyframes_eval.
 # Extra arguments after -- go to long3r_reconstruct (e.g. -- --tracker-solver essential).
@@ -40,10 +42,11 @@ print('%.4f' % math.sqrt(sum(sum((a - b) ** 2 for a, b in zip(q, m)) for q in p)
 EOF
 )
   line="seed $seed (still camera $(ratio "$still" 0.0001) cm):"
-  for source in model keyframes plane; do
+  for source in model keyframes plane true_depth; do
     run="$out/${seed}_${source}_s${stride}"
     args=(--pose-source "$source")
     [ "$source" = plane ] && args=(--pose-source keyframes --tracker-constant-depth)
+    [ "$source" = true_depth ] && args=(--pose-source keyframes --tracker-true-depth)
     "$bin/long3r_reconstruct" --model "$model" --out "$run" --stride "$stride" \
       --max-frames "$frames" "${args[@]}" "${extra[@]}" "$seq" > "$run.log" 2>&1
     ate=$("$bin/long3r_eval" --gt "$seq" --est-traj "$run/trajectory.txt" --out "$run/eval" | awk '/ATE RMSE/{print $4}')

@@ -204,7 +204,7 @@ class Client : public LiveSessionClient {
 
 int main(int argc, char** argv) {
   std::string model_path, out_dir, input, load_session, save_session, poses_spec;
-  bool fusion_split = false;
+  bool fusion_split = false, tracker_true_depth = false;
   int stride = 1;
   long first_frame = 0;
   ThreadConfig threads;
@@ -270,6 +270,11 @@ int main(int argc, char** argv) {
            "a control for measuring the tracker: it lifts its keyframes' features by a "
            "constant-depth plane (each frame's median depth) instead of the model's depth; the "
            "map keeps the model's");
+  cli.flag("--tracker-true-depth", &tracker_true_depth,
+           "a control for measuring the tracker: it lifts its keyframes' features by the TUM "
+           "folder's depth images (the model's rays at the true depth) instead of the model's "
+           "depth, so that what the model's depth costs the path shows; the map keeps the "
+           "model's (measure the path, not the map)");
   cli.section("Pipeline and session (the node's parameters, README \"Parameters\")");
   add_config_options(cli, &cfg);
   add_config_options(cli, &session_cfg);
@@ -331,6 +336,16 @@ int main(int argc, char** argv) {
       if (calib || !camera || camera->distorted()) {
         throw std::runtime_error(
             "--fusion-split needs the TUM folder's own undistorted calibration.txt");
+      }
+    }
+    if (tracker_true_depth) {
+      if (!src.tum || !src.tum->camera() || src.tum->camera()->distorted() || calib) {
+        throw std::runtime_error(
+            "--tracker-true-depth needs a TUM folder with depth images and its own undistorted "
+            "calibration.txt");
+      }
+      if (cfg.pose_method != PoseMethod::kKeyframes) {
+        throw std::runtime_error("--tracker-true-depth needs --pose-source keyframes");
       }
     }
     const ScaleSource scale_source = session_cfg.scale.source;
@@ -425,6 +440,20 @@ int main(int argc, char** argv) {
     }
     LiveSession session(make_streaming_model(model_path, inference), cfg, session_cfg, client);
     if (!load_session.empty()) session.load(load_session);
+    if (tracker_true_depth) {
+      // The frame of a stamp: the folder's stamps are its frames' (and unique).
+      std::map<double, std::size_t> frame_at;
+      for (std::size_t i = 0; i < src.stamps.size(); ++i) frame_at.emplace(src.stamps[i], i);
+      session.reconstruction().set_tracker_depth_source(
+          [&src, frame_at = std::move(frame_at)](double stamp_s) {
+            const auto it = frame_at.find(stamp_s);
+            if (it == frame_at.end() || src.tum->frame(it->second).depth_path.empty()) {
+              throw std::runtime_error("--tracker-true-depth: no depth image for the frame at " +
+                                       std::to_string(stamp_s));
+            }
+            return src.tum->load_depth(it->second);
+          });
+    }
 
     long used = 0, skipped = 0;
     for (size_t i = 0;; ++i) {

@@ -76,6 +76,20 @@ def main():
                    folder_only])
     check(rc != 0 and "needs a TUM folder" in log, "depth scale without depth: " + log)
 
+    # The tracker's true-depth control: the folder's depth images, the
+    # keyframe tracker, an undistorted calibration of the folder's own.
+    rc, log = run([a.reconstruct, "--model", model, "--out", os.path.join(a.workdir, "true_depth"),
+                   "--img-size", "64", "--pose-source", "keyframes", "--tracker-true-depth", seq])
+    check(rc == 0 and "summary: 6 frames used" in log and "no depth image" not in log,
+          "--tracker-true-depth: " + log)
+    for args, why in ((["--pose-source", "model", seq], "needs --pose-source keyframes"),
+                      (["--pose-source", "keyframes", folder_only], "needs a TUM folder"),
+                      (["--pose-source", "keyframes", "--calib", "50", "50", "48", "32", seq],
+                       "its own undistorted calibration.txt")):
+        rc, log = run([a.reconstruct, "--model", model, "--out", out, "--img-size", "64",
+                       "--tracker-true-depth"] + args)
+        check(rc != 0 and why in log, "--tracker-true-depth %s: %s" % (args, log))
+
     # A camera with lens distortion (calibration.txt with plumb_bob) is
     # rectified, as the node rectifies camera_info's.
     lens = os.path.join(a.workdir, "lens")

@@ -36,6 +36,7 @@ struct Footage {
   std::vector<cv::Mat> bgr;
   std::vector<cv::Mat> pts_W0;  // at model resolution, in camera 0's frame
   std::vector<Eigen::Isometry3d> T_0_k;
+  std::vector<cv::Mat> depth;  // metres, at source resolution
 };
 
 // `scale_of(k)` scales frame k's pointmap (a model whose scale wanders).
@@ -53,6 +54,7 @@ Footage render(int frames, const std::function<double(int)>& scale_of, std::uint
     const synth::RenderedFrame r = synth::render_frame(f.seq.scene, f.seq.poses[k], c.intrinsics);
     f.bgr.push_back(synth::bgr_image(r));
     const cv::Mat depth = synth::depth_image(r);
+    f.depth.push_back(depth);
     const Eigen::Isometry3d T = f.seq.poses[0].inverse() * f.seq.poses[k];
     cv::Mat pts(kSize, kSize, CV_32FC3);
     for (int v = 0; v < kSize; ++v) {
@@ -204,21 +206,13 @@ TEST(ReconstructionKeyframes, AFrameAfterALostModelPoseIsTrackedAsBefore) {
   }
 }
 
-TEST(ReconstructionKeyframes, TheConstantDepthControlReachesOnlyTheTracker) {
-  const Footage f = render(4, [](int) { return 1.0; });
-  ReconstructionConfig control = keyframes_config();
-  control.tracker_constant_depth = true;
-  Reconstruction plain(std::make_unique<test::FakeModel>(&f.pts_W0), keyframes_config());
-  Reconstruction planar(std::make_unique<test::FakeModel>(&f.pts_W0), control);
-  plain.set_calibration(f.seq.config.intrinsics);
-  planar.set_calibration(f.seq.config.intrinsics);
-  const std::vector<FrameResult> a = run(plain, f.bgr), b = run(planar, f.bgr);
+// A control's results (b) keep the model's depth in the map's points, as
+// the plain run's (a) have it, up to the tracker's scale.
+void expect_the_models_depth_mapped(const std::vector<FrameResult>& a,
+                                    const std::vector<FrameResult>& b) {
   ASSERT_EQ(a.size(), b.size());
-  double moved = 0.0;
   for (std::size_t k = 1; k < a.size(); ++k) {
-    ASSERT_TRUE(b[k].tracking.has_value());
-    moved = std::max(moved, (a[k].pose.T_W_C.translation() - b[k].pose.T_W_C.translation()).norm());
-    // The map's points keep the model's depth (up to the tracker's scale).
+    ASSERT_TRUE(a[k].tracking.has_value() && b[k].tracking.has_value()) << k;
     std::vector<float> za, zb;
     for (int v = 0; v < kSize; v += 8) {
       const float da = a[k].points_C.at<cv::Vec3f>(v, kSize / 2)[2];
@@ -231,7 +225,64 @@ TEST(ReconstructionKeyframes, TheConstantDepthControlReachesOnlyTheTracker) {
     ASSERT_FALSE(za.empty());
     for (std::size_t i = 0; i < za.size(); ++i) EXPECT_NEAR(za[i], zb[i], 1e-3 * za[i]) << k;
   }
+}
+
+TEST(ReconstructionKeyframes, TheConstantDepthControlReachesOnlyTheTracker) {
+  const Footage f = render(4, [](int) { return 1.0; });
+  ReconstructionConfig control = keyframes_config();
+  control.tracker_constant_depth = true;
+  Reconstruction plain(std::make_unique<test::FakeModel>(&f.pts_W0), keyframes_config());
+  Reconstruction planar(std::make_unique<test::FakeModel>(&f.pts_W0), control);
+  plain.set_calibration(f.seq.config.intrinsics);
+  planar.set_calibration(f.seq.config.intrinsics);
+  const std::vector<FrameResult> a = run(plain, f.bgr), b = run(planar, f.bgr);
+  expect_the_models_depth_mapped(a, b);
+  double moved = 0.0;
+  for (std::size_t k = 1; k < a.size(); ++k) {
+    moved = std::max(moved, (a[k].pose.T_W_C.translation() - b[k].pose.T_W_C.translation()).norm());
+  }
   EXPECT_GT(moved, 1e-3);  // the tracker saw another depth
+}
+
+TEST(ReconstructionKeyframes, TheTrueDepthControlPlacesFramesByTheGivenDepth) {
+  // The model's depth is half the true one: the tracker's path is in its
+  // units with the model's depth, in metres with the true depth.
+  const Footage f = render(5, [](int) { return 0.5; });
+  Reconstruction plain(std::make_unique<test::FakeModel>(&f.pts_W0), keyframes_config());
+  Reconstruction given(std::make_unique<test::FakeModel>(&f.pts_W0), keyframes_config());
+  plain.set_calibration(f.seq.config.intrinsics);
+  given.set_calibration(f.seq.config.intrinsics);
+  std::vector<double> asked;
+  given.set_tracker_depth_source([&](double stamp_s) {
+    asked.push_back(stamp_s);
+    return f.depth[static_cast<std::size_t>(std::lround(stamp_s / 0.1))];
+  });
+  const std::vector<FrameResult> a = run(plain, f.bgr), b = run(given, f.bgr);
+  expect_the_models_depth_mapped(a, b);
+  EXPECT_EQ(asked.size(), f.bgr.size());  // every frame, the first keyframe too
+  int far = 0;
+  for (std::size_t k = 1; k < b.size(); ++k) {
+    ASSERT_EQ(b[k].tracking->status, TrackStatus::kTracked) << k << ": " << b[k].tracking->message;
+    const Eigen::Vector3d truth = f.T_0_k[k].translation();
+    if (truth.norm() < 0.05) continue;  // the tracker's error is ~4 mm in metres
+    ++far;
+    EXPECT_LT((a[k].pose.T_W_C.translation() - 0.5 * truth).norm(), 0.15 * truth.norm()) << k;
+    EXPECT_LT((b[k].pose.T_W_C.translation() - truth).norm(), 0.15 * truth.norm()) << k;
+  }
+  EXPECT_GE(far, 2);
+}
+
+TEST(ReconstructionKeyframes, TheTrueDepthControlRefusesADepthImageOfAnotherSize) {
+  const Footage f = render(3, [](int) { return 1.0; });
+  Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0), keyframes_config());
+  rec.set_calibration(f.seq.config.intrinsics);
+  rec.set_tracker_depth_source([](double) { return cv::Mat(10, 10, CV_32FC1, cv::Scalar(1.0f)); });
+  try {
+    run(rec, f.bgr);
+    FAIL() << "no error";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("10x10 is not registered"), std::string::npos) << e.what();
+  }
 }
 
 TEST(ReconstructionKeyframes, TheModelsPoseMethodRunsNoTracker) {

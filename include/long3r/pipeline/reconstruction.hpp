@@ -25,6 +25,7 @@
 #include <array>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <map>
 #include <memory>
 #include <optional>
@@ -208,6 +209,19 @@ class Reconstruction {
   // path, scale and frame indices), as after flush().
   void restore(const StateDict& state);
 
+  // A control for measurements (long3r_reconstruct --tracker-true-depth):
+  // the keyframe tracker lifts its features by the depth this returns for
+  // the frame of stamp_s (CV_32FC1 metres registered to the source image as
+  // pushed, 0 or NaN where there is none) rather than by the model's, so
+  // that what the model's depth costs the path shows. The model's rays are
+  // kept; the map keeps the model's depth (then not the path's scale: the
+  // path is what to measure). A depth image of another size than the
+  // image is a std::invalid_argument. Not a parameter of the node. Empty: off.
+  using TrackerDepthSource = std::function<cv::Mat(double stamp_s)>;
+  void set_tracker_depth_source(TrackerDepthSource source) {
+    tracker_depth_source_ = std::move(source);
+  }
+
   const StreamingModel& model() const { return *model_; }
   // As given, with the model input size resolved (PreprocessConfig::resolved
   // by the checkpoint's recorded size).
@@ -260,6 +274,7 @@ class Reconstruction {
   int64_t flushed_index_ = -1;  // frame returned early by flush(), whose refined result is dropped
   double scale_ = 1.0;
   bool mapping_ = true;
+  TrackerDepthSource tracker_depth_source_;
 };
 
 }  // namespace long3r

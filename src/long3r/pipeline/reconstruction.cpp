@@ -16,6 +16,7 @@
 #include "long3r/geometry/statistics.hpp"
 #include "long3r/mapping/state_geometry.hpp"
 #include "long3r/pipeline/keyframe_state.hpp"
+#include "long3r/pipeline/metric_scale.hpp"
 
 namespace long3r {
 namespace {
@@ -88,6 +89,20 @@ cv::Mat at_median_depth(const cv::Mat& points_C) {
   for (int i = 0; i < out.rows * out.cols; ++i) {
     cv::Vec3f& p = out.at<cv::Vec3f>(i);
     if (std::isfinite(p[2]) && p[2] > 0.0f) p *= depth / p[2];
+  }
+  return out;
+}
+
+// The pointmap's rays at the given depths (CV_32FC1 at its pixels; NaN
+// where a depth is missing or the ray does not point forward).
+cv::Mat at_depth(const cv::Mat& points_C, const cv::Mat& depth) {
+  cv::Mat out(points_C.size(), CV_32FC3);
+  for (int i = 0; i < out.rows * out.cols; ++i) {
+    const cv::Vec3f p = points_C.at<cv::Vec3f>(i);
+    const float d = depth.at<float>(i);
+    out.at<cv::Vec3f>(i) = std::isfinite(p[2]) && p[2] > 0.0f && std::isfinite(d) && d > 0.0f
+                               ? p * (d / p[2])
+                               : cv::Vec3f::all(std::numeric_limits<float>::quiet_NaN());
   }
   return out;
 }
@@ -569,6 +584,18 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
     frame.gray = p.gray;
     frame.K = source_camera_matrix(p.image.model_to_source);
     frame.points_C = config_.tracker_constant_depth ? at_median_depth(r.points_C) : r.points_C;
+    if (tracker_depth_source_) {
+      const cv::Mat metres = tracker_depth_source_(p.stamp);
+      if (metres.cols != source_width_ || metres.rows != source_height_) {
+        throw std::invalid_argument(
+            "a depth image for the tracker of " + std::to_string(metres.cols) + "x" +
+            std::to_string(metres.rows) + " is not registered to the " +
+            std::to_string(source_width_) + "x" + std::to_string(source_height_) + " image");
+      }
+      frame.points_C = at_depth(
+          r.points_C,
+          depth_at_model_pixels(metres, p.image.model_to_source, r.points_C.cols, r.points_C.rows));
+    }
     frame.model_to_image = p.image.model_to_source.matrix();
     const Eigen::Isometry3d prior = tracker_prior(r.frame_index, r.model_T_W_C);
     const double t_tracking = now_ms();
