@@ -103,13 +103,22 @@ class FrameAccounting:
                     'received' % (self.accounted, frames, self.received, self.results, self.processed))
 
 
+def wait_for(pred, timeout_s, poll_s=0.05):
+    """pred() once it holds, else its value after timeout_s. Wall time: a
+    replayed bag's clock stops when the bag ends."""
+    deadline = time.time() + timeout_s
+    while time.time() < deadline:
+        if pred():
+            return True
+        time.sleep(poll_s)
+    return pred()
+
+
 def lookup_transform_wall(buffer, target, source, stamp, timeout_s):
     """tf2_ros.Buffer.lookup_transform with a timeout in wall time: tf2's own
     waits in ROS time, which stands still once a replayed bag's /clock has
     ended, so a transform not there yet would be waited for forever."""
-    deadline = time.time() + timeout_s
-    while not buffer.can_transform(target, source, stamp) and time.time() < deadline:
-        time.sleep(0.01)
+    wait_for(lambda: buffer.can_transform(target, source, stamp), timeout_s, poll_s=0.01)
     return buffer.lookup_transform(target, source, stamp)  # raises if still not there
 
 

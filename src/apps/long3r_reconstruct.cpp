@@ -328,18 +328,20 @@ int main(int argc, char** argv) {
       }
       read_poses(poses_spec, src, 0.02);
     }
+    // What --fusion-split and --tracker-true-depth read the depth images by.
+    const bool own_pinhole =
+        src.tum && src.tum->camera() && !src.tum->camera()->distorted() && !calib;
     if (fusion_split) {
       if (poses_spec != "groundtruth") {
         throw std::runtime_error("--fusion-split needs --poses groundtruth");
       }
-      const auto& camera = src.tum->camera();
-      if (calib || !camera || camera->distorted()) {
+      if (!own_pinhole) {
         throw std::runtime_error(
             "--fusion-split needs the TUM folder's own undistorted calibration.txt");
       }
     }
     if (tracker_true_depth) {
-      if (!src.tum || !src.tum->camera() || src.tum->camera()->distorted() || calib) {
+      if (!own_pinhole) {
         throw std::runtime_error(
             "--tracker-true-depth needs a TUM folder with depth images and its own undistorted "
             "calibration.txt");

@@ -36,7 +36,7 @@ from long3r_ros.srv import SaveTrajectory
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'scripts'))
 import tum_to_bag  # noqa: E402 (the project's PNG and calibration readers)
-from demo_record import FrameAccounting  # noqa: E402
+from demo_record import FrameAccounting, wait_for  # noqa: E402
 
 DATA = os.environ.get('LONG3R_REPLAY_DATA', '/tmp/long3r_replay_data')
 MODEL_SIZE = 224
@@ -94,15 +94,6 @@ class Monitor:
 
     def logged(self, text, level=None):
         return [msg for lvl, msg in self.get('logs') if text in msg and (level is None or lvl == level)]
-
-
-def wait_for(pred, timeout_s=30.0):
-    deadline = time.time() + timeout_s
-    while time.time() < deadline:
-        if pred():
-            return True
-        time.sleep(0.05)
-    return pred()
 
 
 class LiveInput(unittest.TestCase):

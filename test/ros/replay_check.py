@@ -42,7 +42,7 @@ from map_checks import cloud_points, lost_points
 from long3r_ros.srv import SaveMap, SaveTrajectory
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'scripts'))
-from demo_record import FrameAccounting, bag_images, lookup_transform_wall  # noqa: E402
+from demo_record import FrameAccounting, bag_images, lookup_transform_wall, wait_for  # noqa: E402
 
 ARGS = None
 
@@ -95,15 +95,6 @@ class Recorder:
     def get(self, name):
         with self.lock:
             return list(getattr(self, name))
-
-
-def wait_for(pred, timeout_s):
-    deadline = time.time() + timeout_s
-    while time.time() < deadline:
-        if pred():
-            return True
-        time.sleep(0.1)  # wall time: the bag's clock stops when it ends
-    return pred()
 
 
 def read_ply_vertex_count(path):

@@ -63,7 +63,7 @@ from long3r_ros.msg import Pointmap
 from long3r_ros.srv import SaveMap, SaveMesh, SaveTrajectory
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', '..', 'scripts'))
-from demo_record import FrameAccounting, bag_images, lookup_transform_wall  # noqa: E402
+from demo_record import FrameAccounting, bag_images, lookup_transform_wall, wait_for  # noqa: E402
 
 ARGS = None
 
@@ -271,13 +271,13 @@ class RobotCheck(unittest.TestCase):
         # ~pointmaps have been counted: wait for the messages checked, not for
         # quiet.
         wanted = {p.header.stamp.to_nsec() for p in pms if p not in held}
+
+        def missing():
+            return wanted - {o.header.stamp.to_nsec() for o in rec.get('odometry')}
         start = time.time()
-        missing = wanted
-        while missing and time.time() < start + ARGS.timeout:
-            time.sleep(0.05)
-            missing = wanted - {o.header.stamp.to_nsec() for o in rec.get('odometry')}
+        wait_for(lambda: not missing(), ARGS.timeout)
         rospy.loginfo('~odometry of %d posed frames in metres after %.1f s more, %d missing',
-                      len(wanted), time.time() - start, len(missing))
+                      len(wanted), time.time() - start, len(missing()))
         odom = {o.header.stamp.to_nsec(): o for o in rec.get('odometry')}
         rospy.loginfo('%d of %d posed frames before the metric scale', len(held), len(pms))
         for p in held:
@@ -362,9 +362,7 @@ class RobotCheck(unittest.TestCase):
     def check_surface(self, rec):
         """~surface and ~mesh in map, latched, coloured, on the map's points;
         ~save_mesh writes the mesh as a PLY with its triangles."""
-        deadline = time.time() + 30.0
-        while time.time() < deadline and not (rec.get('surfaces') and rec.get('meshes')):
-            time.sleep(0.5)
+        wait_for(lambda: rec.get('surfaces') and rec.get('meshes'), 30.0, poll_s=0.5)
         surfaces, meshes = rec.get('surfaces'), rec.get('meshes')
         self.assertTrue(surfaces, 'no ~surface')
         self.assertTrue(meshes, 'no ~mesh')
@@ -413,10 +411,8 @@ class RobotCheck(unittest.TestCase):
                           caller, len(stamps), len(back))
             self.assertFalse(back, 'map -> odom from %s went back in time: %s'
                              % (caller, ['%.3f after %.3f' % (b * 1e-9, a * 1e-9) for a, b in back[:5]]))
-        deadline = time.time() + ARGS.timeout
-        while not rec.lookups_done() and time.time() < deadline:
-            time.sleep(0.05)
-        self.assertTrue(rec.lookups_done(), 'map -> %s lookups still pending' % ARGS.base_frame)
+        self.assertTrue(wait_for(rec.lookups_done, ARGS.timeout),
+                        'map -> %s lookups still pending' % ARGS.base_frame)
         lookups = rec.get('window_lookups')
         failed = [(s.to_sec(), f) for s, f in lookups if isinstance(f, str)]
         self.assertFalse(failed, 'map -> %s not found at posed frames\' stamps: %s'

@@ -583,7 +583,7 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
     TrackerFrame frame;
     frame.gray = p.gray;
     frame.K = source_camera_matrix(p.image.model_to_source);
-    frame.points_C = config_.tracker_constant_depth ? at_median_depth(r.points_C) : r.points_C;
+    // The controls replace the model's depth (the true depth over the plane).
     if (tracker_depth_source_) {
       const cv::Mat metres = tracker_depth_source_(p.stamp);
       if (metres.cols != source_width_ || metres.rows != source_height_) {
@@ -595,6 +595,8 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
       frame.points_C = at_depth(
           r.points_C,
           depth_at_model_pixels(metres, p.image.model_to_source, r.points_C.cols, r.points_C.rows));
+    } else {
+      frame.points_C = config_.tracker_constant_depth ? at_median_depth(r.points_C) : r.points_C;
     }
     frame.model_to_image = p.image.model_to_source.matrix();
     const Eigen::Isometry3d prior = tracker_prior(r.frame_index, r.model_T_W_C);
