@@ -35,7 +35,8 @@ mkdir -p "$LONG3R_WS/devel/lib/python3/dist-packages"
 ln -sfn "$LONG3R_ROOT" "$LONG3R_WS/src/long3r_ros"
 cd "$LONG3R_WS"
 # Every option given each time: the workspace's cache keeps what the last
-# build asked for otherwise.
-catkin_make --make-args -j"$LONG3R_JOBS" "${make_args[@]}" -- \
-  "${LONG3R_CMAKE_PY_ARGS[@]}" "${torch_args[@]}" -DCMAKE_BUILD_TYPE=Release \
-  -DCATKIN_ENABLE_TESTING="$tests" -DLONG3R_BUILD_TESTS="$tests" -DLONG3R_BUILD_TRAINER="$trainer"
+# build asked for otherwise. CMake's options come first: catkin_make hands
+# everything after --make-args to make, a "--" included.
+catkin_make "${LONG3R_CMAKE_PY_ARGS[@]}" "${torch_args[@]}" -DCMAKE_BUILD_TYPE=Release \
+  -DCATKIN_ENABLE_TESTING="$tests" -DLONG3R_BUILD_TESTS="$tests" -DLONG3R_BUILD_TRAINER="$trainer" \
+  --make-args -j"$LONG3R_JOBS" "${make_args[@]}"

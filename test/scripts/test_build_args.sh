@@ -1,0 +1,53 @@
+#!/usr/bin/env bash
+# scripts/build.sh's options reach CMake (catkin_make hands everything after
+# --make-args to make, so they must come before it): --no-trainer and
+# --no-tests leave out what they say, LONG3R_TORCH_DIR chooses the libtorch,
+# and the targets go to make. Each case configures a workspace of its own
+# under WORK_DIR and runs make's cheap `help` target; nothing is compiled.
+#   test_build_args.sh WORK_DIR
+set -uo pipefail
+root=$(cd "$(dirname "$0")/../.." && pwd)
+work=$1
+rm -rf "$work"
+mkdir -p "$work"
+failures=0
+fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
+cached() {  # the value of a CMake cache entry in workspace $1
+  sed -n "s/^$2:[A-Z]*=//p" "$1/build/CMakeCache.txt"
+}
+
+# A libtorch of the user's own, as LONG3R_TORCH_DIR names it: a folder whose
+# TorchConfig.cmake hands over to Debian's (Debian's).
+debian_torch=""
+for d in /usr/lib/*/cmake/Torch /usr/share/cmake/Torch /usr/lib/cmake/Torch; do
+  [ -f "$d/TorchConfig.cmake" ] && debian_torch=$d && break
+done
+[ -n "$debian_torch" ] || { echo "no TorchConfig.cmake under /usr: nothing to check"; exit 1; }
+mkdir -p "$work/torch"
+echo "include(\"$debian_torch/TorchConfig.cmake\")" >"$work/torch/TorchConfig.cmake"
+
+ws=$work/no_trainer
+LONG3R_WS=$ws LONG3R_TORCH_DIR=$work/torch bash "$root/scripts/build.sh" --no-trainer help \
+  >"$work/no_trainer.log" 2>&1 || fail "build.sh --no-trainer help failed: $work/no_trainer.log"
+[ "$(cached "$ws" LONG3R_BUILD_TRAINER)" = OFF ] || fail "--no-trainer: LONG3R_BUILD_TRAINER is '$(cached "$ws" LONG3R_BUILD_TRAINER)'"
+[ "$(cached "$ws" LONG3R_BUILD_TESTS)" = OFF ] || fail "--no-trainer: LONG3R_BUILD_TESTS is '$(cached "$ws" LONG3R_BUILD_TESTS)'"
+[ "$(cached "$ws" CATKIN_ENABLE_TESTING)" = OFF ] || fail "--no-trainer: CATKIN_ENABLE_TESTING is '$(cached "$ws" CATKIN_ENABLE_TESTING)'"
+[ "$(cached "$ws" Torch_DIR)" = "$work/torch" ] || fail "LONG3R_TORCH_DIR: Torch_DIR is '$(cached "$ws" Torch_DIR)'"
+grep -q "Running command: \"make -j[0-9]* help\"" "$work/no_trainer.log" ||
+  fail "make was not given the target alone: $(grep 'Running command: "make' "$work/no_trainer.log")"
+grep -q "\.\.\. long3r_demo$" "$work/no_trainer.log" || fail "--no-trainer: no long3r_demo target"
+! grep -q "\.\.\. app_long3r_train$" "$work/no_trainer.log" || fail "--no-trainer: the trainer is built"
+
+ws=$work/no_tests
+LONG3R_WS=$ws bash "$root/scripts/build.sh" --no-tests help >"$work/no_tests.log" 2>&1 ||
+  fail "build.sh --no-tests help failed: $work/no_tests.log"
+[ "$(cached "$ws" LONG3R_BUILD_TRAINER)" = ON ] || fail "--no-tests: LONG3R_BUILD_TRAINER is '$(cached "$ws" LONG3R_BUILD_TRAINER)'"
+[ "$(cached "$ws" LONG3R_BUILD_TESTS)" = OFF ] || fail "--no-tests: LONG3R_BUILD_TESTS is '$(cached "$ws" LONG3R_BUILD_TESTS)'"
+grep -q "\.\.\. app_long3r_train$" "$work/no_tests.log" || fail "--no-tests: no trainer target"
+! grep -q "\.\.\. long3r_model_tests$" "$work/no_tests.log" || fail "--no-tests: the tests are built"
+
+if [ "$failures" -eq 0 ]; then
+  echo "build.sh: --no-trainer, --no-tests, LONG3R_TORCH_DIR and the targets reach CMake and make"
+  rm -rf "$work"
+fi
+exit $((failures > 0))
