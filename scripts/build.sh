@@ -4,10 +4,12 @@
 # launch files by walking the package folder, following links and skipping
 # only dot-folders: a visible workspace would lead it round the link back into
 # the repository, again and again.
-#   bash scripts/build.sh [--no-tests] [--no-trainer] [TARGET...]
+#   bash scripts/build.sh [--no-tests] [--no-trainer] [--no-unity] [TARGET...]
 # --no-tests leaves out the tests, --no-trainer the trainer and its tools
 # (long3r_train, long3r_frame_cache, long3r_model_eval; the tests need it, so
-# it implies --no-tests): what a robot needs. TARGETs (catkin_make's, e.g.
+# it implies --no-tests): what a robot needs. --no-unity compiles each
+# library source alone (LONG3R_UNITY_BUILD=OFF: slower from scratch, quicker
+# after editing one file). TARGETs (catkin_make's, e.g.
 # long3r_node) build only those; other arguments go to catkin_make.
 # LONG3R_TORCH_DIR (a folder with TorchConfig.cmake, e.g. a CUDA libtorch;
 # see scripts/install_deps.sh) builds against that libtorch instead of
@@ -16,11 +18,13 @@ set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 tests=ON
 trainer=ON
+unity=ON
 make_args=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --no-tests) tests=OFF; shift ;;
     --no-trainer) trainer=OFF; tests=OFF; shift ;;
+    --no-unity) unity=OFF; shift ;;
     *) make_args+=("$1"); shift ;;
   esac
 done
@@ -39,4 +43,4 @@ cd "$LONG3R_WS"
 # everything after --make-args to make, a "--" included.
 catkin_make "${LONG3R_CMAKE_PY_ARGS[@]}" "${torch_args[@]}" -DCMAKE_BUILD_TYPE=Release \
   -DCATKIN_ENABLE_TESTING="$tests" -DLONG3R_BUILD_TESTS="$tests" -DLONG3R_BUILD_TRAINER="$trainer" \
-  --make-args -j"$LONG3R_JOBS" "${make_args[@]}"
+  -DLONG3R_UNITY_BUILD="$unity" --make-args -j"$LONG3R_JOBS" "${make_args[@]}"

@@ -22,6 +22,14 @@
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 
+# Linux's autogroup scheduling weighs sessions against each other before
+# nice counts: a run started as its own session (setsid nohup nice -n 19 ...)
+# would still take half the cores from a build in a terminal. As a session
+# leader it gives its session's group its own niceness too.
+if [ "$(ps -o sid= -p $$ | tr -d ' ')" = "$$" ] && [ -w /proc/self/autogroup ]; then
+  echo "$(nice)" > /proc/self/autogroup 2>/dev/null || true
+fi
+
 config="config/train_pairs_fast.json"
 run=""
 budget=3000

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # scripts/build.sh's options reach CMake (catkin_make hands everything after
 # --make-args to make, so they must come before it): --no-trainer and
-# --no-tests leave out what they say, LONG3R_TORCH_DIR chooses the libtorch,
-# and the targets go to make. Each case configures a workspace of its own
+# --no-tests leave out what they say, --no-unity turns the libraries' unity
+# build off (on by default), LONG3R_TORCH_DIR chooses the libtorch, and the
+# targets go to make. Each case configures a workspace of its own
 # under WORK_DIR and runs make's cheap `help` target; nothing is compiled.
 #   test_build_args.sh WORK_DIR
 set -uo pipefail
@@ -14,6 +15,9 @@ failures=0
 fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
 cached() {  # the value of a CMake cache entry in workspace $1
   sed -n "s/^$2:[A-Z]*=//p" "$1/build/CMakeCache.txt"
+}
+unity_source() {  # the first unity batch CMake generated for long3r_io in workspace $1
+  echo "$1/build/long3r_ros/CMakeFiles/long3r_io.dir/Unity/unity_0_cxx.cxx"
 }
 
 # A libtorch of the user's own, as LONG3R_TORCH_DIR names it: a folder whose
@@ -27,12 +31,14 @@ mkdir -p "$work/torch"
 echo "include(\"$debian_torch/TorchConfig.cmake\")" >"$work/torch/TorchConfig.cmake"
 
 ws=$work/no_trainer
-LONG3R_WS=$ws LONG3R_TORCH_DIR=$work/torch bash "$root/scripts/build.sh" --no-trainer help \
+LONG3R_WS=$ws LONG3R_TORCH_DIR=$work/torch bash "$root/scripts/build.sh" --no-trainer --no-unity help \
   >"$work/no_trainer.log" 2>&1 || fail "build.sh --no-trainer help failed: $work/no_trainer.log"
 [ "$(cached "$ws" LONG3R_BUILD_TRAINER)" = OFF ] || fail "--no-trainer: LONG3R_BUILD_TRAINER is '$(cached "$ws" LONG3R_BUILD_TRAINER)'"
 [ "$(cached "$ws" LONG3R_BUILD_TESTS)" = OFF ] || fail "--no-trainer: LONG3R_BUILD_TESTS is '$(cached "$ws" LONG3R_BUILD_TESTS)'"
 [ "$(cached "$ws" CATKIN_ENABLE_TESTING)" = OFF ] || fail "--no-trainer: CATKIN_ENABLE_TESTING is '$(cached "$ws" CATKIN_ENABLE_TESTING)'"
 [ "$(cached "$ws" Torch_DIR)" = "$work/torch" ] || fail "LONG3R_TORCH_DIR: Torch_DIR is '$(cached "$ws" Torch_DIR)'"
+[ "$(cached "$ws" LONG3R_UNITY_BUILD)" = OFF ] || fail "--no-unity: LONG3R_UNITY_BUILD is '$(cached "$ws" LONG3R_UNITY_BUILD)'"
+[ ! -e "$(unity_source "$ws")" ] || fail "--no-unity: a unity source was generated"
 grep -q "Running command: \"make -j[0-9]* help\"" "$work/no_trainer.log" ||
   fail "make was not given the target alone: $(grep 'Running command: "make' "$work/no_trainer.log")"
 grep -q "\.\.\. long3r_demo$" "$work/no_trainer.log" || fail "--no-trainer: no long3r_demo target"
@@ -43,11 +49,13 @@ LONG3R_WS=$ws bash "$root/scripts/build.sh" --no-tests help >"$work/no_tests.log
   fail "build.sh --no-tests help failed: $work/no_tests.log"
 [ "$(cached "$ws" LONG3R_BUILD_TRAINER)" = ON ] || fail "--no-tests: LONG3R_BUILD_TRAINER is '$(cached "$ws" LONG3R_BUILD_TRAINER)'"
 [ "$(cached "$ws" LONG3R_BUILD_TESTS)" = OFF ] || fail "--no-tests: LONG3R_BUILD_TESTS is '$(cached "$ws" LONG3R_BUILD_TESTS)'"
+[ "$(cached "$ws" LONG3R_UNITY_BUILD)" = ON ] || fail "default: LONG3R_UNITY_BUILD is '$(cached "$ws" LONG3R_UNITY_BUILD)'"
+[ -f "$(unity_source "$ws")" ] || fail "default: no unity source for long3r_io"
 grep -q "\.\.\. app_long3r_train$" "$work/no_tests.log" || fail "--no-tests: no trainer target"
 ! grep -q "\.\.\. long3r_model_tests$" "$work/no_tests.log" || fail "--no-tests: the tests are built"
 
 if [ "$failures" -eq 0 ]; then
-  echo "build.sh: --no-trainer, --no-tests, LONG3R_TORCH_DIR and the targets reach CMake and make"
+  echo "build.sh: --no-trainer, --no-tests, --no-unity, LONG3R_TORCH_DIR and the targets reach CMake and make"
   rm -rf "$work"
 fi
 exit $((failures > 0))

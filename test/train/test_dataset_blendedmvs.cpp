@@ -77,3 +77,15 @@ TEST(DatasetBlendedmvs, BrokenFilesAreNamed) {
   // No split list: the dataset cannot be opened at all.
   expect_error_naming([&] { open_layout("blendedmvs", root, "val"); }, "val_list.txt");
 }
+
+// The readers' one number parser (camera files, pair scores, timestamps).
+TEST(DatasetIo, ParseFiniteTakesWholeFiniteTokensOnly) {
+  double v = 0.0;
+  EXPECT_TRUE(long3r::datasets::parse_finite("-1.5e3", &v));
+  EXPECT_DOUBLE_EQ(v, -1500.0);
+  EXPECT_TRUE(long3r::datasets::parse_finite("42", &v));
+  EXPECT_DOUBLE_EQ(v, 42.0);
+  for (const char* bad : {"", "1.5x", "three", "nan", "inf", "-inf", "1e999"}) {
+    EXPECT_FALSE(long3r::datasets::parse_finite(bad, &v)) << "'" << bad << "'";
+  }
+}

@@ -42,7 +42,7 @@ std::vector<std::size_t> coefficient_counts(const std::string& model) {
   return {};
 }
 
-std::string number(double v) {
+std::string short_text(double v) {
   char buf[32];
   std::snprintf(buf, sizeof(buf), "%g", v);
   return buf;
@@ -104,17 +104,18 @@ std::string CameraRectifier::problem(const CameraModel& raw, int image_width, in
   for (int i = 0; i < 9; ++i) {
     if (!std::isfinite(c.K[i])) {
       return "K[" + std::to_string(i) + "]" +
-             (*k_names[i] ? std::string(" (") + k_names[i] + ")" : "") + " is " + number(c.K[i]);
+             (*k_names[i] ? std::string(" (") + k_names[i] + ")" : "") + " is " +
+             short_text(c.K[i]);
     }
   }
-  if (!(c.K[0] > 0.0)) return "K[0] (fx) is " + number(c.K[0]) + ", not positive";
-  if (!(c.K[4] > 0.0)) return "K[4] (fy) is " + number(c.K[4]) + ", not positive";
+  if (!(c.K[0] > 0.0)) return "K[0] (fx) is " + short_text(c.K[0]) + ", not positive";
+  if (!(c.K[4] > 0.0)) return "K[4] (fy) is " + short_text(c.K[4]) + ", not positive";
   if (!(c.K[2] >= 0.0 && c.K[2] < c.width)) {
-    return "K[2] (cx) = " + number(c.K[2]) + " is outside the image (width " +
+    return "K[2] (cx) = " + short_text(c.K[2]) + " is outside the image (width " +
            std::to_string(c.width) + ")";
   }
   if (!(c.K[5] >= 0.0 && c.K[5] < c.height)) {
-    return "K[5] (cy) = " + number(c.K[5]) + " is outside the image (height " +
+    return "K[5] (cy) = " + short_text(c.K[5]) + " is outside the image (height " +
            std::to_string(c.height) + ")";
   }
   const std::vector<std::size_t> counts = coefficient_counts(c.distortion_model);
@@ -131,22 +132,22 @@ std::string CameraRectifier::problem(const CameraModel& raw, int image_width, in
            " takes " + takes;
   }
   for (std::size_t i = 0; i < c.D.size(); ++i) {
-    if (!std::isfinite(c.D[i])) return "D[" + std::to_string(i) + "] is " + number(c.D[i]);
+    if (!std::isfinite(c.D[i])) return "D[" + std::to_string(i) + "] is " + short_text(c.D[i]);
   }
   for (int i = 0; i < 9; ++i) {
-    if (!std::isfinite(c.R[i])) return "R[" + std::to_string(i) + "] is " + number(c.R[i]);
+    if (!std::isfinite(c.R[i])) return "R[" + std::to_string(i) + "] is " + short_text(c.R[i]);
   }
   const cv::Matx33d R(c.R.data());
   if (cv::norm(R * R.t() - cv::Matx33d::eye(), cv::NORM_INF) > 1e-3 || cv::determinant(R) <= 0.0) {
     return "R is not a rotation";
   }
   for (int i = 0; i < 12; ++i) {
-    if (!std::isfinite(c.P[i])) return "P[" + std::to_string(i) + "] is " + number(c.P[i]);
+    if (!std::isfinite(c.P[i])) return "P[" + std::to_string(i) + "] is " + short_text(c.P[i]);
   }
-  if (!(c.P[0] > 0.0)) return "P[0] (fx') is " + number(c.P[0]) + ", not positive";
-  if (!(c.P[5] > 0.0)) return "P[5] (fy') is " + number(c.P[5]) + ", not positive";
+  if (!(c.P[0] > 0.0)) return "P[0] (fx') is " + short_text(c.P[0]) + ", not positive";
+  if (!(c.P[5] > 0.0)) return "P[5] (fy') is " + short_text(c.P[5]) + ", not positive";
   if (!(c.P[2] >= 0.0 && c.P[2] < c.width) || !(c.P[6] >= 0.0 && c.P[6] < c.height)) {
-    return "P's principal point (" + number(c.P[2]) + ", " + number(c.P[6]) +
+    return "P's principal point (" + short_text(c.P[2]) + ", " + short_text(c.P[6]) +
            ") is outside the image";
   }
   if (c.binning_x < 0 || c.binning_y < 0) {

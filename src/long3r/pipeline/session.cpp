@@ -12,7 +12,7 @@
 namespace long3r {
 namespace {
 
-std::string number(double v) {
+std::string round_trip_text(double v) {
   char buf[64];
   std::snprintf(buf, sizeof buf, "%.17g", v);
   return buf;
@@ -97,7 +97,7 @@ void write_session(const std::string& path, const SessionIdentity& identity, con
   metadata["model.weights"] = identity.model.weights;
   metadata["input_width"] = std::to_string(identity.input_width);
   metadata["input_height"] = std::to_string(identity.input_height);
-  metadata["voxel_size_m"] = number(identity.voxel_size_m);
+  metadata["voxel_size_m"] = round_trip_text(identity.voxel_size_m);
   try {
     save_safetensors(path, state, metadata);
   } catch (const std::exception& e) {
@@ -146,8 +146,9 @@ StateDict read_session(const std::string& path, const SessionIdentity& expected)
       std::to_string(expected.input_width) + "x" + std::to_string(expected.input_height);
   if (size != here) refuse("a model input size of " + size + ", this one " + here);
   const std::string& voxel = need(metadata, "voxel_size_m", path);
-  if (voxel != number(expected.voxel_size_m)) {
-    refuse("a map voxel size of " + voxel + " m, this one " + number(expected.voxel_size_m) + " m");
+  if (voxel != round_trip_text(expected.voxel_size_m)) {
+    refuse("a map voxel size of " + voxel + " m, this one " +
+           round_trip_text(expected.voxel_size_m) + " m");
   }
   try {
     return load_safetensors(path).tensors;

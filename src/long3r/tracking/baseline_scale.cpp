@@ -5,16 +5,11 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "long3r/geometry/angles.hpp"
 #include "long3r/geometry/statistics.hpp"
 #include "long3r/tracking/feature_matching.hpp"
 
 namespace long3r {
-
-namespace {
-
-constexpr double kRadToDeg = 180.0 / M_PI;
-
-}  // namespace
 
 BaselineScale::BaselineScale(const KeyframeTrackerConfig& features)
     : features_(features),

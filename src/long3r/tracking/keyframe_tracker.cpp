@@ -1,5 +1,6 @@
 #include "long3r/tracking/keyframe_tracker.hpp"
 
+#include "long3r/geometry/angles.hpp"
 #include "long3r/geometry/statistics.hpp"
 #include "long3r/tracking/feature_matching.hpp"
 
@@ -19,7 +20,6 @@ namespace long3r {
 
 namespace {
 
-constexpr double kRadToDeg = 180.0 / M_PI;
 // Fewer lifted inliers than this: the length (or PnP) is not trusted.
 constexpr int kMinLiftedInliers = 12;
 // A keyframe's pointmap must lie in front of its camera: this share of its

@@ -47,6 +47,9 @@ Eigen::MatrixXd read_matrix_text(const std::string& path, int rows, int cols);
 nlohmann::json read_json(const std::string& path);
 // The lines of a text file, trimmed, empty ones left out.
 std::vector<std::string> read_lines(const std::string& path);
+// `token` whole as a finite number: false for an empty, partial ("1.5x"),
+// infinite or NaN token.
+bool parse_finite(const std::string& token, double* value);
 
 // numpy arrays (.npy; .npz as numpy.savez writes them, entries stored
 // uncompressed) of floating-point or integer values, as doubles.

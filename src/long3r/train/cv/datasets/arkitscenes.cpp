@@ -15,7 +15,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <filesystem>
 #include <map>
 #include <sstream>
@@ -35,13 +34,6 @@ namespace fs = std::filesystem;
 // Milliseconds: the traj is keyed by timestamps rounded to 3 decimals.
 int64_t to_ms(double ts) { return static_cast<int64_t>(std::llround(ts * 1000.0)); }
 
-bool parse_number(const std::string& s, double* v) {
-  if (s.empty()) return false;
-  char* end = nullptr;
-  *v = std::strtod(s.c_str(), &end);
-  return end == s.c_str() + s.size() && std::isfinite(*v);
-}
-
 std::string format_ts(double ts) {
   char text[64];
   std::snprintf(text, sizeof(text), "%.3f", ts);
@@ -59,7 +51,7 @@ std::map<int64_t, Eigen::Isometry3d> read_traj(const std::string& path) {
     std::string token;
     while (in >> token) {
       double x = 0.0;
-      if (!parse_number(token, &x)) {
+      if (!parse_finite(token, &x)) {
         throw DatasetError(path + ":" + std::to_string(n + 1) + ": \"" + token +
                            "\" is not a finite number");
       }
@@ -103,7 +95,8 @@ struct ArkitFrame {
   Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
 };
 
-RawFrame load_frame(const std::string& dir, const std::string& video, const ArkitFrame& f) {
+RawFrame load_arkitscenes_frame(const std::string& dir, const std::string& video,
+                                const ArkitFrame& f) {
   const std::string stem = video + "_" + f.ts;
   const std::string color_path = dir + "/lowres_wide/" + stem + ".png";
   const std::string depth_path = dir + "/lowres_depth/" + stem + ".png";
@@ -183,7 +176,7 @@ DatasetScan open_arkitscenes(const DatasetSource& source) {
         }
         ArkitFrame f;
         f.ts = file.substr(video.size() + 1, file.size() - video.size() - 5);
-        if (!parse_number(f.ts, &f.ts_s)) continue;
+        if (!parse_finite(f.ts, &f.ts_s)) continue;
         const Eigen::Isometry3d* pose = find_pose(poses, to_ms(f.ts_s));
         // Never readable: Spann3R draws another sample at such a frame.
         if (pose == nullptr) continue;
@@ -203,7 +196,7 @@ DatasetScan open_arkitscenes(const DatasetSource& source) {
             if (i < 0 || i >= static_cast<int64_t>(frames.size())) {
               throw std::out_of_range(dir + ": no frame " + std::to_string(i));
             }
-            return load_frame(dir, video, frames[static_cast<std::size_t>(i)]);
+            return load_arkitscenes_frame(dir, video, frames[static_cast<std::size_t>(i)]);
           }));
     } catch (const DatasetError& e) {
       scan.skipped.push_back(e.what());

@@ -34,16 +34,6 @@ int64_t parse_id(const std::string& s) {
   return std::stoll(s);
 }
 
-bool parse_number(const std::string& token, double* value) {
-  try {
-    std::size_t used = 0;
-    *value = std::stod(token, &used);
-    return used == token.size();
-  } catch (const std::exception&) {
-    return false;
-  }
-}
-
 struct MvsnetCamera {
   Eigen::Matrix4d world_to_camera;
   Eigen::Matrix3d k;
@@ -65,7 +55,7 @@ MvsnetCamera read_mvsnet_camera(const std::string& path) {
       for (int c = 0; c < m.cols(); ++c) {
         std::string token;
         if (!(in >> token)) throw DatasetError(path + ": truncated MVSNet camera file");
-        if (!parse_number(token, &m(r, c))) {
+        if (!parse_finite(token, &m(r, c))) {
           throw DatasetError(path + ": \"" + token + "\" is not a number");
         }
       }
@@ -116,7 +106,7 @@ std::string check_pairs(const std::string& path, const std::set<int64_t>& ids) {
       const std::string& nb = tokens[static_cast<std::size_t>(1 + 2 * j)];
       double score = 0;
       if (!id_known(nb, &id)) return path + ": neighbour \"" + nb + "\" has no image";
-      if (!parse_number(tokens[static_cast<std::size_t>(2 + 2 * j)], &score)) {
+      if (!parse_finite(tokens[static_cast<std::size_t>(2 + 2 * j)], &score)) {
         return path + ": a score of view " + ref + " is not a number";
       }
     }
@@ -124,7 +114,7 @@ std::string check_pairs(const std::string& path, const std::set<int64_t>& ids) {
   return "";
 }
 
-RawFrame load_frame(const fs::path& scene, const std::string& stem) {
+RawFrame load_blendedmvs_frame(const fs::path& scene, const std::string& stem) {
   const std::string image = (scene / "blended_images" / (stem + ".jpg")).string();
   const std::string depth_path = (scene / "rendered_depth_maps" / (stem + ".pfm")).string();
   const std::string cam_path = (scene / "cams" / (stem + "_cam.txt")).string();
@@ -189,7 +179,7 @@ DatasetScan open_blendedmvs(const DatasetSource& source) {
     const int64_t size = static_cast<int64_t>(stems.size());
     scan.sequences.push_back(std::make_unique<FrameListSource>(
         label + "/" + scene, size, [dir, stems = std::move(stems)](int64_t i) {
-          return load_frame(dir, stems.at(static_cast<std::size_t>(i)));
+          return load_blendedmvs_frame(dir, stems.at(static_cast<std::size_t>(i)));
         }));
   }
   return scan;

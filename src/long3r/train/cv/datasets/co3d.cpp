@@ -28,14 +28,14 @@ namespace {
 
 namespace fs = std::filesystem;
 
-std::string frame_stem(int64_t n) {
+std::string co3d_stem(int64_t n) {
   char text[32];
   std::snprintf(text, sizeof(text), "frame%06lld", static_cast<long long>(n));
   return text;
 }
 
-RawFrame load_frame(const std::string& dir, int64_t n, bool mask_background) {
-  const std::string stem = frame_stem(n);
+RawFrame load_co3d_frame(const std::string& dir, int64_t n, bool mask_background) {
+  const std::string stem = co3d_stem(n);
   const std::string image_path = dir + "/images/" + stem + ".jpg";
   const std::string meta_path = dir + "/images/" + stem + ".npz";
   const std::string depth_path = dir + "/depths/" + stem + ".jpg.geometric.png";
@@ -132,7 +132,7 @@ DatasetScan open_co3d(const DatasetSource& source) {
               if (i < 0 || i >= static_cast<int64_t>(numbers.size())) {
                 throw std::out_of_range(dir + ": no frame " + std::to_string(i));
               }
-              return load_frame(dir, numbers[static_cast<std::size_t>(i)], mask_background);
+              return load_co3d_frame(dir, numbers[static_cast<std::size_t>(i)], mask_background);
             }));
       } catch (const DatasetError& e) {
         scan.skipped.push_back(e.what());

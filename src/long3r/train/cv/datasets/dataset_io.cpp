@@ -8,6 +8,7 @@
 
 #include <cctype>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <sstream>
@@ -199,6 +200,13 @@ std::vector<std::string> read_lines(const std::string& path) {
     lines.push_back(line.substr(b, line.find_last_not_of(" \t\r") - b + 1));
   }
   return lines;
+}
+
+bool parse_finite(const std::string& token, double* value) {
+  if (token.empty()) return false;
+  char* end = nullptr;
+  *value = std::strtod(token.c_str(), &end);
+  return end == token.c_str() + token.size() && std::isfinite(*value);
 }
 
 NpyArray read_npy(const std::string& path) { return parse_npy(read_bytes(path), path); }

@@ -66,7 +66,7 @@ Eigen::Matrix3d matrix3(const nlohmann::json& params, const std::string& key,
   return m;
 }
 
-RawFrame load_frame(const fs::path& scene, const std::string& view) {
+RawFrame load_habitat_frame(const fs::path& scene, const std::string& view) {
   const std::string image = (scene / (view + ".jpeg")).string();
   const std::string depth_path = (scene / (view + "_depth.exr")).string();
   const std::string params_path = (scene / (view + "_camera_params.json")).string();
@@ -159,7 +159,7 @@ DatasetScan open_habitat(const DatasetSource& source) {
         scan.sequences.push_back(std::make_unique<FrameListSource>(
             label + "/" + dataset + "/" + scene + "/" + group, kViews, [dir, group](int64_t i) {
               if (i < 0 || i >= kViews) throw std::out_of_range("habitat: no such view");
-              return load_frame(dir, view_name(group, static_cast<int>(i) + 1));
+              return load_habitat_frame(dir, view_name(group, static_cast<int>(i) + 1));
             }));
       }
     }

@@ -39,15 +39,15 @@ int64_t color_frame_id(const std::string& name) {
   return std::stoll(digits);
 }
 
-std::string frame_stem(int64_t id) {
+std::string scannet_stem(int64_t id) {
   char buf[32];
   std::snprintf(buf, sizeof(buf), "frame-%06lld", static_cast<long long>(id));
   return buf;
 }
 
-RawFrame load_frame(const fs::path& data, int64_t id, const Eigen::Matrix3d& k_depth,
-                    const std::string& k_path) {
-  const std::string stem = frame_stem(id);
+RawFrame load_scannet_frame(const fs::path& data, int64_t id, const Eigen::Matrix3d& k_depth,
+                            const std::string& k_path) {
+  const std::string stem = scannet_stem(id);
   const std::string image = (data / (stem + ".color.jpg")).string();
   const std::string depth_path = (data / (stem + ".depth.png")).string();
   const std::string pose_path = (data / (stem + ".pose.txt")).string();
@@ -110,7 +110,7 @@ DatasetScan open_scannet(const DatasetSource& source) {
     const int64_t size = static_cast<int64_t>(ids.size());
     scan.sequences.push_back(std::make_unique<FrameListSource>(
         label + "/" + scene, size, [data, ids = std::move(ids), k_depth, k_path](int64_t i) {
-          return load_frame(data, ids.at(static_cast<std::size_t>(i)), k_depth, k_path);
+          return load_scannet_frame(data, ids.at(static_cast<std::size_t>(i)), k_depth, k_path);
         }));
   }
   return scan;

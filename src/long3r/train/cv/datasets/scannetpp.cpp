@@ -125,8 +125,8 @@ std::string depth_name(const std::string& image) {
   return at == std::string::npos ? image + ".png" : image.substr(0, at) + ".png";
 }
 
-RawFrame load_frame(const fs::path& dslr, const ScannetppFrame& f, const PinholeIntrinsics& k,
-                    const std::string& tf_path) {
+RawFrame load_scannetpp_frame(const fs::path& dslr, const ScannetppFrame& f,
+                              const PinholeIntrinsics& k, const std::string& tf_path) {
   const std::string image = (dslr / "undistorted_images" / f.image).string();
   const std::string depth_path = (dslr / "undistorted_depths" / depth_name(f.image)).string();
   const cv::Mat bgr = read_color(image);
@@ -168,7 +168,7 @@ DatasetScan open_scannetpp(const DatasetSource& source) {
     const int64_t size = static_cast<int64_t>(frames.size());
     scan.sequences.push_back(std::make_unique<FrameListSource>(
         label + "/" + scene, size, [dslr, frames = std::move(frames), k, tf_path](int64_t i) {
-          return load_frame(dslr, frames.at(static_cast<std::size_t>(i)), k, tf_path);
+          return load_scannetpp_frame(dslr, frames.at(static_cast<std::size_t>(i)), k, tf_path);
         }));
   }
   return scan;
