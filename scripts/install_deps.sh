@@ -14,7 +14,7 @@ set -euo pipefail
 
 PACKAGES=(
   # toolchain
-  build-essential cmake pkg-config git clang-format ccache
+  build-essential cmake ninja-build pkg-config git clang-format ccache
   # ROS 1 from Debian (installed under /usr; no setup.bash needed)
   ros-base-dev catkin libroscpp-dev libnodelet-dev python3-nodelet
   libpcl-ros-dev libcv-bridge-dev libimage-transport-dev libtf2-ros-dev

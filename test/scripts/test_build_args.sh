@@ -2,8 +2,9 @@
 # scripts/build.sh's options reach CMake (catkin_make hands everything after
 # --make-args to make, so they must come before it): --no-trainer and
 # --no-tests leave out what they say, --no-unity turns the libraries' unity
-# build off (on by default), LONG3R_TORCH_DIR chooses the libtorch, and the
-# targets go to make. Each case configures a workspace of its own
+# build off (on by default), LONG3R_TORCH_DIR chooses the libtorch, a new
+# workspace is generated for Ninja where it is installed, and the targets go
+# to make or ninja. Each case configures a workspace of its own
 # under WORK_DIR and runs make's cheap `help` target; nothing is compiled.
 #   test_build_args.sh WORK_DIR
 set -uo pipefail
@@ -15,6 +16,9 @@ failures=0
 fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
 cached() {  # the value of a CMake cache entry in workspace $1
   sed -n "s/^$2:[A-Z]*=//p" "$1/build/CMakeCache.txt"
+}
+has_target() {  # the `help` output in log $1 lists target $2 (make's or ninja's)
+  grep -q -e "^\.\.\. $2\$" -e "^$2: phony\$" "$1"
 }
 unity_source() {  # the first unity batch CMake generated for long3r_io in workspace $1
   echo "$1/build/long3r_ros/CMakeFiles/long3r_io.dir/Unity/unity_0_cxx.cxx"
@@ -39,10 +43,13 @@ LONG3R_WS=$ws LONG3R_TORCH_DIR=$work/torch bash "$root/scripts/build.sh" --no-tr
 [ "$(cached "$ws" Torch_DIR)" = "$work/torch" ] || fail "LONG3R_TORCH_DIR: Torch_DIR is '$(cached "$ws" Torch_DIR)'"
 [ "$(cached "$ws" LONG3R_UNITY_BUILD)" = OFF ] || fail "--no-unity: LONG3R_UNITY_BUILD is '$(cached "$ws" LONG3R_UNITY_BUILD)'"
 [ ! -e "$(unity_source "$ws")" ] || fail "--no-unity: a unity source was generated"
-grep -q "Running command: \"make -j[0-9]* help\"" "$work/no_trainer.log" ||
-  fail "make was not given the target alone: $(grep 'Running command: "make' "$work/no_trainer.log")"
-grep -q "\.\.\. long3r_demo$" "$work/no_trainer.log" || fail "--no-trainer: no long3r_demo target"
-! grep -q "\.\.\. app_long3r_train$" "$work/no_trainer.log" || fail "--no-trainer: the trainer is built"
+if command -v ninja >/dev/null; then
+  [ "$(cached "$ws" CMAKE_GENERATOR)" = Ninja ] || fail "ninja is installed, the generator is '$(cached "$ws" CMAKE_GENERATOR)'"
+fi
+grep -q "Running command: \"\(make\|ninja\) -j[0-9]* help\"" "$work/no_trainer.log" ||
+  fail "make was not given the target alone: $(grep 'Running command: "\(make\|ninja\)' "$work/no_trainer.log")"
+has_target "$work/no_trainer.log" long3r_demo || fail "--no-trainer: no long3r_demo target"
+! has_target "$work/no_trainer.log" app_long3r_train || fail "--no-trainer: the trainer is built"
 
 ws=$work/no_tests
 LONG3R_WS=$ws bash "$root/scripts/build.sh" --no-tests help >"$work/no_tests.log" 2>&1 ||
@@ -51,8 +58,8 @@ LONG3R_WS=$ws bash "$root/scripts/build.sh" --no-tests help >"$work/no_tests.log
 [ "$(cached "$ws" LONG3R_BUILD_TESTS)" = OFF ] || fail "--no-tests: LONG3R_BUILD_TESTS is '$(cached "$ws" LONG3R_BUILD_TESTS)'"
 [ "$(cached "$ws" LONG3R_UNITY_BUILD)" = ON ] || fail "default: LONG3R_UNITY_BUILD is '$(cached "$ws" LONG3R_UNITY_BUILD)'"
 [ -f "$(unity_source "$ws")" ] || fail "default: no unity source for long3r_io"
-grep -q "\.\.\. app_long3r_train$" "$work/no_tests.log" || fail "--no-tests: no trainer target"
-! grep -q "\.\.\. long3r_model_tests$" "$work/no_tests.log" || fail "--no-tests: the tests are built"
+has_target "$work/no_tests.log" app_long3r_train || fail "--no-tests: no trainer target"
+! has_target "$work/no_tests.log" long3r_model_tests || fail "--no-tests: the tests are built"
 
 if [ "$failures" -eq 0 ]; then
   echo "build.sh: --no-trainer, --no-tests, --no-unity, LONG3R_TORCH_DIR and the targets reach CMake and make"
