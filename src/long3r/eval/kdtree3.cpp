@@ -11,7 +11,11 @@
 
 namespace long3r {
 
-namespace {
+// Named, not anonymous: KdTree3::Index holds these types, and GCC warns
+// (-Wsubobject-linkage) about a class with a member of an anonymous
+// namespace's type when that namespace is not in the main file, as in a unity
+// build's batch.
+namespace kdtree3_detail {
 
 // nanoflann's view of the points.
 struct Cloud {
@@ -49,6 +53,10 @@ struct ExactL2 {
 };
 
 using Tree = nanoflann::KDTreeSingleIndexAdaptor<ExactL2, Cloud, 3, uint32_t>;
+
+}  // namespace kdtree3_detail
+
+namespace {
 
 // A neighbour as one integer ordered as (squared distance, index): the bits of
 // a float >= 0 (infinity included) order as the float does.
@@ -119,8 +127,8 @@ constexpr size_t kLeafSize = 12;
 struct KdTree3::Index {
   std::vector<Eigen::Vector3f> ordered;
   std::vector<uint32_t> original;
-  Cloud cloud;
-  Tree tree;
+  kdtree3_detail::Cloud cloud;
+  kdtree3_detail::Tree tree;
   explicit Index(const std::vector<Eigen::Vector3f>& points)
       : cloud{&points}, tree(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(kLeafSize)) {
     // The build permuted tree.vAcc; renumber the points in that order.
