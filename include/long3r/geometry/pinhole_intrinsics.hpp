@@ -8,8 +8,6 @@
 
 #include <cmath>
 
-#include "long3r/geometry/angles.hpp"
-
 namespace long3r {
 
 struct PinholeIntrinsics {
@@ -37,7 +35,7 @@ struct PinholeIntrinsics {
     PinholeIntrinsics k;
     k.width = width;
     k.height = height;
-    k.fx = k.fy = 0.5 * width / std::tan(0.5 * hfov_deg * kDegToRad);
+    k.fx = k.fy = 0.5 * width / std::tan(0.5 * hfov_deg * M_PI / 180.0);
     k.cx = 0.5 * (width - 1);
     k.cy = 0.5 * (height - 1);
     return k;

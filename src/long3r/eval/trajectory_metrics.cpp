@@ -4,7 +4,6 @@
 #include <stdexcept>
 
 #include "long3r/eval/eval.hpp"
-#include "long3r/geometry/angles.hpp"
 
 namespace long3r {
 
@@ -67,7 +66,7 @@ RpeErrors rpe_errors(const std::vector<Eigen::Isometry3d>& ref,
     const Eigen::Isometry3d e = q_rel.inverse() * p_rel;
     r.translation.push_back(e.translation().norm());
     // Via the quaternion (2 atan2): accurate for small angles, unlike acos.
-    r.rotation_deg.push_back(std::abs(Eigen::AngleAxisd(e.rotation()).angle()) * kRadToDeg);
+    r.rotation_deg.push_back(std::abs(Eigen::AngleAxisd(e.rotation()).angle()) * 180.0 / M_PI);
   }
   return r;
 }
