@@ -32,7 +32,8 @@ torch_args=()
 [ -n "${LONG3R_TORCH_DIR:-}" ] && torch_args=(-DTorch_DIR="$LONG3R_TORCH_DIR")
 # Ninja where it is installed: it compiles a library's sources once their
 # headers exist, where make first waits for the libraries they link (the
-# demo's build on two cores: 156 s against 234 s). A workspace keeps the
+# compile in scripts/demo.sh from a fresh clone, AMD EPYC, two cores: 181 s
+# against 234 s). A workspace keeps the
 # generator it was first configured with (CMake will not change it).
 generator_args=()
 cache=$LONG3R_WS/build/CMakeCache.txt
