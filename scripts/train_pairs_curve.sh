@@ -14,7 +14,9 @@
 # checkpoint and the logs back into the snapshot folder for the next sitting
 # (a full checkpoint: weights, AdamW state, data and RNG states). --init
 # starts a fresh run from a model's weights (by name; the sequence stage
-# starts from the pair model); a run that resumes ignores it.
+# starts from the pair model); a run that resumes ignores it. SIGTERM or
+# SIGINT to the script ends the run after the step in progress, with its
+# checkpoint, and keeps it as at the budget's end.
 #   bash scripts/train_pairs_curve.sh [RUN_DIR] [--budget-s S] [--ranks N] [--keep]
 #        [--config FILE] [--snapshot DIR] [--init MODEL.safetensors]
 # Run it in the background (nice -n 19) and build nothing beside it: the
@@ -45,7 +47,7 @@ while [ $# -gt 0 ]; do
     --snapshot) snapshot=$2; shift 2 ;;
     --init) init=$(realpath "$2"); shift 2 ;;
     --keep) keep=1; shift ;;
-    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,23p' "$0"; exit 0 ;;
     -*) echo "unknown option $1" >&2; exit 2 ;;
     *) run=$1; shift ;;
   esac
@@ -83,21 +85,37 @@ elif [ -n "$init" ]; then
 fi
 args=(--config "$config" --out "$run" --seed 0 --threads 1 --prefetch 0 --render-threads 1
       --frame-cache "$cache" --time-budget-s "$budget" "${resume[@]}")
+# The ranks run in the background so that a SIGTERM or SIGINT to this
+# script reaches them: each ends after the step in progress, all at the same
+# step, with its checkpoint, and --keep below still keeps it.
+pids=()
+forward_stop() { kill -TERM "${pids[@]}" 2>/dev/null || true; }
+trap forward_stop TERM INT
 if [ "$ranks" = 1 ]; then
-  "$build/long3r_train" "${args[@]}"
+  "$build/long3r_train" "${args[@]}" &
+  pids+=($!)
 else
   # One process per rank on this machine; rank 0 serves the rendezvous.
   port=$(/usr/bin/python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
-  pids=()
   for ((r = 0; r < ranks; r++)); do
     RANK=$r WORLD_SIZE=$ranks LOCAL_RANK=$r MASTER_ADDR=127.0.0.1 MASTER_PORT=$port \
       "$build/long3r_train" "${args[@]}" &
     pids+=($!)
   done
-  status=0
-  for p in "${pids[@]}"; do wait "$p" || status=$?; done
-  [ "$status" = 0 ] || { echo "a rank failed (exit $status)" >&2; exit "$status"; }
 fi
+status=0
+for p in "${pids[@]}"; do
+  # A trapped signal interrupts wait (status > 128) while the rank runs on.
+  while :; do
+    if wait "$p"; then break; fi
+    rc=$?
+    kill -0 "$p" 2>/dev/null && continue
+    status=$rc
+    break
+  done
+done
+trap - TERM INT
+[ "$status" = 0 ] || { echo "a rank failed (exit $status)" >&2; exit "$status"; }
 
 if [ "$keep" = 1 ]; then
   latest=$(cat "$run/checkpoint/latest")

@@ -349,6 +349,11 @@ int main(int argc, char** argv) {
       if (cfg.pose_method != PoseMethod::kKeyframes) {
         throw std::runtime_error("--tracker-true-depth needs --pose-source keyframes");
       }
+      if (cfg.tracker_constant_depth) {
+        throw std::runtime_error(
+            "--tracker-true-depth and --tracker-constant-depth both replace the model's depth "
+            "for the tracker: give one of --tracker-true-depth and --tracker-constant-depth");
+      }
     }
     const ScaleSource scale_source = session_cfg.scale.source;
     if ((scale_source == ScaleSource::kDepth || scale_source == ScaleSource::kOdometry) &&

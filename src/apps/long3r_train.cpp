@@ -2,6 +2,9 @@
 // generated scenes and/or TUM-layout folders. See docs/training.md. Built
 // without OpenCV (a machine with nothing but a libtorch), it trains on
 // generated scenes and validates by the loss and pointmap figures only.
+// SIGINT or SIGTERM ends a run after the step in progress, with that step's
+// checkpoint (a second SIGINT at once): a sitting can stop when it must.
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <stdexcept>
@@ -16,6 +19,40 @@
 #ifdef LONG3R_TRAIN_WITH_OPENCV
 #include "long3r/train/cv/train_cv.hpp"
 #endif
+
+namespace {
+
+// SIGINT or SIGTERM: the run ends after the step in progress, with its
+// checkpoint (TrainOptions::stop_requested). A second SIGINT (Ctrl-C twice)
+// ends the process at once (checkpoints are written whole or not at all); a
+// SIGTERM again changes nothing, as when a service manager signals the
+// launcher and its ranks alike and the launcher passes its own on.
+volatile std::sig_atomic_t g_stop_signal = 0;
+
+extern "C" void on_stop_signal(int sig) {
+  if (sig == SIGINT && g_stop_signal != 0) {
+    std::signal(sig, SIG_DFL);
+    std::raise(sig);
+    return;
+  }
+  g_stop_signal = sig;
+}
+
+// SIGINT only where it is not ignored: a shell's background job ignores it,
+// and its launcher (scripts/train_pairs_curve.sh) passes the stop on itself.
+void install_stop_handlers() {
+  struct sigaction action {};
+  action.sa_handler = on_stop_signal;
+  sigemptyset(&action.sa_mask);
+  action.sa_flags = SA_RESTART;  // a collective's socket calls go on
+  struct sigaction old {};
+  if (sigaction(SIGINT, nullptr, &old) == 0 && old.sa_handler != SIG_IGN) {
+    sigaction(SIGINT, &action, nullptr);
+  }
+  sigaction(SIGTERM, &action, nullptr);
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
   std::string config_path = "config/train_default.json";
@@ -80,6 +117,8 @@ int main(int argc, char** argv) {
 #ifdef LONG3R_TRAIN_WITH_OPENCV
     opt.extensions = long3r::opencv_trainer_extensions();
 #endif
+    install_stop_handlers();
+    opt.stop_requested = [] { return g_stop_signal != 0; };
     long3r::Trainer trainer(config, opt);
     if (const auto& r = trainer.init_report()) {
       if (r->loaded == 0) throw std::runtime_error("--init-dust3r: no tensor matched the model");

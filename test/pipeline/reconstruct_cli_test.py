@@ -85,7 +85,9 @@ def main():
     for args, why in ((["--pose-source", "model", seq], "needs --pose-source keyframes"),
                       (["--pose-source", "keyframes", folder_only], "needs a TUM folder"),
                       (["--pose-source", "keyframes", "--calib", "50", "50", "48", "32", seq],
-                       "its own undistorted calibration.txt")):
+                       "its own undistorted calibration.txt"),
+                      (["--pose-source", "keyframes", "--tracker-constant-depth", seq],
+                       "give one of --tracker-true-depth and --tracker-constant-depth")):
         rc, log = run([a.reconstruct, "--model", model, "--out", out, "--img-size", "64",
                        "--tracker-true-depth"] + args)
         check(rc != 0 and why in log, "--tracker-true-depth %s: %s" % (args, log))

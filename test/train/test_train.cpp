@@ -866,6 +866,44 @@ TEST(TrainTrainer, TimeBudgetEndsTheRunWithItsOutputs) {
   EXPECT_NEAR(full.log().back().val->prediction.pointmap_error, pointmap_err, 0.5 * pointmap_err);
 }
 
+// A stop request (long3r_train: SIGINT, SIGTERM) ends the run before the
+// next step with the last step's checkpoint and outputs, without the
+// end-of-run validation; the run resumes there.
+TEST(TrainTrainer, AStopRequestEndsTheRunAtTheLastStepsCheckpoint) {
+  long3r::TrainConfig c = tiny_config();
+  c.validation.sequences = 1;
+  c.validation.frames = 3;
+  c.validation.every = 0;
+  c.data.synth.val_scenes = 1;
+  long3r::TrainOptions o;
+  o.quiet = true;
+  o.out_dir = scratch("stop_request");
+  int asked = 0;
+  o.stop_requested = [&asked] { return ++asked > 2; };  // after two steps
+  {
+    long3r::Trainer t(c, o);
+    t.run();
+    EXPECT_EQ(t.stop_reason(), "stop_request");
+    EXPECT_EQ(t.global_step(), 2);
+    ASSERT_EQ(t.log().size(), 2u);
+    EXPECT_FALSE(t.log().back().val.has_value());  // not validated: stopping is quick
+  }
+  EXPECT_EQ(asked, 3);
+  const std::filesystem::path out(o.out_dir);
+  EXPECT_TRUE(std::filesystem::exists(out / "model.safetensors"));
+  std::ifstream latest(out / "checkpoint" / "latest");
+  std::string name;
+  latest >> name;
+  EXPECT_EQ(name, "step_00000002.pt");
+  o.resume = true;
+  o.stop_requested = nullptr;
+  long3r::Trainer resumed(c, o);
+  EXPECT_EQ(resumed.global_step(), 2);
+  resumed.run();
+  EXPECT_EQ(resumed.stop_reason(), "schedule");
+  EXPECT_EQ(resumed.global_step(), c.total_steps());
+}
+
 // Without the OpenCV side there is no TUM reader: such a config is refused by name.
 TEST(TrainTrainer, TumFoldersNeedTheOpenCvSide) {
   long3r::TrainConfig c = tiny_config();

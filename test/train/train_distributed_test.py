@@ -8,6 +8,8 @@
     global batch, within float tolerance;
   * the two-rank run's step-2 checkpoint, resumed in one process, reproduces
     its step 3;
+  * a SIGTERM to one rank ends both after the same step, with that step's
+    checkpoint, and the job succeeds (a sitting stopped early loses nothing);
   * a rank killed mid-run ends the job, with that rank named, instead of a
     hang.
 """
@@ -168,6 +170,40 @@ def main():
     compare_models(os.path.join(resumed, "model.safetensors"),
                    os.path.join(two, "model.safetensors"), initial, "step 3 resumed vs 2 ranks")
     compare_losses(log_rows(resumed)[2:], rows_two[2:], "step 3 resumed vs 2 ranks", 1e-5)
+
+    # A SIGTERM to rank 1 alone: both ranks stop after the same step, rank 0
+    # writes that step's checkpoint and outputs, and the job succeeds.
+    stopped = os.path.join(a.workdir, "stopped")
+    cmd = torchrun(a, ["--config", cfg, "--threads", "1", "--seed", "3", "--out", stopped])
+    job = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    out = []
+    signalled = False
+    t0 = time.time()
+    for line in job.stdout:
+        out.append(line)
+        if not signalled and re.search(r"step +2/", line):
+            pids = processes_of_rank(a.train, stopped, 1)
+            check(len(pids) == 1, "one rank-1 process: %s" % pids)
+            os.kill(pids[0], signal.SIGTERM)
+            signalled = True
+        if time.time() - t0 > 300:
+            job.kill()
+            check(False, "the job did not end after SIGTERM: " + "".join(out))
+    rc = job.wait()
+    text = "".join(out)
+    check(signalled, "the run reached step 2: " + text)
+    check(rc == 0, "a job whose rank was asked to stop succeeds: " + text)
+    ended = re.search(r"stop requested: ending after step (\d+)", text)
+    check(ended is not None and "stopped by stop_request" in text,
+          "rank 0 says it stopped on request: " + text)
+    last = int(ended.group(1))
+    check(2 <= last < 400, "stopped soon after the signal, at step %d" % last)
+    with open(os.path.join(stopped, "checkpoint", "latest")) as f:
+        check(f.read().strip() == "step_%08d.pt" % last,
+              "the checkpoint of step %d is the latest" % last)
+    check([int(r["step"]) for r in log_rows(stopped)] == list(range(1, last + 1)),
+          "the log holds every step up to the stop")
+    print("SIGTERM to rank 1: both ranks stopped after step %d" % last)
 
     # A rank killed mid-run: the job ends, naming it.
     killed = os.path.join(a.workdir, "killed")

@@ -217,6 +217,8 @@ class Reconstruction {
   // kept; the map keeps the model's depth (then not the path's scale: the
   // path is what to measure). A depth image of another size than the
   // image is a std::invalid_argument. Not a parameter of the node. Empty: off.
+  // It takes the place of tracker_constant_depth where both are set
+  // (long3r_reconstruct refuses the two together).
   using TrackerDepthSource = std::function<cv::Mat(double stamp_s)>;
   void set_tracker_depth_source(TrackerDepthSource source) {
     tracker_depth_source_ = std::move(source);

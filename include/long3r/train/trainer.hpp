@@ -71,6 +71,11 @@ struct TrainOptions {
   // and writes its outputs as at the schedule's end, learning-rate schedule
   // unchanged.
   double time_budget_s = 0;
+  // Asked before each step (long3r_train: SIGINT or SIGTERM arrived): true
+  // ends the run there, on every rank at the same step, with the checkpoint
+  // and the outputs of the last step finished, without the end-of-run
+  // validation, so that a stopped sitting loses no step. Empty: never.
+  std::function<bool()> stop_requested;
   // Data-parallel training (docs/training.md): this process's place in the
   // job (distributed_env(): torchrun, srun) and how the ranks talk. Each
   // stage's batch_size is the global batch, split evenly over the ranks.

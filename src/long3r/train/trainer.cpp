@@ -878,7 +878,21 @@ void Trainer::run() {
     std::fflush(stdout);
   }
   bool validated_last = false;
+  bool stopped = false;
   while (step_ < end) {
+    if (options_.stop_requested) {
+      stopped = options_.stop_requested();
+      if (dp_) stopped = dp_->any(stopped);  // the ranks stop together
+      if (stopped) {
+        stop_reason_ = "stop_request";
+        if (!options_.quiet) {
+          std::printf("stop requested: ending after step %lld (%lld steps of this run)\n",
+                      static_cast<long long>(step_), static_cast<long long>(steps_this_run));
+          std::fflush(stdout);
+        }
+        break;
+      }
+    }
     if (options_.time_budget_s > 0.0 && steps_this_run > 0) {
       const double spent = now_s() - run_start;
       bool out_of_time =
@@ -933,7 +947,8 @@ void Trainer::run() {
     }
   }
   stop_prefetch();
-  if (is_root() && config_.validation.sequences > 0 && !validated_last && !log_.empty()) {
+  if (is_root() && config_.validation.sequences > 0 && !validated_last && !stopped &&
+      !log_.empty()) {
     log_.back().val = run_validation();
     // A row already in the file cannot be appended to again.
     if (log_rows_written_ >= log_.size()) log_rewrite_ = true;
