@@ -113,6 +113,16 @@ long3r::TrainConfig tiny_config() {
   return c;
 }
 
+// tiny_config() validated once, at the end of a run: one 3-frame sequence.
+long3r::TrainConfig tiny_config_validated_at_end() {
+  long3r::TrainConfig c = tiny_config();
+  c.validation.sequences = 1;
+  c.validation.frames = 3;
+  c.validation.every = 0;
+  c.data.synth.val_scenes = 1;
+  return c;
+}
+
 }  // namespace
 
 TEST(TrainLoss, PerfectPredictionHasZeroRegressionAndUnitConfidenceZeroLoss) {
@@ -817,11 +827,7 @@ TEST(TrainTrainer, CrossViewCompletionStageResumesAndIsNotExported) {
 // outputs written and the reason recorded; without the OpenCV side the
 // validation has the loss and pointmap figures and no picture is drawn.
 TEST(TrainTrainer, TimeBudgetEndsTheRunWithItsOutputs) {
-  long3r::TrainConfig c = tiny_config();
-  c.validation.sequences = 1;
-  c.validation.frames = 3;
-  c.validation.every = 0;
-  c.data.synth.val_scenes = 1;
+  const long3r::TrainConfig c = tiny_config_validated_at_end();
   long3r::TrainOptions o;
   o.quiet = true;
   o.out_dir = scratch("budget");
@@ -870,11 +876,7 @@ TEST(TrainTrainer, TimeBudgetEndsTheRunWithItsOutputs) {
 // next step with the last step's checkpoint and outputs, without the
 // end-of-run validation; the run resumes there.
 TEST(TrainTrainer, AStopRequestEndsTheRunAtTheLastStepsCheckpoint) {
-  long3r::TrainConfig c = tiny_config();
-  c.validation.sequences = 1;
-  c.validation.frames = 3;
-  c.validation.every = 0;
-  c.data.synth.val_scenes = 1;
+  const long3r::TrainConfig c = tiny_config_validated_at_end();
   long3r::TrainOptions o;
   o.quiet = true;
   o.out_dir = scratch("stop_request");

@@ -116,6 +116,28 @@ def processes_of_rank(train, out, rank):
     return pids
 
 
+def signal_rank_1_at_step_2(a, cfg, out_dir, sig):
+    """Runs two ranks under torchrun into out_dir and sends `sig` to rank 1
+    once rank 0 logs step 2. Returns the job's exit code, its output (lines)
+    and when the signal went (None if the run never reached step 2)."""
+    cmd = torchrun(a, ["--config", cfg, "--threads", "1", "--seed", "3", "--out", out_dir])
+    job = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    out = []
+    t_signal = None
+    t0 = time.time()
+    for line in job.stdout:
+        out.append(line)
+        if t_signal is None and re.search(r"step +2/", line):
+            pids = processes_of_rank(a.train, out_dir, 1)
+            check(len(pids) == 1, "one rank-1 process: %s" % pids)
+            os.kill(pids[0], sig)
+            t_signal = time.time()
+        if time.time() - t0 > 300:
+            job.kill()
+            check(False, "the job did not end after signal %d to rank 1: %s" % (sig, "".join(out)))
+    return job.wait(), out, t_signal
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--train", required=True)
@@ -174,24 +196,9 @@ def main():
     # A SIGTERM to rank 1 alone: both ranks stop after the same step, rank 0
     # writes that step's checkpoint and outputs, and the job succeeds.
     stopped = os.path.join(a.workdir, "stopped")
-    cmd = torchrun(a, ["--config", cfg, "--threads", "1", "--seed", "3", "--out", stopped])
-    job = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    out = []
-    signalled = False
-    t0 = time.time()
-    for line in job.stdout:
-        out.append(line)
-        if not signalled and re.search(r"step +2/", line):
-            pids = processes_of_rank(a.train, stopped, 1)
-            check(len(pids) == 1, "one rank-1 process: %s" % pids)
-            os.kill(pids[0], signal.SIGTERM)
-            signalled = True
-        if time.time() - t0 > 300:
-            job.kill()
-            check(False, "the job did not end after SIGTERM: " + "".join(out))
-    rc = job.wait()
+    rc, out, t_signal = signal_rank_1_at_step_2(a, cfg, stopped, signal.SIGTERM)
     text = "".join(out)
-    check(signalled, "the run reached step 2: " + text)
+    check(t_signal is not None, "the run reached step 2: " + text)
     check(rc == 0, "a job whose rank was asked to stop succeeds: " + text)
     ended = re.search(r"stop requested: ending after step (\d+)", text)
     check(ended is not None and "stopped by stop_request" in text,
@@ -207,25 +214,9 @@ def main():
 
     # A rank killed mid-run: the job ends, naming it.
     killed = os.path.join(a.workdir, "killed")
-    cmd = torchrun(a, ["--config", cfg, "--threads", "1", "--seed", "3", "--out", killed])
-    job = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    out = []
-    victim = None
-    t0 = time.time()
-    for line in job.stdout:
-        out.append(line)
-        if victim is None and re.search(r"step +2/", line):
-            pids = processes_of_rank(a.train, killed, 1)
-            check(len(pids) == 1, "one rank-1 process: %s" % pids)
-            victim = pids[0]
-            os.kill(victim, signal.SIGKILL)
-            t_kill = time.time()
-        if time.time() - t0 > 300:
-            job.kill()
-            check(False, "the job did not end: " + "".join(out))
-    rc = job.wait()
+    rc, out, t_kill = signal_rank_1_at_step_2(a, cfg, killed, signal.SIGKILL)
     text = "".join(out)
-    check(victim is not None, "the run reached step 2: " + text)
+    check(t_kill is not None, "the run reached step 2: " + text)
     check(rc != 0, "a job with a killed rank fails")
     print("the job ended %.1f s after rank 1 was killed; its last lines:" % (time.time() - t_kill))
     print("".join(out[-30:]))
