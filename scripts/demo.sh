@@ -10,7 +10,7 @@
 # odometry scale; README, "Metric scale and pose source"); --pose-source and
 # --scale-source choose otherwise (scripts/units_table.sh runs each pair).
 #   bash scripts/demo.sh [OUT_DIR] [--frames N] [--model FILE] [--robot]
-#        [--pose-source model|odometry] [--scale-source none|odometry|depth]
+#        [--pose-source model|keyframes|odometry] [--scale-source none|odometry|depth]
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 

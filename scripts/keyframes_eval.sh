@@ -8,9 +8,15 @@
 # the same tracker given a constant-depth plane instead of the model's depth
 # (--tracker-constant-depth), which the model's depth must beat, and given
 # the sequence's true depth (--tracker-true-depth), what a perfect depth
-# would leave of the error (the tracker's own).
+# would leave of the error (the tracker's own). depth_camera: an RGB-D
+# camera's run (--scale-source depth, the tracker lifting its features by the
+# depth images), its path in metres: its ATE without the scale alignment
+# (SE(3)) beside the Sim(3) one; depth_scale: the same camera with the depth
+# giving only the scale (--tracker-depth-images false: the tracker lifts by
+# the model's depth, as for a monocular camera).
 #   bash scripts/keyframes_eval.sh [--stride N] [--frames N] [--model FILE] [--out DIR]
-# Defaults: stride 2, 60 frames, the shipped model, build/keyframes_eval.
+#        [--sources "model keyframes plane true_depth depth_camera depth_scale"]
+# Defaults: stride 2, 60 frames, the shipped model, build/keyframes_eval, every source.
 # Extra arguments after -- go to long3r_reconstruct (e.g. -- --tracker-solver essential).
 set -euo pipefail
 source "$(dirname "$0")/env.sh"
@@ -19,8 +25,10 @@ stride=2
 frames=60
 model="$root/models/default.safetensors"
 out="$root/build/keyframes_eval"
+sources="model keyframes plane true_depth depth_camera depth_scale"
 extra=()
-long3r_parse_args --stride=stride --frames=frames --model=model --out=out --=extra -- "$@"
+long3r_parse_args --stride=stride --frames=frames --model=model --out=out --sources=sources \
+  --=extra -- "$@"
 bin=$LONG3R_CORE
 long3r_build_core app_long3r_synth app_long3r_reconstruct app_long3r_eval
 mkdir -p "$out"
@@ -42,15 +50,22 @@ print('%.4f' % math.sqrt(sum(sum((a - b) ** 2 for a, b in zip(q, m)) for q in p)
 EOF
 )
   line="seed $seed (still camera $(ratio "$still" 0.0001) cm):"
-  for source in model keyframes plane true_depth; do
+  for source in $sources; do
     run="$out/${seed}_${source}_s${stride}"
     args=(--pose-source "$source")
     [ "$source" = plane ] && args=(--pose-source keyframes --tracker-constant-depth)
     [ "$source" = true_depth ] && args=(--pose-source keyframes --tracker-true-depth)
+    [ "$source" = depth_camera ] && args=(--pose-source keyframes --scale-source depth)
+    [ "$source" = depth_scale ] &&
+      args=(--pose-source keyframes --scale-source depth --tracker-depth-images false)
     "$bin/long3r_reconstruct" --model "$model" --out "$run" --stride "$stride" \
       --max-frames "$frames" "${args[@]}" "${extra[@]}" "$seq" > "$run.log" 2>&1
     ate=$("$bin/long3r_eval" --gt "$seq" --est-traj "$run/trajectory.txt" --out "$run/eval" | awk '/ATE RMSE/{print $4}')
     line="$line  $source ATE $ate cm ($(ratio "$ate" "$still")x)"
+    if [ "$source" = depth_camera ] || [ "$source" = depth_scale ]; then
+      se3=$("$bin/long3r_eval" --gt "$seq" --est-traj "$run/trajectory.txt" --no-scale --out "$run/eval_se3" | awk '/ATE RMSE/{print $4}')
+      line="$line, in metres (SE(3)) $se3 cm ($(ratio "$se3" "$still")x)"
+    fi
     if [ "$source" = keyframes ]; then
       ms=$(/usr/bin/python3 - "$run/frames.csv" <<'EOF'
 import csv, statistics, sys
@@ -66,4 +81,5 @@ EOF
   echo "$line"
 done
 # The CPU the times were measured on (long3r_reconstruct's summary).
-grep -m1 '^ *cpu ' "$out/2000000_keyframes_s${stride}.log" | sed 's/^ */tracking times measured on: /'
+grep -m1 -h '^ *cpu ' "$out"/2000000_*_s"${stride}".log | head -1 |
+  sed 's/^ */tracking times measured on: /'

@@ -24,7 +24,7 @@ done
 mkdir -p "$out"
 out=$(cd "$out" && pwd)
 
-pairs=("model odometry" "model depth" "odometry odometry" "odometry depth")
+pairs=("model odometry" "model depth" "keyframes depth" "odometry odometry" "odometry depth")
 for pair in "${pairs[@]}"; do
   read -r pose scale <<<"$pair"
   echo "== pose_source $pose, scale_source $scale"

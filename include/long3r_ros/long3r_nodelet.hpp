@@ -93,7 +93,7 @@ class Long3rNodelet : public nodelet::Nodelet,
   // long3r::LiveSessionClient: what the session asks of ROS, and its results.
   std::optional<Eigen::Isometry3d> place(const long3r::LiveFrame& frame) override;
   Eigen::Vector3d odometry_camera_position_m(const long3r::LiveResult& result) override;
-  cv::Mat depth(const long3r::LiveResult& result) override;
+  cv::Mat depth(const std::any& tag) override;
   void on_result(long3r::LiveResult& result) override;
   std::optional<Eigen::Isometry3d> T_map_W() override;
   void on_new_stream(const std::string& why) override;

@@ -156,8 +156,8 @@ class Client : public LiveSessionClient {
     }
     return src_.tum->frame(i).pose->translation();
   }
-  cv::Mat depth(const LiveResult& r) override {
-    const std::size_t i = std::any_cast<std::size_t>(r.tag);
+  cv::Mat depth(const std::any& tag) override {
+    const std::size_t i = std::any_cast<std::size_t>(tag);
     if (!src_.tum || src_.tum->frame(i).depth_path.empty()) {
       throw Unavailable("depth missing",
                         "frame " + std::to_string(i) + " has no depth image (scale_source depth)");
@@ -273,8 +273,9 @@ int main(int argc, char** argv) {
   cli.flag("--tracker-true-depth", &tracker_true_depth,
            "a control for measuring the tracker: it lifts its keyframes' features by the TUM "
            "folder's depth images (the model's rays at the true depth) instead of the model's "
-           "depth, so that what the model's depth costs the path shows; the map keeps the "
-           "model's (measure the path, not the map)");
+           "depth, from the first frame whatever --scale-source, so that what the model's depth "
+           "costs the path shows; the map's points take each depth image's scale (measure the "
+           "path, not the map)");
   cli.section("Pipeline and session (the node's parameters, README \"Parameters\")");
   add_config_options(cli, &cfg);
   add_config_options(cli, &session_cfg);
@@ -353,6 +354,11 @@ int main(int argc, char** argv) {
         throw std::runtime_error(
             "--tracker-true-depth and --tracker-constant-depth both replace the model's depth "
             "for the tracker: give one of --tracker-true-depth and --tracker-constant-depth");
+      }
+      if (session_cfg.scale.source == ScaleSource::kDepth && session_cfg.tracker_depth_images) {
+        throw std::runtime_error(
+            "--tracker-true-depth with --scale-source depth: the tracker lifts its features by "
+            "the depth images already (--tracker-depth-images); give one of them");
       }
     }
     const ScaleSource scale_source = session_cfg.scale.source;

@@ -351,9 +351,7 @@ Eigen::Vector3d Long3rNodelet::odometry_camera_position_m(const long3r::LiveResu
   return placement_->cameraPositionInOdom(headerOf(result.tag).stamp);
 }
 
-cv::Mat Long3rNodelet::depth(const long3r::LiveResult& result) {
-  return stamped_->depth(headerOf(result.tag).stamp);
-}
+cv::Mat Long3rNodelet::depth(const std::any& tag) { return stamped_->depth(headerOf(tag).stamp); }
 
 void Long3rNodelet::on_event(const long3r::LiveEvent& e) {
   if (e.frame_dropped) diagnostics_->droppedInput();

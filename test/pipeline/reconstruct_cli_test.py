@@ -87,7 +87,9 @@ def main():
                       (["--pose-source", "keyframes", "--calib", "50", "50", "48", "32", seq],
                        "its own undistorted calibration.txt"),
                       (["--pose-source", "keyframes", "--tracker-constant-depth", seq],
-                       "give one of --tracker-true-depth and --tracker-constant-depth")):
+                       "give one of --tracker-true-depth and --tracker-constant-depth"),
+                      (["--pose-source", "keyframes", "--scale-source", "depth", seq],
+                       "lifts its features by the depth images already")):
         rc, log = run([a.reconstruct, "--model", model, "--out", out, "--img-size", "64",
                        "--tracker-true-depth"] + args)
         check(rc != 0 and why in log, "--tracker-true-depth %s: %s" % (args, log))

@@ -4,8 +4,9 @@
 # (make_timing_bag.py), a longer sequence for the live publisher
 # (live_input_check.py), the same sequence as compressed images, robot-like
 # bags (tum_to_bag.py --robot: TF tree, wheel odometry, registered depth) of one
-# scene through an undistorted and a distorted lens, and a small random-weight
-# model.
+# scene through an undistorted and a distorted lens, the same path at 320 x 240
+# (robot_qvga: enough image features for the keyframe tracker, which finds
+# too few at 160 x 120), and a small random-weight model.
 # Usage: make_replay_data.sh BIN_DIR OUT_DIR
 set -euo pipefail
 bin=$1
@@ -28,10 +29,11 @@ rm -rf "$out/live"
 # One robot path through one room, rendered through a pinhole and through a
 # plumb_bob lens (the distorted run is rectified by the node).
 robot=(--trajectory robot --frames 40 --width 160 --height 120 --seed 7 --quiet)
-rm -rf "$out/robot" "$out/robot_distorted"
+rm -rf "$out/robot" "$out/robot_distorted" "$out/robot_qvga"
 "$bin/long3r_synth" --out "$out/robot" "${robot[@]}"
 "$bin/long3r_synth" --out "$out/robot_distorted" "${robot[@]}" --distortion -0.25 0.08 0.001 -0.001 0
-for s in robot robot_distorted; do
+"$bin/long3r_synth" --out "$out/robot_qvga" "${robot[@]}" --width 320 --height 240
+for s in robot robot_distorted robot_qvga; do
   /usr/bin/python3 "$root/scripts/tum_to_bag.py" "$out/$s" "$out/$s.bag" --robot \
     --depth-topic /camera/depth/image_raw --time-offset 1000 >/dev/null
 done

@@ -19,7 +19,9 @@ and odom_frame set:
     adopted, the map stays in model units);
   * with --eval, the saved map is scored against the ground truth (long3r_eval,
     metrics.json under OUT/robot_MODE_eval) and, with --max-scale-error > 0,
-    its Sim(3) scale must be within that of 1;
+    its Sim(3) scale must be within that of 1; with --max-ate-m > 0 the saved
+    path's ATE must be below it and its Sim(3) scale within --max-scale-error
+    of 1 (a path in metres);
   * map -> odom has one history: the nodelet's stamps only grow, as sent;
     map -> base resolves at each posed frame's stamp when its ~odometry
     arrives (inside the latency window), and later to the same transform;
@@ -266,7 +268,7 @@ class RobotCheck(unittest.TestCase):
 
         # ~odometry for every posed frame in metres, with a PD covariance;
         # the model's poses in model units are held.
-        held = [p for p in pms if ARGS.pose_source == 'model' and not p.metric]
+        held = [p for p in pms if ARGS.pose_source != 'odometry' and not p.metric]
         # The ~odometry of the last frames may still be on its way when their
         # ~pointmaps have been counted: wait for the messages checked, not for
         # quiet.
@@ -358,6 +360,13 @@ class RobotCheck(unittest.TestCase):
             if ARGS.max_scale_error > 0:
                 self.assertLess(abs(scale - 1.0), ARGS.max_scale_error,
                                 'the map is not metric: Sim(3) scale %.4f' % scale)
+            path = metrics['trajectory']
+            rospy.loginfo('path: ATE %.4f m, Sim(3) scale against the ground truth %.4f',
+                          path['ate_m']['rmse'], path['sim3']['scale'])
+            if ARGS.max_ate_m > 0:
+                self.assertLess(path['ate_m']['rmse'], ARGS.max_ate_m)
+                self.assertLess(abs(path['sim3']['scale'] - 1.0), ARGS.max_scale_error,
+                                'the path is not metric: Sim(3) scale %.4f' % path['sim3']['scale'])
 
     def check_surface(self, rec):
         """~surface and ~mesh in map, latched, coloured, on the map's points;
@@ -560,7 +569,9 @@ if __name__ == '__main__':
     parser.add_argument('--odom-covariance', action='store_true')
     parser.add_argument('--placed-only', action='store_true')
     parser.add_argument('--rival', action='store_true')
-    parser.add_argument('--pose-source', default='model', choices=['model', 'odometry'])
+    parser.add_argument('--pose-source', default='model', choices=['model', 'keyframes', 'odometry'])
+    parser.add_argument('--max-ate-m', type=float, default=0.0,
+                        help='with --eval: the saved path\'s ATE bound (0: not checked)')
     ARGS, rest = parser.parse_known_args(rospy.myargv()[1:])
     rospy.init_node('robot_check')
     rostest.rosrun('long3r_ros', 'robot_check', RobotCheck, [sys.argv[0]] + rest)

@@ -46,8 +46,8 @@ struct Recorder : LiveSessionClient {
     if (k == 5) throw Unavailable("tf scale", "odometry scale: no odometry at frame 5");
     return odometry_scale * g->T_0_k[static_cast<std::size_t>(k)].translation();
   }
-  cv::Mat depth(const LiveResult& r) override {
-    const cv::Mat z = gt_depth(*g, std::any_cast<int>(r.tag)) * depth_scale;
+  cv::Mat depth(const std::any& tag) override {
+    const cv::Mat z = gt_depth(*g, std::any_cast<int>(tag)) * depth_scale;
     if (depth_type == CV_32FC1) return z;
     cv::Mat out;
     z.convertTo(out, depth_type, depth_type == CV_16UC1 ? 1000.0 : 1.0);

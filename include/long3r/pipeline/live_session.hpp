@@ -14,7 +14,9 @@
 //   - metric scale (metric_scale.hpp): samples from the odometry's camera
 //     displacements or from registered depth images, asked of the client when
 //     a frame's result is known; once the estimate converges the stream is
-//     rescaled, and every result leaves here in the stream's final scale;
+//     rescaled, and every result leaves here in the stream's final scale
+//     (with the keyframe tracker lifting its features by the depth images,
+//     tracker_depth_images, the first depth sample is applied at once);
 //   - the maps of ended streams: a new stream never wipes the map the user
 //     built; the ending stream's map is kept in the client's map frame
 //     (LiveSessionClient::T_map_W) beside the new one, saved with sessions,
@@ -60,6 +62,14 @@ struct LiveSessionConfig {
   double relocalise_for_s = 30.0;
   // The images arrive rectified: a calibration's distortion is not applied again.
   bool image_is_rectified = false;
+  // With pose_method keyframes and scale_source depth (an RGB-D camera), the
+  // keyframe tracker lifts its features by the depth images rather than the
+  // model's depth, so that the path keeps the camera's metric scale instead
+  // of chaining the model's from keyframe to keyframe; the first depth
+  // image's scale is applied at once and kept, and each frame's points reach
+  // the map at its own depth image's scale (docs/model_card.md, "A depth
+  // camera for the tracker"). Off: the model's depth, as for a monocular camera.
+  bool tracker_depth_images = true;
   // What the calibrations are called in messages ("camera_info", "calibration.txt").
   std::string calibration_source = "calibration";
 
@@ -71,6 +81,7 @@ struct LiveSessionConfig {
 template <class S, class V>
 config::FieldsOf<S, LiveSessionConfig> visit_fields(S& s, V& v) {
   v("image_is_rectified", s.image_is_rectified);
+  v("tracker_depth_images", s.tracker_depth_images);
   v("lost_reset_frames", s.lost_reset_frames, "(no bound)");
   v("relocalise_for_s", s.relocalise_for_s, "(no bound)");
   v.nested("stream", s.stream, "");
@@ -133,9 +144,11 @@ class LiveSessionClient {
   // at the result's stamp. Throwing Unavailable skips this sample.
   virtual Eigen::Vector3d odometry_camera_position_m(const LiveResult& result);
   // scale_source depth: a depth image registered to the raw source image of
-  // the result: CV_16UC1 millimetres (RGB-D drivers) or CV_32FC1 metres, 0 or
-  // NaN where there is none. Throwing Unavailable skips this sample.
-  virtual cv::Mat depth(const LiveResult& result);
+  // the frame tagged `tag` (LiveFrame::tag): CV_16UC1 millimetres (RGB-D
+  // drivers) or CV_32FC1 metres, 0 or NaN where there is none. Asked once a
+  // frame, when the model's result for it is known. Throwing Unavailable
+  // skips this frame's sample (and its depth for the tracker).
+  virtual cv::Mat depth(const std::any& tag);
 
   // Sessions: what the client keeps per stream that a saved session must
   // keep too (the node: where W sits in its map frame). Saved with the
@@ -260,6 +273,7 @@ class LiveSession {
   struct Pending {  // a frame the model took, awaiting its result
     std::any tag;
     cv::Size image_size;
+    double stamp_s = 0.0;
   };
   void process(LiveFrame frame);
   cv::Mat calibrate(const LiveFrame& frame);
@@ -267,6 +281,7 @@ class LiveSession {
   void track_loss(const FrameResult& r);
   void update_scale(LiveResult& result);
   std::optional<double> depth_sample(const LiveResult& result);
+  cv::Mat registered_depth(const std::any& tag, double stamp_s, const cv::Size& image_size);
   void new_stream(const std::string& why, bool keep_map);
   void keep_ended_map();
   void start_stream_scale();
@@ -297,6 +312,12 @@ class LiveSession {
   StreamMonitor monitor_;
   std::optional<LiveFrame> held_;  // see StreamMonitor::kHold
   std::deque<Pending> pending_;
+  // The last frame's depth image as registered_depth() gave it (empty: none).
+  struct DepthImage {
+    double stamp_s = 0.0;
+    cv::Mat metres;
+  };
+  std::optional<DepthImage> depth_;
   CameraRectifier rectifier_;
   ScalePolicy scale_policy_;
   OdometryScaleSampler scale_sampler_;

@@ -209,16 +209,22 @@ class Reconstruction {
   // path, scale and frame indices), as after flush().
   void restore(const StateDict& state);
 
-  // A control for measurements (long3r_reconstruct --tracker-true-depth):
-  // the keyframe tracker lifts its features by the depth this returns for
-  // the frame of stamp_s (CV_32FC1 metres registered to the source image as
-  // pushed, 0 or NaN where there is none) rather than by the model's, so
-  // that what the model's depth costs the path shows. The model's rays are
-  // kept; the map keeps the model's depth (then not the path's scale: the
-  // path is what to measure). A depth image of another size than the
-  // image is a std::invalid_argument. Not a parameter of the node. Empty: off.
+  // A depth camera for the keyframe tracker: the depth this returns for the
+  // frame of stamp_s (CV_32FC1 registered to the source image as pushed, in
+  // the stream's lengths, 0 or NaN where there is none; empty: none for this
+  // frame) lifts the tracker's features instead of the model's depth (the
+  // model's rays at the given depth), and the frame's points reach the map
+  // at the depth image's scale (the median ratio of the two depths, as
+  // depth_scale_sample measures it) rather than the tracker's Sim(3). A
+  // frame whose depth covers fewer than 100 confident pixels is tracked by
+  // the model's depth. LiveSession sets it for pose_method keyframes with
+  // scale_source depth (its depth images, from the first frame after the
+  // stream became metric); long3r_reconstruct's
+  // --tracker-true-depth sets it as a control (the sequence's true depth, in
+  // metres whatever the stream's scale: the path is what to measure). A
+  // depth image of another size than the image is a std::invalid_argument.
   // It takes the place of tracker_constant_depth where both are set
-  // (long3r_reconstruct refuses the two together).
+  // (long3r_reconstruct refuses the two together). Empty: off.
   using TrackerDepthSource = std::function<cv::Mat(double stamp_s)>;
   void set_tracker_depth_source(TrackerDepthSource source) {
     tracker_depth_source_ = std::move(source);

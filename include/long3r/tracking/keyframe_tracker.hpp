@@ -24,7 +24,9 @@
 //      turning camera): PnP's;
 //   4. the frame's own scale against the stream's: the median ratio of its
 //      matched points' predicted depth to its pointmap's depth (Sim(3)), so
-//      the map does not follow the model's per-frame scale;
+//      the map does not follow the model's per-frame scale (1 where a depth
+//      camera's depth lifted the frame: the chain of ratios would only add
+//      its noise to a depth already in the stream's scale);
 //   5. a new keyframe when the parallax, the share of the keyframe's
 //      features still matched, or the frames since the keyframe say so;
 //      a frame the keyframe no longer sees is tried against the last
@@ -188,6 +190,14 @@ struct TrackerFrame {
   Eigen::Matrix3d K;  // its intrinsics (pixel centres at integers)
   cv::Mat points_C;   // CV_32FC3 [h, w]: the model's pointmap in C, its own scale
   Eigen::Matrix3d model_to_image = Eigen::Matrix3d::Identity();  // model pixel -> image pixel
+  // A depth camera's depth (CV_32FC1, the image's size and registered to it,
+  // in the stream's scale; 0 or NaN where there is none), or empty. Given,
+  // it lifts each feature along its own ray by the median depth of its 3 x 3
+  // pixels rather than by the pointmap's nearest point, and the frame's
+  // scale is 1, not measured
+  // against the keyframe's (step 4 still measures how far its depth lies
+  // from the keyframe's points). points_C should then be at this depth too.
+  cv::Mat depth;
 };
 
 enum class TrackStatus {
@@ -238,8 +248,9 @@ struct KeptKeyframe {
 };
 // The median depth of a keyframe's points (1 without any).
 double median_depth(const std::vector<std::optional<Eigen::Vector3d>>& points);
-// The frame's pointmap point under an image pixel (the nearest model pixel),
-// if finite; image_to_model is frame.model_to_image's inverse.
+// The frame's point under an image pixel: on the pixel's ray at its depth
+// image's depth where the frame has one, else the pointmap's at the nearest
+// model pixel; if finite. image_to_model is frame.model_to_image's inverse.
 std::optional<Eigen::Vector3d> point_at(const TrackerFrame& frame,
                                         const Eigen::Matrix3d& image_to_model,
                                         const cv::Point2f& pixel);

@@ -22,6 +22,25 @@ ReconstructionConfig with_scale_source(ReconstructionConfig c, ScaleSource sourc
   return c;
 }
 
+// Whether the keyframe tracker lifts its features by the depth images.
+bool tracks_by_depth(const LiveSessionConfig& config, const ReconstructionConfig& reconstruction) {
+  return config.tracker_depth_images && config.scale.source == ScaleSource::kDepth &&
+         reconstruction.pose_method == PoseMethod::kKeyframes;
+}
+
+// The scale policy's settings: a tracker lifted by metric depth needs the
+// stream metric before it and never rescaled after (its keyframes' points
+// are the camera's metres), so the first depth sample is applied at once.
+MetricScaleConfig scale_policy_config(const LiveSessionConfig& config,
+                                      const ReconstructionConfig& reconstruction) {
+  MetricScaleConfig c = config.scale;
+  if (tracks_by_depth(config, reconstruction)) {
+    c.min_samples = 1;
+    c.freeze = true;
+  }
+  return c;
+}
+
 std::string format(const char* fmt, double a, double b = 0.0) {
   char buf[256];
   std::snprintf(buf, sizeof(buf), fmt, a, b);
@@ -66,7 +85,7 @@ Eigen::Vector3d LiveSessionClient::odometry_camera_position_m(const LiveResult&)
   throw Unavailable("odometry", "odometry scale: this input has no odometry");
 }
 
-cv::Mat LiveSessionClient::depth(const LiveResult&) {
+cv::Mat LiveSessionClient::depth(const std::any&) {
   throw Unavailable("depth missing", "depth scale: this input has no depth images");
 }
 
@@ -78,10 +97,25 @@ LiveSession::LiveSession(std::unique_ptr<StreamingModel> model,
       recon_(std::move(model), with_scale_source(reconstruction, config.scale.source)),
       ended_maps_(reconstruction.map),
       monitor_(config.stream),
-      scale_policy_(config.scale),
+      scale_policy_(scale_policy_config(config, reconstruction)),
       scale_sampler_(config.scale) {
   config_.validate(config::FieldCheck{"live session config", ""});
   start_stream_scale();
+  if (tracks_by_depth(config_, recon_.config())) {
+    // The frame being finished is the oldest pending one with its stamp.
+    recon_.set_tracker_depth_source([this](double stamp_s) {
+      if (!scale_policy_.metric()) return cv::Mat();  // lengths in model units still
+      for (const Pending& p : pending_) {
+        if (p.stamp_s == stamp_s) return registered_depth(p.tag, stamp_s, p.image_size);
+      }
+      return cv::Mat();
+    });
+    info("scale",
+         "the keyframe tracker lifts its features by the depth images "
+         "(tracker_depth_images): the first depth image's scale is applied at once "
+         "and kept for the stream (scale_min_samples and scale_freeze do not apply), "
+         "and each frame's points reach the map at its depth image's scale");
+  }
 }
 
 void LiveSession::info(const std::string& kind, const std::string& message) {
@@ -180,7 +214,7 @@ void LiveSession::process(LiveFrame frame) {
   }
   std::optional<FrameResult> result = recon_.push(image, frame.encoding, frame.stamp_s, T_W_C);
   // Only a frame the model took awaits a result.
-  pending_.push_back({std::move(frame.tag), image.size()});
+  pending_.push_back({std::move(frame.tag), image.size(), frame.stamp_s});
   status_.stream_frames = recon_.frames_pushed();
   if (result) deliver(std::move(*result));
 }
@@ -250,6 +284,7 @@ void LiveSession::new_stream(const std::string& why, bool keep_map) {
   }
   pending_.clear();
   held_.reset();
+  depth_.reset();
   status_.lost_frames = 0;
   status_.lost_for_s = 0.0;
   status_.stream_frames = 0;
@@ -496,6 +531,7 @@ void LiveSession::load(const std::string& path) {
   monitor_.reset();
   held_.reset();
   pending_.clear();
+  depth_.reset();
   status_.lost_frames = 0;
   status_.lost_for_s = 0.0;
   status_.tracking = recon_.frames_pushed() > 0 ? "ok" : "not started";
@@ -621,7 +657,10 @@ void LiveSession::track_loss(const FrameResult& r) {
 void LiveSession::update_scale(LiveResult& result) {
   FrameResult& r = result.frame;
   std::optional<double> sample;
-  if (config_.scale.source == ScaleSource::kDepth) {
+  if (config_.scale.source == ScaleSource::kDepth && tracks_by_depth(config_, recon_.config()) &&
+      scale_policy_.metric()) {
+    // Kept for the stream: the frames' own depth images scale their points.
+  } else if (config_.scale.source == ScaleSource::kDepth) {
     sample = depth_sample(result);
   } else if (config_.scale.source == ScaleSource::kOdometry && r.baseline_scale) {
     // Placed by odometry: the images over its baseline, not the model's motion.
@@ -659,20 +698,35 @@ void LiveSession::update_scale(LiveResult& result) {
 // measured / predicted depth for this result (metric_scale.hpp).
 std::optional<double> LiveSession::depth_sample(const LiveResult& result) {
   const FrameResult& r = result.frame;
+  const cv::Mat metres = registered_depth(result.tag, r.stamp, result.image_size);
+  if (metres.empty()) return std::nullopt;
+  const ReconstructionConfig& rc = recon_.config();
+  const ResizeCropPlan plan = plan_resize_crop(metres.cols, metres.rows, rc.preprocess);
+  const cv::Mat measured =
+      depth_at_model_pixels(metres, plan.model_to_source, r.conf.cols, r.conf.rows);
+  std::vector<cv::Mat> xyz;
+  cv::split(r.points_C, xyz);
+  const cv::Mat predicted = xyz[2] / r.scale;  // model units
+  return depth_scale_sample(predicted, measured, r.conf, rc.conf_threshold);
+}
+
+// The frame's depth image in metres, rectified as its image was; empty (with
+// a warning) where there is none or it cannot be used. Asked of the client
+// once a frame: the tracker's and the scale's use the same.
+cv::Mat LiveSession::registered_depth(const std::any& tag, double stamp_s,
+                                      const cv::Size& image_size) {
+  if (depth_ && depth_->stamp_s == stamp_s) return depth_->metres;
+  depth_ = DepthImage{stamp_s, cv::Mat()};
   cv::Mat metres;
   try {
-    metres = client_.depth(result);
+    metres = depth_in_metres(client_.depth(tag));
   } catch (const LiveSessionClient::Unavailable& e) {
     warn(e.kind(), e.what());
-    return std::nullopt;
-  }
-  try {
-    metres = depth_in_metres(metres);
-  } catch (const std::exception& e) {
+    return {};
+  } catch (const std::invalid_argument& e) {
     warn("depth encoding", std::string("depth image not used: ") + e.what());
-    return std::nullopt;
+    return {};
   }
-  const cv::Size& image_size = result.image_size;
   // Registered to the raw image: rectified as the image was, without blending depths.
   if (metres.size() == image_size && rectifier_.rectifies()) {
     metres = rectifier_.prepare(metres, cv::INTER_NEAREST);
@@ -682,16 +736,10 @@ std::optional<double> LiveSession::depth_sample(const LiveResult& result) {
                            std::to_string(metres.rows) + " is not registered to the images (" +
                            std::to_string(image_size.width) + "x" +
                            std::to_string(image_size.height) + ")");
-    return std::nullopt;
+    return {};
   }
-  const ReconstructionConfig& rc = recon_.config();
-  const ResizeCropPlan plan = plan_resize_crop(metres.cols, metres.rows, rc.preprocess);
-  const cv::Mat measured =
-      depth_at_model_pixels(metres, plan.model_to_source, r.conf.cols, r.conf.rows);
-  std::vector<cv::Mat> xyz;
-  cv::split(r.points_C, xyz);
-  const cv::Mat predicted = xyz[2] / r.scale;  // model units
-  return depth_scale_sample(predicted, measured, r.conf, rc.conf_threshold);
+  depth_->metres = metres;
+  return metres;
 }
 
 }  // namespace long3r

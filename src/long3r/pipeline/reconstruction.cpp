@@ -583,19 +583,30 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
     TrackerFrame frame;
     frame.gray = p.gray;
     frame.K = source_camera_matrix(p.image.model_to_source);
-    // The controls replace the model's depth (the true depth over the plane).
+    // A depth camera's depth, where one is given for the frame and covers
+    // enough of it, replaces the model's (and the constant-depth control).
+    std::optional<double> depth_ratio;  // the depth image's over the model's, at this frame
     if (tracker_depth_source_) {
       const cv::Mat metres = tracker_depth_source_(p.stamp);
-      if (metres.cols != source_width_ || metres.rows != source_height_) {
+      if (!metres.empty() && (metres.cols != source_width_ || metres.rows != source_height_)) {
         throw std::invalid_argument(
             "a depth image for the tracker of " + std::to_string(metres.cols) + "x" +
             std::to_string(metres.rows) + " is not registered to the " +
             std::to_string(source_width_) + "x" + std::to_string(source_height_) + " image");
       }
-      frame.points_C = at_depth(
-          r.points_C,
-          depth_at_model_pixels(metres, p.image.model_to_source, r.points_C.cols, r.points_C.rows));
-    } else {
+      if (!metres.empty()) {
+        const cv::Mat measured = depth_at_model_pixels(metres, p.image.model_to_source,
+                                                       r.points_C.cols, r.points_C.rows);
+        std::vector<cv::Mat> xyz;
+        cv::split(r.points_C, xyz);
+        depth_ratio = depth_scale_sample(xyz[2], measured, r.conf, config_.map.conf_threshold);
+        if (depth_ratio) {
+          frame.points_C = at_depth(r.points_C, measured);
+          frame.depth = metres;
+        }
+      }
+    }
+    if (!depth_ratio) {
       frame.points_C = config_.tracker_constant_depth ? at_median_depth(r.points_C) : r.points_C;
     }
     frame.model_to_image = p.image.model_to_source.matrix();
@@ -617,7 +628,10 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
       r.pose.T_W_C = r.tracking->posed() ? r.tracking->T_W_C : prior;
       placed_.push_back({r.frame_index, r.pose.T_W_C, r.model_T_W_C});
       if (placed_.size() > 2) placed_.pop_front();
-      if (r.tracking->scale != 1.0) r.points_C *= r.tracking->scale;
+      // The frame's points in the stream's scale: by its depth image where
+      // it has one, else by the tracker's Sim(3).
+      const double scale = depth_ratio ? *depth_ratio : r.tracking->scale;
+      if (scale != 1.0) r.points_C *= scale;
       r.points_W = transform_points(r.points_C, r.pose.T_W_C);
     }
   }

@@ -9,6 +9,7 @@
 #include <opencv2/features2d.hpp>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <iterator>
@@ -137,6 +138,27 @@ KeyframeTracker::KeyframeTracker(const KeyframeTrackerConfig& config) : config_(
 std::optional<Eigen::Vector3d> point_at(const TrackerFrame& f,
                                         const Eigen::Matrix3d& image_to_model,
                                         const cv::Point2f& px) {
+  if (!f.depth.empty()) {
+    const int x = static_cast<int>(std::lround(px.x)), y = static_cast<int>(std::lround(px.y));
+    if (x < 0 || y < 0 || x >= f.depth.cols || y >= f.depth.rows) return std::nullopt;
+    // The median of the valid depths around it: a corner often sits on a
+    // depth edge, where one pixel may belong to either side or be a hole
+    // (measured on generated 200-frame sets: docs/model_card.md, "A depth
+    // camera for the tracker").
+    std::array<float, 9> around{};
+    std::size_t n = 0;
+    for (int yy = std::max(0, y - 1); yy <= std::min(f.depth.rows - 1, y + 1); ++yy) {
+      for (int xx = std::max(0, x - 1); xx <= std::min(f.depth.cols - 1, x + 1); ++xx) {
+        const float q = f.depth.at<float>(yy, xx);
+        if (std::isfinite(q) && q > 0.0f) around[n++] = q;
+      }
+    }
+    if (n == 0) return std::nullopt;
+    std::nth_element(around.begin(), around.begin() + n / 2, around.begin() + n);
+    const float d = around[n / 2];
+    const Eigen::Vector3d ray = f.K.inverse() * Eigen::Vector3d(px.x, px.y, 1.0);
+    return ray * (static_cast<double>(d) / ray.z());
+  }
   const Eigen::Vector3d m = image_to_model * Eigen::Vector3d(px.x, px.y, 1.0);
   const int u = static_cast<int>(std::lround(m.x() / m.z()));
   const int v = static_cast<int>(std::lround(m.y() / m.z()));
@@ -248,6 +270,11 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
   }
   if (frame.points_C.empty() || frame.points_C.type() != CV_32FC3) {
     throw std::invalid_argument("KeyframeTracker::track: the pointmap must be CV_32FC3");
+  }
+  if (!frame.depth.empty() &&
+      (frame.depth.type() != CV_32FC1 || frame.depth.size() != frame.gray.size())) {
+    throw std::invalid_argument(
+        "KeyframeTracker::track: the depth image must be CV_32FC1 of the image's size");
   }
   std::vector<cv::KeyPoint> keypoints;
   cv::Mat descriptors;
@@ -535,7 +562,7 @@ TrackResult KeyframeTracker::relative(const KeptKeyframe& kf, const TrackerFrame
   }
   r.scale_measured = !ratios.empty();
   if (r.scale_measured) {
-    r.scale = median(ratios);
+    r.scale = frame.depth.empty() ? median(ratios) : 1.0;
     // How far the frame's own depth, at its scale, lies from the
     // keyframe's points: a ratio of their depth.
     std::vector<double> errors;
