@@ -93,6 +93,17 @@ std::vector<FrameResult> run(Reconstruction& rec, const std::vector<cv::Mat>& im
   return results;
 }
 
+// A frame of the footage as LiveSession takes it: calibrated, tagged.
+LiveFrame live_frame(const Footage& f, const cv::Mat& image, double stamp_s, int tag) {
+  LiveFrame frame;
+  frame.image = image;
+  frame.encoding = "bgr8";
+  frame.stamp_s = frame.clock_s = stamp_s;
+  frame.camera = camera_model(f.seq.config.intrinsics);
+  frame.tag = tag;
+  return frame;
+}
+
 // The footage with frame 3 black (no features at all): the tracker cannot
 // place it, the motion prior does.
 std::vector<FrameResult> run_with_frame_3_dark(const Footage& f, MotionPrior prior) {
@@ -597,13 +608,7 @@ TEST(Relocalisation, ASavedSessionRelocalisesByImagesAndCountsWhatItRefuses) {
   for (int k : {6, 7, 8}) pts.push_back(a.pts_W0[static_cast<std::size_t>(k)]);
   const std::string path = test::scratch_dir("relocalisation") + "/site.l3s";
   auto push = [&](LiveSession& s, const cv::Mat& image, double stamp, int tag) {
-    LiveFrame f;
-    f.image = image;
-    f.encoding = "bgr8";
-    f.stamp_s = f.clock_s = stamp;
-    f.camera = camera_model(a.seq.config.intrinsics);
-    f.tag = tag;
-    s.push(std::move(f));
+    s.push(live_frame(a, image, stamp, tag));
   };
   {
     test::Recorder client;
@@ -647,13 +652,7 @@ struct DepthClient : test::Recorder {
 
 void push_footage(LiveSession& s, const Footage& f) {
   for (int k = 0; k < static_cast<int>(f.bgr.size()); ++k) {
-    LiveFrame frame;
-    frame.image = f.bgr[static_cast<std::size_t>(k)];
-    frame.encoding = "bgr8";
-    frame.stamp_s = frame.clock_s = 1.0 + 0.1 * k;
-    frame.camera = camera_model(f.seq.config.intrinsics);
-    frame.tag = k;
-    s.push(std::move(frame));
+    s.push(live_frame(f, f.bgr[static_cast<std::size_t>(k)], 1.0 + 0.1 * k, k));
   }
   s.flush();
 }
@@ -771,13 +770,7 @@ TEST(ScaleFromOdometry, FramesPlacedByOdometryMeasureTheScaleByTheirImages) {
   LiveSession s(std::make_unique<test::FakeModel>(&pts), recon, config, client);
   int metric_from = -1;
   for (int k = 0; k < static_cast<int>(f.bgr.size()); ++k) {
-    LiveFrame frame;
-    frame.image = f.bgr[static_cast<std::size_t>(k)];
-    frame.encoding = "bgr8";
-    frame.stamp_s = frame.clock_s = 1.0 + 0.1 * k;
-    frame.camera = camera_model(f.seq.config.intrinsics);
-    frame.tag = k;
-    s.push(std::move(frame));
+    s.push(live_frame(f, f.bgr[static_cast<std::size_t>(k)], 1.0 + 0.1 * k, k));
     if (metric_from < 0 && s.status().scale_metric) metric_from = k;
   }
   s.flush();

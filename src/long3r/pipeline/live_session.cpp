@@ -657,11 +657,12 @@ void LiveSession::track_loss(const FrameResult& r) {
 void LiveSession::update_scale(LiveResult& result) {
   FrameResult& r = result.frame;
   std::optional<double> sample;
-  if (config_.scale.source == ScaleSource::kDepth && tracks_by_depth(config_, recon_.config()) &&
-      scale_policy_.metric()) {
-    // Kept for the stream: the frames' own depth images scale their points.
-  } else if (config_.scale.source == ScaleSource::kDepth) {
-    sample = depth_sample(result);
+  if (config_.scale.source == ScaleSource::kDepth) {
+    // Once metric, a tracker lifted by the depth images keeps the scale for
+    // the stream: each frame's own depth image scales its points.
+    if (!(tracks_by_depth(config_, recon_.config()) && scale_policy_.metric())) {
+      sample = depth_sample(result);
+    }
   } else if (config_.scale.source == ScaleSource::kOdometry && r.baseline_scale) {
     // Placed by odometry: the images over its baseline, not the model's motion.
     sample = r.baseline_scale->sample;
