@@ -195,6 +195,50 @@ TEST(ReconstructionKeyframes, AnUntrackedFrameCanContinueTheTrackedMotion) {
   EXPECT_EQ(results[4].tracking->status, TrackStatus::kTracked);
 }
 
+// A stream whose first frames have too few features (a low-resolution camera
+// starting at a blank wall): with constant_velocity nothing has measured a
+// velocity yet, so they and the first keyframe stay where frame 0 went
+// instead of continuing the model's own first step (here three times too
+// long); the model prior follows the model.
+TEST(ReconstructionKeyframes, FramesBeforeTheImagesPlaceTwoStayWhereTheFirstWent) {
+  const Footage f = render(5, [](int k) { return k == 1 ? 3.0 : 1.0; });
+  std::vector<cv::Mat> images = f.bgr;
+  images[0] = cv::Mat(kH, kW, CV_8UC3, cv::Scalar(0, 0, 0));
+  images[1] = images[0].clone();
+  for (MotionPrior prior : {MotionPrior::kConstantVelocity, MotionPrior::kModel}) {
+    ReconstructionConfig config = keyframes_config();
+    config.tracker.motion_prior = prior;
+    Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0), config);
+    rec.set_calibration(f.seq.config.intrinsics);
+    const std::vector<FrameResult> results = run(rec, images);
+    ASSERT_EQ(results.size(), 5u);
+    for (int k : {0, 1}) {
+      ASSERT_TRUE(results[k].tracking.has_value()) << k;
+      EXPECT_EQ(results[k].tracking->status, TrackStatus::kTooFewFeatures) << k;
+    }
+    ASSERT_EQ(results[2].tracking->status, TrackStatus::kKeyframe);
+    const double model_step = results[1].model_T_W_C.translation().norm();
+    EXPECT_NEAR(model_step, 3.0 * f.T_0_k[1].translation().norm(), 1e-3);
+    if (prior == MotionPrior::kConstantVelocity) {
+      for (int k : {1, 2}) {
+        EXPECT_LT(results[k].pose.T_W_C.translation().norm(), 1e-9) << k;
+        EXPECT_LT(Eigen::AngleAxisd(results[k].pose.T_W_C.rotation()).angle(), 1e-9) << k;
+      }
+    } else {
+      EXPECT_LT((results[1].pose.T_W_C.translation() - results[1].model_T_W_C.translation()).norm(),
+                1e-9);
+    }
+    // The frames after the keyframe are tracked from where it went.
+    for (int k : {3, 4}) {
+      ASSERT_EQ(results[k].tracking->status, TrackStatus::kTracked) << k;
+      const Eigen::Isometry3d truth = f.T_0_k[2].inverse() * f.T_0_k[k];
+      const Eigen::Isometry3d d =
+          truth.inverse() * (results[2].pose.T_W_C.inverse() * results[k].pose.T_W_C);
+      EXPECT_LT(d.translation().norm(), 0.03) << k;
+    }
+  }
+}
+
 // An isolated failure of the model's own pose (a frame with no depth in its
 // camera) does not lose the stream: the next frame is tracked against the
 // keyframe as before (where lost frames relocalise, it is relocalised; the

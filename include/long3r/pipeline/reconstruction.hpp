@@ -266,8 +266,12 @@ class Reconstruction {
     int64_t frame_index = 0;
     Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
     Eigen::Isometry3d model_T_W_C = Eigen::Isometry3d::Identity();  // the model's own pose
+    bool by_images = false;  // posed by the tracker or made a keyframe (not only the prior)
   };
-  std::deque<Placed> placed_;  // the last two, oldest first
+  // The last placed frame and, before it, the last two placed by the images;
+  // oldest first.
+  std::deque<Placed> placed_;
+  void remember_placed(const Placed& placed);
   VoxelMap map_;
   SurfaceMap surface_;
   OccupancyMap occupancy_;

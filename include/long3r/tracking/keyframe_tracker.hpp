@@ -107,8 +107,12 @@ inline const std::array<std::pair<WhenLost, const char*>, 3>& enum_names(WhenLos
 // (0.78-0.96x with the model's motion); on 60 frames nothing changed
 // (docs/model_card.md, "Poses from keyframes").
 enum class MotionPrior {
-  kModel,             // the model's own motion since the last placed frame
-  kConstantVelocity,  // the motion between the last two placed frames, continued
+  kModel,  // the model's own motion since the last placed frame
+  // The motion between the last two frames the images placed, continued
+  // (none before two are placed: the model's first motion would be carried
+  // on; on a 160 x 120 robot path whose first frames have too few features
+  // the path came out eight times too long).
+  kConstantVelocity,
 };
 inline const std::array<std::pair<MotionPrior, const char*>, 2>& enum_names(MotionPrior) {
   static const std::array<std::pair<MotionPrior, const char*>, 2> names{

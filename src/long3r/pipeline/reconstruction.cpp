@@ -12,6 +12,7 @@
 #include <stdexcept>
 #include <tuple>
 #include <utility>
+#include <vector>
 
 #include "long3r/geometry/statistics.hpp"
 #include "long3r/mapping/state_geometry.hpp"
@@ -501,12 +502,24 @@ Eigen::Isometry3d Reconstruction::tracker_prior(int64_t frame_index,
                                                 const Eigen::Isometry3d& model_T_W_C) const {
   if (placed_.empty()) return model_T_W_C;
   const Placed& last = placed_.back();
-  if (config_.tracker.motion_prior == MotionPrior::kConstantVelocity && placed_.size() == 2 &&
-      last.frame_index > placed_.front().frame_index) {
-    // The last step's motion per frame, continued for the frames since.
-    const Eigen::Isometry3d step = placed_.front().T_W_C.inverse() * last.T_W_C;
+  if (config_.tracker.motion_prior == MotionPrior::kConstantVelocity) {
+    // The velocity is what the images measured: between the last two frames
+    // they placed. Before there are two, the frames stay where the last one
+    // went: continuing the model's own motion instead would carry its
+    // registration error on (a stream whose first frames have too few
+    // features travelled eight times too far).
+    std::vector<const Placed*> by_images;
+    for (const Placed& p : placed_) {
+      if (p.by_images) by_images.push_back(&p);
+    }
+    if (by_images.size() < 2) return last.T_W_C;
+    const Placed& a = *by_images[by_images.size() - 2];
+    const Placed& b = *by_images.back();
+    // The last measured step's motion per frame, continued for the frames
+    // since the last placed one.
+    const Eigen::Isometry3d step = a.T_W_C.inverse() * b.T_W_C;
     const double f = static_cast<double>(frame_index - last.frame_index) /
-                     static_cast<double>(last.frame_index - placed_.front().frame_index);
+                     static_cast<double>(b.frame_index - a.frame_index);
     const Eigen::AngleAxisd rotation(step.rotation());
     Eigen::Isometry3d motion = Eigen::Isometry3d::Identity();
     motion.linear() = Eigen::AngleAxisd(rotation.angle() * f, rotation.axis()).toRotationMatrix();
@@ -516,6 +529,17 @@ Eigen::Isometry3d Reconstruction::tracker_prior(int64_t frame_index,
   // The model's motion since the last frame, from where that frame went (the
   // model's own world would jump).
   return last.T_W_C * last.model_T_W_C.inverse() * model_T_W_C;
+}
+
+void Reconstruction::remember_placed(const Placed& placed) {
+  placed_.push_back(placed);
+  // Kept: the last placed frame and the last two the images placed.
+  int by_images = placed.by_images ? 1 : 0;
+  for (auto it = placed_.end() - 1; it != placed_.begin();) {
+    --it;
+    if (it->by_images && ++by_images <= 2) continue;
+    it = placed_.erase(it);
+  }
 }
 
 FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms, double model_ms) {
@@ -626,8 +650,10 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
       r.points_C = cv::Mat();
     } else {
       r.pose.T_W_C = r.tracking->posed() ? r.tracking->T_W_C : prior;
-      placed_.push_back({r.frame_index, r.pose.T_W_C, r.model_T_W_C});
-      if (placed_.size() > 2) placed_.pop_front();
+      // A keyframe made after lost frames sits at the prior, but the next
+      // tracked frame's step from it is measured.
+      remember_placed({r.frame_index, r.pose.T_W_C, r.model_T_W_C,
+                       r.tracking->posed() || r.tracking->new_keyframe});
       // The frame's points in the stream's scale: by its depth image where
       // it has one, else by the tracker's Sim(3).
       const double scale = depth_ratio ? *depth_ratio : r.tracking->scale;
