@@ -239,12 +239,15 @@ int main(int argc, char** argv) {
                 static_cast<long long>(stride), static_cast<long long>(img_size),
                 static_cast<long long>(img_size), static_cast<unsigned long long>(seed_begin));
     // loss / loss_reg: the training loss's regression term of the prediction,
-    // and what is left of it once every frame is registered (probe_loss).
-    std::printf("%8s %8s %8s %8s %8s %8s %8s %8s %8s %7s %7s %8s %8s\n", "seed", "Acc", "Acc_med",
-                "Comp", "Comp_med", "NC", "NC_med", "ATE_m", "RPE_m", "posed", "fps", "loss",
-                "loss_reg");
+    // and what is left of it once every frame is registered (probe_loss);
+    // d_slope / d_corr: how each frame's depth follows the truth, medians
+    // over the frames (depth_response: 1 / 1 is right, a slope below 1
+    // compressed).
+    std::printf("%8s %8s %8s %8s %8s %8s %8s %8s %8s %7s %7s %8s %8s %8s %8s\n", "seed", "Acc",
+                "Acc_med", "Comp", "Comp_med", "NC", "NC_med", "ATE_m", "RPE_m", "posed", "fps",
+                "loss", "loss_reg", "d_slope", "d_corr");
     nlohmann::ordered_json per_seq = nlohmann::ordered_json::array();
-    std::vector<std::vector<double>> cols(13);
+    std::vector<std::vector<double>> cols(15);
     for (int64_t s = 0; s < sequences; ++s) {
       const long3r::SequenceSample sample = sampler.validation_sequence(s, frames, stride);
       long3r::SequencePrediction pred;
@@ -282,13 +285,17 @@ int main(int argc, char** argv) {
                                        static_cast<double>(m.posed),
                                        fps,
                                        lp.regression,
-                                       lp.registered};
+                                       lp.registered,
+                                       m.depth_slope,
+                                       m.depth_correlation};
       for (std::size_t c = 0; c < row.size(); ++c) cols[c].push_back(row[c]);
-      std::printf("%8llu %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %7lld %7.2f %8.4f %8.4f\n",
-                  static_cast<unsigned long long>(seed_begin + static_cast<uint64_t>(s)),
-                  m.acc_mean, m.acc_median, m.comp_mean, m.comp_median, m.nc_mean, m.nc_median,
-                  m.ate_rmse, m.rpe_trans_rmse, static_cast<long long>(m.posed), fps, lp.regression,
-                  lp.registered);
+      std::printf(
+          "%8llu %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %7lld %7.2f %8.4f %8.4f %8.3f "
+          "%8.3f\n",
+          static_cast<unsigned long long>(seed_begin + static_cast<uint64_t>(s)), m.acc_mean,
+          m.acc_median, m.comp_mean, m.comp_median, m.nc_mean, m.nc_median, m.ate_rmse,
+          m.rpe_trans_rmse, static_cast<long long>(m.posed), fps, lp.regression, lp.registered,
+          m.depth_slope, m.depth_correlation);
       std::fflush(stdout);
       nlohmann::ordered_json o;
       o["seed"] = static_cast<int64_t>(seed_begin + static_cast<uint64_t>(s));
@@ -307,19 +314,33 @@ int main(int argc, char** argv) {
       o["fps"] = num(fps);
       o["loss_regression"] = num(lp.regression);
       o["loss_registered"] = num(lp.registered);
+      o["depth_slope"] = num(m.depth_slope);
+      o["depth_correlation"] = num(m.depth_correlation);
       per_seq.push_back(o);
     }
-    const char* names[] = {"acc_mean_m",       "acc_median_m", "comp_mean_m", "comp_median_m",
-                           "nc_mean",          "nc_median",    "ate_rmse_m",  "rpe_trans_rmse_m",
-                           "rpe_rot_rmse_deg", "posed",        "fps",         "loss_regression",
-                           "loss_registered"};
+    const char* names[] = {"acc_mean_m",
+                           "acc_median_m",
+                           "comp_mean_m",
+                           "comp_median_m",
+                           "nc_mean",
+                           "nc_median",
+                           "ate_rmse_m",
+                           "rpe_trans_rmse_m",
+                           "rpe_rot_rmse_deg",
+                           "posed",
+                           "fps",
+                           "loss_regression",
+                           "loss_registered",
+                           "depth_slope",
+                           "depth_correlation"};
     nlohmann::ordered_json mean;
     for (std::size_t c = 0; c < cols.size(); ++c) mean[names[c]] = num(mean_finite(cols[c]));
-    std::printf("%8s %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %7.1f %7.2f %8.4f %8.4f\n",
-                "mean", mean_finite(cols[0]), mean_finite(cols[1]), mean_finite(cols[2]),
-                mean_finite(cols[3]), mean_finite(cols[4]), mean_finite(cols[5]),
-                mean_finite(cols[6]), mean_finite(cols[7]), mean_finite(cols[9]),
-                mean_finite(cols[10]), mean_finite(cols[11]), mean_finite(cols[12]));
+    std::printf(
+        "%8s %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %7.1f %7.2f %8.4f %8.4f %8.3f %8.3f\n",
+        "mean", mean_finite(cols[0]), mean_finite(cols[1]), mean_finite(cols[2]),
+        mean_finite(cols[3]), mean_finite(cols[4]), mean_finite(cols[5]), mean_finite(cols[6]),
+        mean_finite(cols[7]), mean_finite(cols[9]), mean_finite(cols[10]), mean_finite(cols[11]),
+        mean_finite(cols[12]), mean_finite(cols[13]), mean_finite(cols[14]));
     if (!json_path.empty()) {
       nlohmann::ordered_json root;
       root["what"] = what;

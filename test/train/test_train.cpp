@@ -13,8 +13,11 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <limits>
 #include <map>
+#include <optional>
+#include <random>
 #include <sstream>
 #include <string>
 #include <utility>
@@ -1206,6 +1209,68 @@ TEST(ModelEval, GroundTruthPredictionScoresZero) {
   EXPECT_GT(m.nc_mean, 0.99);
   EXPECT_LT(m.ate_rmse, 1e-3);
   EXPECT_LT(m.rpe_trans_rmse, 1e-3);
+  EXPECT_NEAR(m.depth_slope, 1.0, 1e-4);
+  EXPECT_NEAR(m.depth_correlation, 1.0, 1e-4);
+}
+
+// Each frame's points in its own true camera, changed there by `change`
+// (x, y, z -> new point), then back in camera 0's frame.
+long3r::SequencePrediction changed_in_camera(
+    const long3r::SequenceSample& s, const std::function<cv::Vec3f(const cv::Vec3f&)>& change) {
+  long3r::SequencePrediction p;
+  for (int64_t i = 0; i < s.pts.size(0); ++i) {
+    const Eigen::Isometry3d& T_C0_C = s.T_C0_C[static_cast<std::size_t>(i)];
+    const at::Tensor gt = s.pts[i].contiguous();
+    cv::Mat points_C =
+        long3r::points_in_camera(cv::Mat(96, 96, CV_32FC3, gt.data_ptr<float>()), T_C0_C);
+    for (auto it = points_C.begin<cv::Vec3f>(); it != points_C.end<cv::Vec3f>(); ++it) {
+      *it = change(*it);  // in order: `change` may draw random numbers
+    }
+    const cv::Mat points_W = long3r::transform_points(points_C, T_C0_C);
+    p.pts.push_back(
+        at::from_blob(const_cast<float*>(points_W.ptr<float>()), {96, 96, 3}, at::kFloat).clone());
+    p.conf.push_back(at::full({96, 96}, 5.0f));
+  }
+  return p;
+}
+
+TEST(ModelEval, DepthResponseTellsCompressedDepthFromNoisyDepth) {
+  const long3r::SequenceSample s = held_out_sequence(6);
+  long3r::PredictionMetricsOptions o;
+  o.pixel_step = 3;
+  o.normals = false;
+  // Depth compressed towards 2 m along each pixel's ray (z' = 2 (z / 2)^0.5),
+  // as a model that regresses to its mean depth: a slope near 0.5 that the
+  // frame's Sim(3) cannot undo, and depth ordered as the truth is.
+  const long3r::SequencePrediction compressed = changed_in_camera(s, [](const cv::Vec3f& X) {
+    return X[2] > 0.0f ? X * static_cast<float>(std::sqrt(2.0 / X[2])) : X;
+  });
+  const long3r::PredictionMetrics c = long3r::evaluate_prediction(compressed, s, o);
+  EXPECT_GT(c.depth_slope, 0.35);
+  EXPECT_LT(c.depth_slope, 0.65);
+  EXPECT_GT(c.depth_correlation, 0.95);
+  // Each pixel's depth off by a random factor (log-normal, sigma 0.2): the
+  // ratios unbiased (a slope near 1), the correlation lower.
+  std::mt19937 rng(5);
+  std::normal_distribution<float> noise(0.0f, 0.2f);
+  const long3r::SequencePrediction noisy =
+      changed_in_camera(s, [&](const cv::Vec3f& X) { return X * std::exp(noise(rng)); });
+  const long3r::PredictionMetrics n = long3r::evaluate_prediction(noisy, s, o);
+  EXPECT_GT(n.depth_slope, 0.8);
+  EXPECT_LT(n.depth_slope, 1.2);
+  EXPECT_LT(n.depth_correlation, 0.9);
+  // A frame without usable pixels has no response and leaves the median to
+  // the others.
+  long3r::SequencePrediction blind = compressed;
+  blind.pts[0] = at::full({96, 96, 3}, std::nanf(""));
+  EXPECT_FALSE(long3r::depth_response(blind.pts[0], s.pts[0], s.valid[0], s.T_C0_C[0], 3));
+  const double rest = long3r::evaluate_prediction(blind, s, o).depth_slope;
+  EXPECT_GT(rest, 0.35);
+  EXPECT_LT(rest, 0.65);
+  const std::optional<long3r::DepthResponse> one =
+      long3r::depth_response(compressed.pts[2], s.pts[2], s.valid[2], s.T_C0_C[2], 3);
+  ASSERT_TRUE(one);
+  EXPECT_GT(one->pixels, 500);
 }
 
 TEST(ModelEval, EstimatedIntrinsicsFollowThePredictedFieldOfView) {

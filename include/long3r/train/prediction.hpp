@@ -6,8 +6,12 @@
 
 #include <ATen/core/Tensor.h>
 
+#include <Eigen/Geometry>
+
 #include <cstdint>
 #include <functional>
+#include <limits>
+#include <optional>
 #include <vector>
 
 #include "long3r/model/network/long3r_model.hpp"
@@ -26,7 +30,35 @@ struct PredictionMetrics {
   double rpe_trans_rmse = 0;  // m per frame step (after the Sim(3) of the ATE)
   double rpe_rot_rmse_deg = 0;
   int64_t frames = 0, posed = 0;
+  // Medians over the frames of depth_response (NaN where no frame has one;
+  // evaluate_prediction only).
+  double depth_slope = std::numeric_limits<double>::quiet_NaN();
+  double depth_correlation = std::numeric_limits<double>::quiet_NaN();
 };
+
+// How a frame's predicted depth follows the true depth. The frame's points
+// are first moved onto its true ones by their own Sim(3) (Umeyama on the
+// valid pixels every `pixel_step`-th row and column), so that neither its
+// placement nor its scale counts; then, in the true camera, the
+// least-squares slope of log predicted depth on log true depth and the
+// correlation of the two. A slope of 1 keeps the frame's depth ratios; below
+// 1 the depth is compressed towards the frame's middle depth (near things
+// too far, far things too near), which no scale undoes and which a chain of
+// keyframes scaled one against the next turns into scale drift
+// (docs/model_card.md, "Poses from keyframes").
+struct DepthResponse {
+  double slope = 0.0;
+  double correlation = 0.0;
+  int64_t pixels = 0;  // that entered the fit
+};
+// nullopt for a frame with fewer than 16 usable pixels (valid, finite, in
+// front of both cameras after the alignment), with points on a line, or
+// whose true log depth spreads less than 0.01 (a wall seen head-on: no
+// slope to fit). pred and gt: [H, W, 3] in camera 0's frame; valid [H, W];
+// T_C0_C the frame's true pose.
+std::optional<DepthResponse> depth_response(const at::Tensor& pred, const at::Tensor& gt,
+                                            const at::Tensor& valid,
+                                            const Eigen::Isometry3d& T_C0_C, int pixel_step);
 
 // Switches a model to training or inference for a scope and restores the
 // previous mode when the scope ends, also by an exception. Both switches

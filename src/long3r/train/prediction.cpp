@@ -169,6 +169,55 @@ LossProbe probe_loss(const SequencePrediction& prediction, const SequenceSample&
   return r;
 }
 
+std::optional<DepthResponse> depth_response(const at::Tensor& pred, const at::Tensor& gt,
+                                            const at::Tensor& valid,
+                                            const Eigen::Isometry3d& T_C0_C, int pixel_step) {
+  constexpr std::size_t kMinPixels = 16;
+  constexpr double kMinLogSpread = 0.01;
+  std::vector<Eigen::Vector3f> src, dst;
+  if (append_correspondences(pred.to(at::kFloat).contiguous(), gt.to(at::kFloat).contiguous(),
+                             valid, pixel_step, &src, &dst) > 0 ||
+      src.size() < kMinPixels) {
+    return std::nullopt;
+  }
+  Sim3 S;
+  try {
+    S = align_correspondences(src, dst, true);
+  } catch (const std::invalid_argument&) {
+    return std::nullopt;  // collapsed onto a line
+  }
+  const Eigen::Isometry3d T_C_C0 = T_C0_C.inverse();
+  std::vector<double> x, y;  // log true depth, log predicted depth
+  for (std::size_t k = 0; k < src.size(); ++k) {
+    const double z_pred = (T_C_C0 * (S * src[k].cast<double>())).z();
+    const double z_true = (T_C_C0 * dst[k].cast<double>()).z();
+    if (!(z_pred > 0.0) || !(z_true > 0.0)) continue;
+    x.push_back(std::log(z_true));
+    y.push_back(std::log(z_pred));
+  }
+  if (x.size() < kMinPixels) return std::nullopt;
+  const double n = static_cast<double>(x.size());
+  double mx = 0.0, my = 0.0;
+  for (std::size_t k = 0; k < x.size(); ++k) {
+    mx += x[k];
+    my += y[k];
+  }
+  mx /= n;
+  my /= n;
+  double sxx = 0.0, syy = 0.0, sxy = 0.0;
+  for (std::size_t k = 0; k < x.size(); ++k) {
+    sxx += (x[k] - mx) * (x[k] - mx);
+    syy += (y[k] - my) * (y[k] - my);
+    sxy += (x[k] - mx) * (y[k] - my);
+  }
+  if (std::sqrt(sxx / n) < kMinLogSpread || !(syy > 0.0)) return std::nullopt;
+  DepthResponse r;
+  r.slope = sxy / sxx;
+  r.correlation = sxy / std::sqrt(sxx * syy);
+  r.pixels = static_cast<int64_t>(x.size());
+  return r;
+}
+
 PredictionMetrics pointmap_metrics(const SequencePrediction& prediction,
                                    const SequenceSample& sample, const ValidationConfig& config) {
   const std::size_t n = prediction.pts.size();

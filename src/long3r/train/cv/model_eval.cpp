@@ -11,6 +11,7 @@
 
 #include "long3r/dataset/image_file.hpp"
 #include "long3r/eval/eval.hpp"
+#include "long3r/geometry/statistics.hpp"
 #include "long3r/pipeline/intrinsics.hpp"
 #include "long3r/pipeline/pose.hpp"
 #include "long3r/train/correspondences.hpp"
@@ -79,6 +80,21 @@ PredictionMetrics evaluate_prediction(const SequencePrediction& prediction,
   m.comp_median = rm.completion_median;
   m.nc_mean = rm.nc_mean;
   m.nc_median = rm.nc_median;
+
+  // Each frame's depth against the truth (its own Sim(3) first).
+  std::vector<double> slopes, correlations;
+  for (std::size_t i = 0; i < n; ++i) {
+    const int64_t f = static_cast<int64_t>(i);
+    const std::optional<DepthResponse> d = depth_response(
+        prediction.pts[i], sample.pts[f], sample.valid[f], sample.T_C0_C[i], options.pixel_step);
+    if (!d) continue;
+    slopes.push_back(d->slope);
+    correlations.push_back(d->correlation);
+  }
+  if (!slopes.empty()) {
+    m.depth_slope = median(std::move(slopes));
+    m.depth_correlation = median(std::move(correlations));
+  }
 
   // Poses as the pipeline estimates them.
   PoseTrajectory ref, est;
