@@ -19,6 +19,7 @@
 #include "long3r/model/loading/checkpoint.hpp"
 #include "long3r/model/loading/safetensors.hpp"
 #include "long3r/model/network/model_config.hpp"
+#include "long3r/model/network/streaming.hpp"
 #include "long3r/model/runtime/inference.hpp"
 #include "long3r/model/runtime/threads.hpp"
 #include "long3r/train/cv/train_cv.hpp"
@@ -49,7 +50,7 @@ int main(int argc, char** argv) {
   bool blind = false;
   std::vector<int64_t> blind_strides, blind_lengths;
   int64_t blind_starts = 8;
-  int64_t frames = 50, sequences = 3, stride = 2, img_size = 0, lt_capacity = -1, st_frames = -1;
+  int64_t frames = 50, sequences = 3, stride = 2, img_size = 0;
   uint64_t seed_begin = 2000000, seed = 0;
   int pixel_step = 2;
   bool normals = true, estimate_intrinsics = false;
@@ -65,10 +66,6 @@ int main(int argc, char** argv) {
              "true-depth-no-motion: each frame's GT pointmap in its own camera, no motion; "
              "frame0-geometry: frame 0's GT pointmap for every frame")
       .choices({"constant-depth", "true-depth-no-motion", "frame0-geometry"});
-  cli.option("--long-term-capacity", "L", &lt_capacity,
-             "override the model's L (0: no long-term memory)")
-      .shown_default("");
-  cli.option("--short-term-frames", "K", &st_frames, "override the model's K").shown_default("");
   cli.option("--long-term-policy", "P", &policy,
              "override: voxel (the paper) | spann3r (ablation)");
   cli.option("--frames", "N", &frames, "frames per sequence").min(2);
@@ -107,6 +104,7 @@ int main(int argc, char** argv) {
   long3r::add_thread_options(cli, &threads);
   long3r::InferenceConfig inference;
   long3r::add_inference_options(cli, &inference);
+  long3r::add_memory_options(cli, &inference);
   cli.option("--seed", "N", &seed, "initialisation seed of --untrained");
   if (const auto rc = cli.parse_or_exit(argc, argv)) return *rc;
   const int sources = !model_path.empty() + !untrained.empty() + !baseline.empty();
@@ -132,8 +130,7 @@ int main(int argc, char** argv) {
         mc = long3r::resolve_model_config(untrained);
         what = "untrained " + untrained;
       }
-      if (lt_capacity >= 0) mc.long3r.long_term_capacity = lt_capacity;
-      if (st_frames >= 0) mc.long3r.short_term_frames = st_frames;
+      long3r::apply_memory_overrides(inference, &mc);
       if (!policy.empty() && !long3r::config::enum_from_name(policy, &mc.long3r.long_term_policy)) {
         throw long3r::ConfigError("model config: long3r.long_term_policy: must be " +
                                   long3r::config::enum_choices<long3r::LongTermPolicy>() +

@@ -247,6 +247,7 @@ int main(int argc, char** argv) {
   add_thread_options(cli, &threads);
   InferenceConfig inference;
   add_inference_options(cli, &inference);
+  add_memory_options(cli, &inference);
   cli.custom(
          "--calib", {"fx", "fy", "cx", "cy"},
          [&](const std::vector<std::string>& v) {

@@ -84,7 +84,7 @@ TEST(InferenceConfig, JsonFieldsAndUnknownPrecision) {
   EXPECT_EQ(c.precision, Precision::kBFloat16);
   EXPECT_EQ(long3r::config::to_json(c).dump(),
             R"({"device":"cuda:1","precision":"bfloat16","allow_emulated_precision":false,)"
-            R"("conv_precision":"auto"})");
+            R"("conv_precision":"auto","short_term_frames":-1,"long_term_capacity":-1})");
   InferenceConfig d;
   EXPECT_THROW(long3r::config::read_object(long3r::config::parse(R"({"precision": "fp8"})", "t"), d,
                                            {"inference config"}),
@@ -144,6 +144,43 @@ TEST(InferenceConfig, StreamingModelFactoryConvertsOnce) {
   const auto model = long3r::make_streaming_model(path, c);
   const auto& spann3r = dynamic_cast<const long3r::Spann3rModel&>(*model);
   EXPECT_EQ(spann3r.dtype(), at::kBFloat16);
+}
+
+// short_term_frames and long_term_capacity replace a LONG3R checkpoint's
+// memory sizes (and so its identity, which sessions check); -1 keeps them; a
+// Spann3R checkpoint is refused, naming the file and the parameter.
+TEST(InferenceConfig, MemoryOverridesReachALong3rModel) {
+  const std::string dir = long3r::test::scratch_dir("inference/memory_override");
+  at::manual_seed(4);
+  long3r::Long3rModel tiny(long3r::test::tiny_long3r_config());
+  long3r::TensorMap weights;
+  for (const auto& p : tiny.module().named_parameters()) weights[p.key()] = p.value().detach();
+  for (const auto& b : tiny.module().named_buffers()) weights[b.key()] = b.value().detach();
+  const std::string path = dir + "/tiny.safetensors";
+  long3r::save_safetensors(path, weights,
+                           {{"config", long3r::model_config_to_json(tiny.config())}});
+  const auto kept = long3r::make_streaming_model(path);
+  const auto& as_saved = dynamic_cast<const long3r::Long3rModel&>(*kept);
+  EXPECT_EQ(as_saved.config().long3r.short_term_frames, tiny.config().long3r.short_term_frames);
+  EXPECT_EQ(as_saved.config().long3r.long_term_capacity, tiny.config().long3r.long_term_capacity);
+  InferenceConfig c;
+  c.short_term_frames = 3;
+  c.long_term_capacity = 0;
+  ASSERT_NE(tiny.config().long3r.short_term_frames, 3);
+  const auto changed = long3r::make_streaming_model(path, c);
+  const auto& run = dynamic_cast<const long3r::Long3rModel&>(*changed);
+  EXPECT_EQ(run.config().long3r.short_term_frames, 3);
+  EXPECT_EQ(run.config().long3r.long_term_capacity, 0);
+  EXPECT_NE(run.identity().config_json, as_saved.identity().config_json);
+  EXPECT_EQ(run.identity().weights, as_saved.identity().weights);
+  try {
+    long3r::make_streaming_model(kGolden + "spann3r_seq_land96x64/weights.safetensors", c);
+    ADD_FAILURE() << "a Spann3R model took a LONG3R memory size";
+  } catch (const long3r::CheckpointError& e) {
+    EXPECT_TRUE(contains(e.what(), "short_term_frames")) << e.what();
+  }
+  c.short_term_frames = -2;
+  EXPECT_TRUE(contains(error_of(c), "short_term_frames")) << error_of(c);
 }
 
 namespace {

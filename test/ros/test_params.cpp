@@ -405,6 +405,15 @@ TEST_F(ParamsTest, InferenceDefaultsAndValues) {
   EXPECT_EQ(c.precision, long3r::Precision::kBFloat16);
   EXPECT_TRUE(c.allow_emulated_precision);
   EXPECT_NE(long3r_ros::describe(readParams(pnh_)).find("precision: bfloat16"), std::string::npos);
+  // The model's memory: the checkpoint's unless set.
+  EXPECT_EQ(d.short_term_frames, -1);
+  EXPECT_EQ(d.long_term_capacity, -1);
+  pnh_.setParam("short_term_frames", 5);
+  pnh_.setParam("long_term_capacity", 0);
+  EXPECT_EQ(readParams(pnh_).inference.short_term_frames, 5);
+  EXPECT_EQ(readParams(pnh_).inference.long_term_capacity, 0);
+  pnh_.setParam("short_term_frames", -2);
+  expectError("short_term_frames");
 }
 
 TEST_F(ParamsTest, RejectsUnknownDevice) {

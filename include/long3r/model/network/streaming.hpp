@@ -109,10 +109,18 @@ class StreamingModel {
 // names (Spann3R or LONG3R), reading the file once, then moves and converts
 // the weights once to the requested device and precision. The request is
 // checked first (resolve_inference_target: ConfigError,
-// InferenceUnsupportedError). Throws CheckpointError with a clear message for
+// InferenceUnsupportedError); memory sizes it sets replace the checkpoint's
+// (apply_memory_overrides). Throws CheckpointError with a clear message for
 // an unreadable or bad file and for kinds that do not stream (e.g. a DUSt3R
 // pair model).
 std::unique_ptr<StreamingModel> make_streaming_model(const std::string& path,
                                                      const InferenceConfig& inference = {});
+
+struct ModelConfig;
+// The memory sizes `inference` sets (short_term_frames, long_term_capacity;
+// -1 leaves the checkpoint's) written into a LONG3R model's configuration,
+// as make_streaming_model does. Throws ConfigError naming the parameter when
+// one is set for a model that is not LONG3R.
+void apply_memory_overrides(const InferenceConfig& inference, ModelConfig* config);
 
 }  // namespace long3r

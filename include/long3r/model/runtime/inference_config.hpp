@@ -51,6 +51,13 @@ struct InferenceConfig {
   // set, e.g. to measure its accuracy on such a machine.
   bool allow_emulated_precision = false;
   ConvPrecision conv_precision = ConvPrecision::kAuto;
+  // The memory a LONG3R model runs with, in place of the checkpoint's
+  // (-1: the checkpoint's): K, the short-term frames, and L, the long-term
+  // tokens (0: none). A model trained with K = 10 on strides of 2-16 frames
+  // held 200 frames at stride 2 together only with K = 5 (docs/model_card.md,
+  // "The depth response, and the short-term memory at inference").
+  int short_term_frames = -1;
+  int long_term_capacity = -1;
 
   // Syntax only (what any machine can check); whether this machine can serve
   // it is resolve_inference_target()'s job. Throws ConfigError naming the field.
@@ -66,10 +73,15 @@ config::FieldsOf<S, InferenceConfig> visit_fields(S& s, V& v) {
   v("precision", s.precision);
   v("allow_emulated_precision", s.allow_emulated_precision);
   v("conv_precision", s.conv_precision);
+  v("short_term_frames", s.short_term_frames);
+  v("long_term_capacity", s.long_term_capacity);
 }
 
 // --device, --precision, --allow-emulated-precision and --conv-precision,
 // written once for every tool that runs a model.
 void add_inference_options(CliOptions& cli, InferenceConfig* config);
+// --short-term-frames and --long-term-capacity, for the tools that build their
+// model by make_streaming_model or apply_memory_overrides.
+void add_memory_options(CliOptions& cli, InferenceConfig* config);
 
 }  // namespace long3r

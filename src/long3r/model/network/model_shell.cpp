@@ -9,6 +9,8 @@
 #include <algorithm>
 #include <cstdio>
 #include <stdexcept>
+#include <string>
+#include <utility>
 
 #include "long3r/io/fnv1a.hpp"
 #include "long3r/model/loading/checkpoint.hpp"
@@ -161,11 +163,28 @@ std::unique_ptr<StreamingModel> load_to(const ModelCheckpoint& c, const std::str
 }
 }  // namespace
 
+void apply_memory_overrides(const InferenceConfig& inference, ModelConfig* config) {
+  for (const auto& [name, value] :
+       {std::pair<const char*, int>{"short_term_frames", inference.short_term_frames},
+        {"long_term_capacity", inference.long_term_capacity}}) {
+    if (value >= 0 && config->kind != ModelKind::kLong3r) {
+      throw ConfigError(std::string(name) + ": sets a LONG3R model's memory; this is a " +
+                        model_kind_name(config->kind) + " model (leave it at -1)");
+    }
+  }
+  if (inference.short_term_frames >= 0)
+    config->long3r.short_term_frames = inference.short_term_frames;
+  if (inference.long_term_capacity >= 0) {
+    config->long3r.long_term_capacity = inference.long_term_capacity;
+  }
+}
+
 std::unique_ptr<StreamingModel> make_streaming_model(const std::string& path,
                                                      const InferenceConfig& inference) {
   const InferenceTarget target = resolve_inference_target(inference);
   try {
-    const ModelCheckpoint c = read_model_checkpoint(path);
+    ModelCheckpoint c = read_model_checkpoint(path);
+    apply_memory_overrides(inference, &c.config);
     if (c.config.kind == ModelKind::kLong3r) return load_to<Long3rModel>(c, path, target);
     if (c.config.kind == ModelKind::kSpann3r) return load_to<Spann3rModel>(c, path, target);
     if (c.config.kind == ModelKind::kDust3r) {

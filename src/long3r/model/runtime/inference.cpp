@@ -35,6 +35,10 @@ bool is_device_name(const std::string& name) {
 void InferenceConfig::validate(const config::FieldCheck& check) const {
   check.require(is_device_name(device), "device",
                 "must be cpu, cuda or cuda:N, got \"" + device + "\"");
+  check.require(short_term_frames >= -1, "short_term_frames",
+                "must be -1 (the checkpoint's) or >= 0");
+  check.require(long_term_capacity >= -1, "long_term_capacity",
+                "must be -1 (the checkpoint's) or >= 0");
 }
 
 void add_inference_options(CliOptions& cli, InferenceConfig* config) {
@@ -46,6 +50,16 @@ void add_inference_options(CliOptions& cli, InferenceConfig* config) {
   cli.option("--conv-precision", "P", &config->conv_precision,
              "convolutions of a bfloat16 / float16 model: auto (in that precision where the "
              "device computes it natively, else float32) or float32");
+}
+
+void add_memory_options(CliOptions& cli, InferenceConfig* config) {
+  cli.option("--short-term-frames", "K", &config->short_term_frames,
+             "a LONG3R model's short-term memory in frames, in place of the checkpoint's (-1)")
+      .min(-1);
+  cli.option("--long-term-capacity", "L", &config->long_term_capacity,
+             "a LONG3R model's long-term memory in tokens, in place of the checkpoint's (-1; 0: "
+             "none)")
+      .min(-1);
 }
 
 at::ScalarType precision_dtype(Precision precision) {
