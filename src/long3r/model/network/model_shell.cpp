@@ -172,8 +172,9 @@ void apply_memory_overrides(const InferenceConfig& inference, ModelConfig* confi
                         model_kind_name(config->kind) + " model (leave it at -1)");
     }
   }
-  if (inference.short_term_frames >= 0)
+  if (inference.short_term_frames >= 0) {
     config->long3r.short_term_frames = inference.short_term_frames;
+  }
   if (inference.long_term_capacity >= 0) {
     config->long3r.long_term_capacity = inference.long_term_capacity;
   }
