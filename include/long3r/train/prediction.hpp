@@ -51,8 +51,10 @@ struct DepthResponse {
   double correlation = 0.0;
   int64_t pixels = 0;  // that entered the fit
 };
-// nullopt for a frame with fewer than 16 usable pixels (valid, finite, in
-// front of both cameras after the alignment), with points on a line, or
+// nullopt for a frame with any non-finite predicted point at a valid pixel
+// (as probe_loss: such a frame has no placement), with fewer than 16 usable
+// pixels (valid, in front of both cameras after the alignment), with points
+// on a line, or
 // whose true log depth spreads less than 0.01 (a wall seen head-on: no
 // slope to fit). pred and gt: [H, W, 3] in camera 0's frame; valid [H, W];
 // T_C0_C the frame's true pose.
