@@ -4,8 +4,11 @@
 #include <opencv2/core.hpp>
 
 #include <cmath>
+#include <fstream>
 #include <limits>
 #include <stdexcept>
+#include <string>
+#include <vector>
 
 #include "long3r/pipeline/pose.hpp"
 #include "support/cv_test_support.hpp"
@@ -133,6 +136,43 @@ TEST(Pose, UsacAndClassicRansacAgree) {
   config.ransac = PnpRansac::kUsac;
   const PoseResult again = estimate_pose_pnp(pts, conf, k, config);
   EXPECT_TRUE(again.T_W_C.matrix() == usac.T_W_C.matrix());
+}
+
+// A pointmap from a trained 64 x 64 model (test/data/pnp/README.md) on
+// which OpenCV 4.6's classic solvePnPRansac, asked for SOLVEPNP_ITERATIVE,
+// finds a consensus of about 1600 points and then returns the pose of its
+// final solve on that set from scratch, which diverged (13 inliers, the
+// camera 10^8 m away). The pose must keep its consensus.
+TEST(Pose, ClassicRansacKeepsItsConsensusOnAModelPointmap) {
+  std::ifstream in(std::string(LONG3R_SOURCE_DIR) + "/test/data/pnp/consensus_set_diverges.f32",
+                   std::ios::binary);
+  ASSERT_TRUE(in) << "test/data/pnp/consensus_set_diverges.f32 is missing";
+  std::vector<float> rows(4000 * 5);
+  in.read(reinterpret_cast<char*>(rows.data()), static_cast<std::streamsize>(rows.size() * 4));
+  ASSERT_EQ(in.gcount(), static_cast<std::streamsize>(rows.size() * 4));
+  const PinholeIntrinsics k{45.7, 45.7, 31.5, 31.5, 64, 64};
+  cv::Mat pts(64, 64, CV_32FC3, cv::Scalar::all(0.0f));
+  cv::Mat conf(64, 64, CV_32FC1, cv::Scalar(0.0f));  // the pixels left out of the file
+  for (std::size_t i = 0; i < 4000; ++i) {
+    const float* row = &rows[5 * i];
+    const int u = static_cast<int>(row[3]), v = static_cast<int>(row[4]);
+    pts.at<cv::Vec3f>(v, u) = cv::Vec3f(row[0], row[1], row[2]);
+    conf.at<float>(v, u) = 5.0f;
+  }
+  PnpConfig config;
+  ASSERT_EQ(config.ransac, PnpRansac::kClassic);
+  const PoseResult classic = estimate_pose_pnp(pts, conf, k, config);
+  ASSERT_EQ(classic.correspondences, 4000);
+  ASSERT_TRUE(classic.ok()) << classic.message;
+  EXPECT_GT(classic.inliers, 1500);
+  config.ransac = PnpRansac::kUsac;
+  const PoseResult usac = estimate_pose_pnp(pts, conf, k, config);
+  ASSERT_TRUE(usac.ok()) << usac.message;
+  // USAC's consensus is as large (1712 against 1694 under each refined pose),
+  // and the two cameras lie 13 cm apart, 1.4 m from the world origin: a
+  // 64 x 64 pointmap at 2 px does not pin the pose down further.
+  EXPECT_GT(classic.inliers, 0.9 * usac.inliers);
+  EXPECT_LT((classic.T_W_C.translation() - usac.T_W_C.translation()).norm(), 0.2);
 }
 
 TEST(Pose, SubsamplingRespectsTheCap) {

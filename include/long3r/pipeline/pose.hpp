@@ -4,10 +4,11 @@
 // which is the world frame W here. Each pixel (u, v) whose confidence passes
 // the threshold gives a 2D-3D correspondence (pixel centre (u, v), world
 // point); RANSAC finds the inliers (the classic cv::solvePnPRansac by
-// default: EPnP samples scored through cv::projectPoints; or OpenCV's USAC:
-// P3P samples, MSAC scoring, inner local optimisation, about 4x faster at the
-// same iteration count, see docs/performance.md for what it changes), then
-// Levenberg-Marquardt on the inliers refines the pose.
+// default: EPnP samples scored through cv::projectPoints, and EPnP again on
+// the consensus set; or OpenCV's USAC: P3P samples, MSAC scoring, inner local
+// optimisation, about 4x faster at the same iteration count, see
+// docs/performance.md for what it changes), then Levenberg-Marquardt on the
+// inliers refines the pose.
 // The result is T_W_C, camera optical frame (x right, y down, z forward) to
 // world.
 #pragma once

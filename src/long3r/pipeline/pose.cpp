@@ -140,9 +140,15 @@ PoseResult estimate_pose_pnp(const cv::Mat& pts3d_W, const cv::Mat& conf,
       cv::Mat K_usac = K.clone();  // an in-out argument there
       found = cv::solvePnPRansac(obj, img, K_usac, no_distortion, rvec, tvec, ransac_inliers, usac);
     } else {
+      // Its samples are EPnP whatever the flag; the flag picks the final solve
+      // on the consensus set. SOLVEPNP_ITERATIVE starts that one from scratch
+      // in OpenCV 4.6 (DLT or a homography, not the best sample's pose) and on
+      // model pointmaps diverged on about a fifth of the frames of a long
+      // stream, leaving a pose with few or none of its inliers; EPnP is closed-form,
+      // and the refinement below follows either way.
       found = cv::solvePnPRansac(obj, img, K, no_distortion, rvec, tvec, false, config.iterations,
                                  static_cast<float>(config.reprojection_error_px),
-                                 config.ransac_confidence, ransac_inliers, cv::SOLVEPNP_ITERATIVE);
+                                 config.ransac_confidence, ransac_inliers, cv::SOLVEPNP_EPNP);
     }
   } catch (const cv::Exception& e) {
     return failure(PnpStatus::kSolverFailed, std::string("solvePnPRansac threw: ") + e.what(), n,
