@@ -54,9 +54,8 @@ struct DepthResponse {
 // nullopt for a frame with any non-finite predicted point at a valid pixel
 // (as probe_loss: such a frame has no placement), with fewer than 16 usable
 // pixels (valid, in front of both cameras after the alignment), with points
-// on a line, or
-// whose true log depth spreads less than 0.01 (a wall seen head-on: no
-// slope to fit). pred and gt: [H, W, 3] in camera 0's frame; valid [H, W];
+// on a line, or whose true log depth spreads less than 0.01 (a wall seen
+// head-on: no slope to fit). pred and gt: [H, W, 3] in camera 0's frame; valid [H, W];
 // T_C0_C the frame's true pose.
 std::optional<DepthResponse> depth_response(const at::Tensor& pred, const at::Tensor& gt,
                                             const at::Tensor& valid,
