@@ -47,7 +47,7 @@ struct FramesConfig {
   std::string odom_frame;     // empty: no odometry
   std::string base_frame;     // empty: no robot base
   std::string camera_frame;   // empty: the image header's frame_id
-  double tf_timeout_s = 0.2;  // wait for a transform at an image stamp
+  double tf_timeout_s = 0.2;  // wait for a transform at an image stamp (wall time)
   // A loaded session's odometry: true = the odom frame it was saved with (a
   // bag replayed, a robot not restarted), map -> odom is kept; false = the
   // odometry started over, map -> odom follows from the first placed frame.

@@ -23,6 +23,10 @@ void FramesConfig::validate(const long3r::config::FieldCheck& check) const {
   check.require(tf_timeout_s >= 0.0 && tf_timeout_s <= 10.0, "tf_timeout_s", "must be in [0, 10]");
 }
 
+namespace {
+constexpr double kTfPollS = 0.005;  // how often a lookup that waits asks TF again
+}  // namespace
+
 Eigen::Matrix3d bodyFromOptical() {
   // Columns: the optical axes in body axes (x right -> -y, y down -> -z, z forward -> x).
   Eigen::Matrix3d R;
@@ -32,9 +36,22 @@ Eigen::Matrix3d bodyFromOptical() {
 
 Eigen::Isometry3d RobotFrames::lookup(const std::string& target, const std::string& source,
                                       const ros::Time& stamp) const {
+  // The wait is wall time: tf2's own wait sleeps on ROS time, which stands
+  // still while a replayed bag is paused or after it ends, and the worker
+  // slept there for ever, even once the transform had arrived (a bag's last
+  // frame and its odometry come together), with the frames behind it.
+  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(config_.tf_timeout_s);
+  std::string error;
+  while (!tf_.canTransform(target, source, stamp, &error)) {
+    if (ros::WallTime::now() >= deadline) {
+      throw TfUnavailable("no transform " + target + " <- " + source +
+                          atStamp(" at t=%.3f in TF (", stamp.toSec()) + error + ")");
+    }
+    error.clear();
+    ros::WallDuration(kTfPollS).sleep();
+  }
   try {
-    return tf2::transformToEigen(
-        tf_.lookupTransform(target, source, stamp, ros::Duration(config_.tf_timeout_s)));
+    return tf2::transformToEigen(tf_.lookupTransform(target, source, stamp));
   } catch (const tf2::TransformException& e) {
     throw TfUnavailable("no transform " + target + " <- " + source +
                         atStamp(" at t=%.3f in TF (", stamp.toSec()) + e.what() + ")");

@@ -7,7 +7,10 @@
 #include <tf2_eigen/tf2_eigen.h>
 #include <tf2_ros/buffer.h>
 
+#include <chrono>
 #include <cmath>
+#include <future>
+#include <thread>
 
 #include "long3r_ros/robot_frames.hpp"
 
@@ -210,4 +213,57 @@ TEST_F(FramesTest, MissingTransformsAreNamed) {
   EXPECT_FALSE(f.started());
   RobotFrames g(config("", ""), buffer_);
   EXPECT_THROW(g.startStream("", ros::Time(10)), TfUnavailable);  // no frame_id at all
+}
+
+// A replayed bag paused or over: simulated time stands still. A transform
+// that is not there is given up after tf_timeout_s of wall time, not waited
+// for until the clock moves again (the node's worker would wait for ever).
+TEST_F(FramesTest, AMissingTransformIsGivenUpWhileTheSimulatedClockStandsStill) {
+  robot(true);  // odometry at t = 10 and 11 only
+  FramesConfig c = config("odom", "base_link");
+  c.tf_timeout_s = 0.2;
+  RobotFrames f(c, buffer_);
+  f.startStream("optical", ros::Time(10));
+  ros::Time::setNow(ros::Time(11.5));  // simulated time, and it does not move
+  std::promise<std::string> result;
+  std::future<std::string> done = result.get_future();
+  const auto start = std::chrono::steady_clock::now();
+  std::thread lookup([&] {
+    try {
+      f.cameraFromOdometry(ros::Time(12));
+      result.set_value("found");
+    } catch (const TfUnavailable& e) {
+      result.set_value(e.what());
+    }
+  });
+  const bool in_time = done.wait_for(std::chrono::seconds(5)) == std::future_status::ready;
+  if (!in_time) ros::Time::setNow(ros::Time(100));  // lets a lookup that waits on ROS time go
+  lookup.join();
+  const std::chrono::duration<double> waited = std::chrono::steady_clock::now() - start;
+  ros::Time::init();  // the system clock again, for the tests after
+  ASSERT_TRUE(in_time) << "the lookup waited for the simulated clock";
+  EXPECT_GE(waited.count(), 0.2);
+  const std::string what = done.get();
+  EXPECT_NE(what.find("odom <- "), std::string::npos) << what;
+}
+
+// ... and one that arrives within tf_timeout_s is waited for, on the same
+// standing clock.
+TEST_F(FramesTest, ATransformArrivingWithinTheTimeoutIsWaitedFor) {
+  robot(true);
+  FramesConfig c = config("odom", "base_link");
+  c.tf_timeout_s = 2.0;
+  RobotFrames f(c, buffer_);
+  f.startStream("optical", ros::Time(10));
+  ros::Time::setNow(ros::Time(11.5));
+  std::thread late([&] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    add("odom", "base_link", pose(2.0, 2.2, 0.0, 0.0, 0.0, 0.4), 12.0, false);
+  });
+  Eigen::Isometry3d cam12 = Eigen::Isometry3d::Identity();
+  EXPECT_NO_THROW(cam12 = f.cameraFromOdometry(ros::Time(12)));
+  late.join();
+  ros::Time::init();
+  EXPECT_TRUE(f.cameraInOdom(ros::Time(12)).isApprox(lookup("odom", "optical", 12), 1e-9));
+  EXPECT_GT(cam12.translation().norm(), 0.4);
 }
