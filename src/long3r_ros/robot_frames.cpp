@@ -40,21 +40,21 @@ Eigen::Isometry3d RobotFrames::lookup(const std::string& target, const std::stri
   // still while a replayed bag is paused or after it ends, and the worker
   // slept there for ever, even once the transform had arrived (a bag's last
   // frame and its odometry come together), with the frames behind it.
+  auto unavailable = [&](const std::string& why) {
+    return TfUnavailable("no transform " + target + " <- " + source +
+                         atStamp(" at t=%.3f in TF (", stamp.toSec()) + why + ")");
+  };
   const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(config_.tf_timeout_s);
   std::string error;
   while (!tf_.canTransform(target, source, stamp, &error)) {
-    if (ros::WallTime::now() >= deadline) {
-      throw TfUnavailable("no transform " + target + " <- " + source +
-                          atStamp(" at t=%.3f in TF (", stamp.toSec()) + error + ")");
-    }
+    if (ros::WallTime::now() >= deadline) throw unavailable(error);
     error.clear();
     ros::WallDuration(kTfPollS).sleep();
   }
   try {
     return tf2::transformToEigen(tf_.lookupTransform(target, source, stamp));
   } catch (const tf2::TransformException& e) {
-    throw TfUnavailable("no transform " + target + " <- " + source +
-                        atStamp(" at t=%.3f in TF (", stamp.toSec()) + e.what() + ")");
+    throw unavailable(e.what());
   }
 }
 
