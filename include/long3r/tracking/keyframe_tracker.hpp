@@ -9,7 +9,12 @@
 //
 // Per frame (track()):
 //   1. ORB features on the full-resolution (rectified) grey image, matched
-//      to the keyframe's by Hamming distance with Lowe's ratio test;
+//      to the keyframe's by Hamming distance with Lowe's ratio test; then
+//      (guided_matching) matched again by projection: the keyframe's points
+//      projected by the pose those matches gave, or by the caller's prior
+//      where neither the keyframe's nor the last tracked frame's place the
+//      frame, each matched to the closest feature near its pixel, and the
+//      pose solved again from these where more of them agree with it;
 //   2. PnP-RANSAC (EPnP, then Levenberg-Marquardt on the inliers) of the
 //      keyframe's points, lifted by its pointmap, against the frame's
 //      matched features;
@@ -124,10 +129,19 @@ inline const std::array<std::pair<MotionPrior, const char*>, 2>& enum_names(Moti
 // "Poses from keyframes").
 struct KeyframeTrackerConfig {
   TrackingSolver solver = TrackingSolver::kPnp;
-  int max_features = 1000;                 // ORB features per frame
-  int fast_threshold = 10;                 // ORB's FAST corner threshold (grey levels)
-  int pyramid_levels = 8;                  // ORB's scale pyramid (factor 1.2 a level)
-  double ratio_test = 0.8;                 // Lowe's ratio of best to second-best distance
+  int max_features = 1000;  // ORB features per frame
+  int fast_threshold = 10;  // ORB's FAST corner threshold (grey levels)
+  int pyramid_levels = 8;   // ORB's scale pyramid (factor 1.2 a level)
+  double ratio_test = 0.8;  // Lowe's ratio of best to second-best distance
+  // Step 1's guided matching. Off by default: on 200 generated frames at
+  // stride 4 and on real video it placed the frames closer, but on 60
+  // frames it was no better and on the 64-pixel pointmaps of the pipeline's
+  // test fixtures it moved poses further off (docs/model_card.md, "Guided
+  // matching").
+  bool guided_matching = false;
+  // Its search radius about a keyframe point's projection by the pose found
+  // (3 times this about the caller's prior), source pixels.
+  double guided_radius_px = 8.0;
   int min_matches = 30;                    // fewer (after RANSAC): the frame is not tracked
   double ransac_threshold_px = 1.0;        // essential-matrix RANSAC, source pixels
   double pnp_reprojection_error_px = 3.0;  // PnP-RANSAC fallback, source pixels
@@ -170,6 +184,8 @@ config::FieldsOf<S, KeyframeTrackerConfig> visit_fields(S& s, V& v) {
   v("fast_threshold", s.fast_threshold);
   v("pyramid_levels", s.pyramid_levels);
   v("ratio_test", s.ratio_test);
+  v("guided_matching", s.guided_matching);
+  v("guided_radius_px", s.guided_radius_px);
   v("min_matches", s.min_matches);
   v("ransac_threshold_px", s.ransac_threshold_px);
   v("pnp_reprojection_error_px", s.pnp_reprojection_error_px);
@@ -237,6 +253,7 @@ struct TrackResult {
   // Median over the inliers of |own depth x scale / keyframe point's depth - 1|.
   double depth_error = 0.0;
   bool new_keyframe = false;
+  bool guided = false;       // the pose is from the guided matches (step 1)
   double features_ms = 0.0;  // of track(), ORB's detection and descriptors
 };
 
@@ -305,10 +322,19 @@ class KeyframeTracker {
   // and features_ms).
   TrackResult track_detected(const TrackerFrame& frame, const std::vector<cv::KeyPoint>& keypoints,
                              const cv::Mat& descriptors, const Eigen::Isometry3d& T_W_C_prior);
-  // Steps 1-5 against one keyframe (no state changes).
+  // Steps 1-4 against one keyframe (no state changes); T_C_K_prior: the
+  // caller's prior for the frame relative to kf, for guided matching where
+  // the ratio test's matches place nothing; guide false: ratio-test matches
+  // only.
   TrackResult relative(const KeptKeyframe& kf, const TrackerFrame& frame,
-                       const std::vector<cv::KeyPoint>& keypoints,
-                       const cv::Mat& descriptors) const;
+                       const std::vector<cv::KeyPoint>& keypoints, const cv::Mat& descriptors,
+                       const std::optional<Eigen::Isometry3d>& T_C_K_prior,
+                       bool guide = true) const;
+  // Steps 2-4 from given matches (queryIdx: the frame's keypoints, trainIdx:
+  // kf's features).
+  TrackResult solve(const KeptKeyframe& kf, const TrackerFrame& frame,
+                    const std::vector<cv::KeyPoint>& keypoints,
+                    const std::vector<cv::DMatch>& matches) const;
   // Relocalising: the frame against the current and the kept keyframes.
   TrackResult relocalise(const TrackerFrame& frame, const std::vector<cv::KeyPoint>& keypoints,
                          const cv::Mat& descriptors, const Eigen::Isometry3d& T_W_C_prior);

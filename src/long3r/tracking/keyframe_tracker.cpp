@@ -13,6 +13,7 @@
 #include <chrono>
 #include <cmath>
 #include <iterator>
+#include <limits>
 #include <numeric>
 #include <sstream>
 #include <stdexcept>
@@ -29,6 +30,13 @@ constexpr double kMinShareInFront = 0.9;
 constexpr int kRansacSeed = 7;
 // Untracked frames in a row after which the last becomes the keyframe.
 constexpr int kKeyframeAfterLostFrames = 2;
+// Guided matching (KeyframeTrackerConfig::guided_matching): ORB-SLAM's
+// bounds for matches by projection (a Hamming distance of at most 64 of 256
+// bits, the best below 0.9 of the second best within the radius), and a
+// prior's radius this many times the radius about a pose the matches found.
+constexpr int kGuidedMaxDistance = 64;
+constexpr double kGuidedRatio = 0.9;
+constexpr double kPriorRadiusFactor = 3.0;
 
 // The value at half the total weight.
 double weighted_median(std::vector<std::pair<double, double>> value_weight) {
@@ -80,6 +88,8 @@ void KeyframeTrackerConfig::validate(const config::FieldCheck& check) const {
   check.require(ratio_test > 0.0 && ratio_test <= 1.0, "ratio_test", "must be in (0, 1]");
   check.require(min_matches >= 8, "min_matches",
                 "must be >= 8 (the essential matrix needs 5, PnP 6)");
+  check.require(guided_radius_px >= 1.0 && guided_radius_px <= 1000.0, "guided_radius_px",
+                "must be in [1, 1000]");
   check.require(ransac_threshold_px > 0.0 && std::isfinite(ransac_threshold_px),
                 "ransac_threshold_px", "must be > 0");
   check.require(pnp_reprojection_error_px > 0.0 && std::isfinite(pnp_reprojection_error_px),
@@ -321,11 +331,11 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
     r.new_keyframe = true;
     return r;
   }
-  TrackResult r_kf = relative(*keyframe_, frame, keypoints, descriptors);
+  TrackResult r_kf = relative(*keyframe_, frame, keypoints, descriptors, std::nullopt);
   if (!r_kf.posed() && last_) {
     // The keyframe is out of sight: the last tracked frame may still see
     // this one; it becomes the keyframe then.
-    TrackResult r_last = relative(*last_, frame, keypoints, descriptors);
+    TrackResult r_last = relative(*last_, frame, keypoints, descriptors, std::nullopt);
     if (r_last.posed()) {
       keyframe_ = std::move(*last_);
       last_.reset();
@@ -333,6 +343,13 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
       ++keyframes_;
       r_kf = r_last;
     }
+  }
+  if (!r_kf.posed() && config_.guided_matching) {
+    // Neither places it by the ratio test's matches: the keyframe's points
+    // where the caller's prior puts them may still find theirs.
+    TrackResult r_prior = relative(*keyframe_, frame, keypoints, descriptors,
+                                   T_W_C_prior.inverse() * keyframe_->T_W_K);
+    if (r_prior.posed()) r_kf = r_prior;
   }
   r = r_kf;
   if (!r.posed()) {
@@ -385,14 +402,59 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
 
 TrackResult KeyframeTracker::relative(const KeptKeyframe& kf, const TrackerFrame& frame,
                                       const std::vector<cv::KeyPoint>& keypoints,
-                                      const cv::Mat& descriptors) const {
+                                      const cv::Mat& descriptors,
+                                      const std::optional<Eigen::Isometry3d>& T_C_K_prior,
+                                      bool guide) const {
+  // 1. Matches frame -> keyframe, ratio test, one frame feature per keyframe feature.
+  const std::vector<cv::DMatch> matches =
+      ratio_matches(descriptors, kf.descriptors, config_.ratio_test);
+  TrackResult r = solve(kf, frame, keypoints, matches);
+  if (!guide || !config_.guided_matching) return r;
+  // 1b. Matches guided by the pose (search by projection): each keyframe
+  // point projected by the pose found, or by the caller's prior where none
+  // was, is matched within a radius, which finds the matches the ratio test
+  // drops among similar corners; the pose is solved again from them and
+  // kept where more matches agree with it.
+  std::optional<Eigen::Isometry3d> guess;
+  double radius = config_.guided_radius_px;
+  if (r.posed()) {
+    guess = r.T_W_C.inverse() * kf.T_W_K;
+  } else if (T_C_K_prior) {
+    guess = T_C_K_prior;
+    radius *= kPriorRadiusFactor;
+  }
+  if (!guess) return r;
+  std::vector<cv::Point2f> predicted(kf.points.size(),
+                                     cv::Point2f(std::numeric_limits<float>::quiet_NaN(), 0.0f));
+  for (std::size_t i = 0; i < kf.points.size(); ++i) {
+    if (!kf.points[i]) continue;
+    const Eigen::Vector3d X = *guess * *kf.points[i];
+    if (X.z() <= 0.0) continue;
+    const Eigen::Vector3d p = frame.K * (X / X.z());
+    predicted[i] = cv::Point2f(static_cast<float>(p.x()), static_cast<float>(p.y()));
+  }
+  // The guided matches replace the ratio test's: kept beside them instead,
+  // the paths were no better (docs/model_card.md, "Guided matching").
+  const std::vector<cv::DMatch> guided = projected_matches(
+      keypoints, descriptors, predicted, kf.descriptors, radius, kGuidedMaxDistance, kGuidedRatio);
+  if (guided.size() <= matches.size() && r.posed()) return r;
+  TrackResult g = solve(kf, frame, keypoints, guided);
+  if (g.posed() && (!r.posed() || g.inliers > r.inliers)) {
+    g.guided = true;
+    return g;
+  }
+  return r;
+}
+
+TrackResult KeyframeTracker::solve(const KeptKeyframe& kf, const TrackerFrame& frame,
+                                   const std::vector<cv::KeyPoint>& keypoints,
+                                   const std::vector<cv::DMatch>& matches) const {
   TrackResult r;
   r.scale = last_scale_;  // unless the frame measures its own (4.)
   std::ostringstream why;
-  // 1. Matches frame -> keyframe, ratio test, one frame feature per keyframe feature.
   std::vector<cv::Point2f> px_k, px_f;
   std::vector<int> idx_k;
-  for (const cv::DMatch& m : ratio_matches(descriptors, kf.descriptors, config_.ratio_test)) {
+  for (const cv::DMatch& m : matches) {
     idx_k.push_back(m.trainIdx);
     px_k.push_back(kf.pixels[static_cast<std::size_t>(m.trainIdx)]);
     px_f.push_back(keypoints[static_cast<std::size_t>(m.queryIdx)].pt);
@@ -630,7 +692,8 @@ TrackResult KeyframeTracker::relocalise(const TrackerFrame& frame,
   // The failing candidate with the most inliers (then matches), for the message.
   std::optional<std::pair<TrackResult, std::string>> closest;
   for (const KeptKeyframe* k : candidates) {
-    TrackResult r = relative(*k, frame, keypoints, descriptors);
+    // Without guidance: the checks below were measured on ratio-test matches.
+    TrackResult r = relative(*k, frame, keypoints, descriptors, std::nullopt, false);
     std::string why = relocalisation_failure(r);
     if (why.empty()) {
       if (!best || r.inliers > best->first.inliers) best.emplace(r, k);
