@@ -322,14 +322,17 @@ class KeyframeTracker {
   // and features_ms).
   TrackResult track_detected(const TrackerFrame& frame, const std::vector<cv::KeyPoint>& keypoints,
                              const cv::Mat& descriptors, const Eigen::Isometry3d& T_W_C_prior);
-  // Steps 1-4 against one keyframe (no state changes); T_C_K_prior: the
-  // caller's prior for the frame relative to kf, for guided matching where
-  // the ratio test's matches place nothing; guide false: ratio-test matches
-  // only.
+  // Steps 1-4 against one keyframe (no state changes); guide false:
+  // ratio-test matches only.
   TrackResult relative(const KeptKeyframe& kf, const TrackerFrame& frame,
                        const std::vector<cv::KeyPoint>& keypoints, const cv::Mat& descriptors,
-                       const std::optional<Eigen::Isometry3d>& T_C_K_prior,
                        bool guide = true) const;
+  // Step 1's guided matching about a guess of the frame's pose relative to
+  // kf, then steps 2-4 (not posed unless more than more_than matches).
+  TrackResult by_projection(const KeptKeyframe& kf, const TrackerFrame& frame,
+                            const std::vector<cv::KeyPoint>& keypoints, const cv::Mat& descriptors,
+                            const Eigen::Isometry3d& T_C_K_guess, double radius_px,
+                            std::size_t more_than) const;
   // Steps 2-4 from given matches (queryIdx: the frame's keypoints, trainIdx:
   // kf's features).
   TrackResult solve(const KeptKeyframe& kf, const TrackerFrame& frame,

@@ -331,11 +331,11 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
     r.new_keyframe = true;
     return r;
   }
-  TrackResult r_kf = relative(*keyframe_, frame, keypoints, descriptors, std::nullopt);
+  TrackResult r_kf = relative(*keyframe_, frame, keypoints, descriptors);
   if (!r_kf.posed() && last_) {
     // The keyframe is out of sight: the last tracked frame may still see
     // this one; it becomes the keyframe then.
-    TrackResult r_last = relative(*last_, frame, keypoints, descriptors, std::nullopt);
+    TrackResult r_last = relative(*last_, frame, keypoints, descriptors);
     if (r_last.posed()) {
       keyframe_ = std::move(*last_);
       last_.reset();
@@ -347,8 +347,9 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
   if (!r_kf.posed() && config_.guided_matching) {
     // Neither places it by the ratio test's matches: the keyframe's points
     // where the caller's prior puts them may still find theirs.
-    TrackResult r_prior = relative(*keyframe_, frame, keypoints, descriptors,
-                                   T_W_C_prior.inverse() * keyframe_->T_W_K);
+    TrackResult r_prior = by_projection(*keyframe_, frame, keypoints, descriptors,
+                                        T_W_C_prior.inverse() * keyframe_->T_W_K,
+                                        config_.guided_radius_px * kPriorRadiusFactor, 0);
     if (r_prior.posed()) r_kf = r_prior;
   }
   r = r_kf;
@@ -402,48 +403,51 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
 
 TrackResult KeyframeTracker::relative(const KeptKeyframe& kf, const TrackerFrame& frame,
                                       const std::vector<cv::KeyPoint>& keypoints,
-                                      const cv::Mat& descriptors,
-                                      const std::optional<Eigen::Isometry3d>& T_C_K_prior,
-                                      bool guide) const {
+                                      const cv::Mat& descriptors, bool guide) const {
   // 1. Matches frame -> keyframe, ratio test, one frame feature per keyframe feature.
   const std::vector<cv::DMatch> matches =
       ratio_matches(descriptors, kf.descriptors, config_.ratio_test);
   TrackResult r = solve(kf, frame, keypoints, matches);
-  if (!guide || !config_.guided_matching) return r;
-  // 1b. Matches guided by the pose (search by projection): each keyframe
-  // point projected by the pose found, or by the caller's prior where none
-  // was, is matched within a radius, which finds the matches the ratio test
-  // drops among similar corners; the pose is solved again from them and
-  // kept where more matches agree with it.
-  std::optional<Eigen::Isometry3d> guess;
-  double radius = config_.guided_radius_px;
-  if (r.posed()) {
-    guess = r.T_W_C.inverse() * kf.T_W_K;
-  } else if (T_C_K_prior) {
-    guess = T_C_K_prior;
-    radius *= kPriorRadiusFactor;
-  }
-  if (!guess) return r;
+  if (!guide || !config_.guided_matching || !r.posed()) return r;
+  // 1b. Matched again about the pose found; kept where more matches agree.
+  TrackResult g = by_projection(kf, frame, keypoints, descriptors, r.T_W_C.inverse() * kf.T_W_K,
+                                config_.guided_radius_px, matches.size());
+  return g.posed() && g.inliers > r.inliers ? g : r;
+}
+
+TrackResult KeyframeTracker::by_projection(const KeptKeyframe& kf, const TrackerFrame& frame,
+                                           const std::vector<cv::KeyPoint>& keypoints,
+                                           const cv::Mat& descriptors,
+                                           const Eigen::Isometry3d& T_C_K_guess, double radius_px,
+                                           std::size_t more_than) const {
+  // Search by projection: each keyframe point projected by the guess is
+  // matched within the radius, which finds the matches the ratio test drops
+  // among similar corners. The guided matches replace the ratio test's: kept
+  // beside them instead, the paths were no better (docs/model_card.md,
+  // "Guided matching").
   std::vector<cv::Point2f> predicted(kf.points.size(),
                                      cv::Point2f(std::numeric_limits<float>::quiet_NaN(), 0.0f));
   for (std::size_t i = 0; i < kf.points.size(); ++i) {
     if (!kf.points[i]) continue;
-    const Eigen::Vector3d X = *guess * *kf.points[i];
+    const Eigen::Vector3d X = T_C_K_guess * *kf.points[i];
     if (X.z() <= 0.0) continue;
     const Eigen::Vector3d p = frame.K * (X / X.z());
     predicted[i] = cv::Point2f(static_cast<float>(p.x()), static_cast<float>(p.y()));
   }
-  // The guided matches replace the ratio test's: kept beside them instead,
-  // the paths were no better (docs/model_card.md, "Guided matching").
-  const std::vector<cv::DMatch> guided = projected_matches(
-      keypoints, descriptors, predicted, kf.descriptors, radius, kGuidedMaxDistance, kGuidedRatio);
-  if (guided.size() <= matches.size() && r.posed()) return r;
-  TrackResult g = solve(kf, frame, keypoints, guided);
-  if (g.posed() && (!r.posed() || g.inliers > r.inliers)) {
-    g.guided = true;
-    return g;
+  const std::vector<cv::DMatch> guided =
+      projected_matches(keypoints, descriptors, predicted, kf.descriptors, radius_px,
+                        kGuidedMaxDistance, kGuidedRatio);
+  if (guided.size() <= more_than) {
+    TrackResult r;
+    r.status = TrackStatus::kTooFewMatches;
+    r.scale = last_scale_;
+    r.matches = static_cast<int>(guided.size());
+    r.message = std::to_string(guided.size()) + " matches by projection";
+    return r;
   }
-  return r;
+  TrackResult g = solve(kf, frame, keypoints, guided);
+  g.guided = g.posed();
+  return g;
 }
 
 TrackResult KeyframeTracker::solve(const KeptKeyframe& kf, const TrackerFrame& frame,
@@ -693,7 +697,7 @@ TrackResult KeyframeTracker::relocalise(const TrackerFrame& frame,
   std::optional<std::pair<TrackResult, std::string>> closest;
   for (const KeptKeyframe* k : candidates) {
     // Without guidance: the checks below were measured on ratio-test matches.
-    TrackResult r = relative(*k, frame, keypoints, descriptors, std::nullopt, false);
+    TrackResult r = relative(*k, frame, keypoints, descriptors, false);
     std::string why = relocalisation_failure(r);
     if (why.empty()) {
       if (!best || r.inliers > best->first.inliers) best.emplace(r, k);
