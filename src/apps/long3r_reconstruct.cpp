@@ -400,9 +400,9 @@ int main(int argc, char** argv) {
       char tracking[192] = ",,,,,,,,";
       if (const auto& k = r.tracking) {
         std::snprintf(tracking, sizeof tracking, "%s,%s,%d,%d,%.3f,%.6g,%d,%.3f,%.3f",
-                      to_string(k->status), config::enum_name(k->solver), k->matches, k->inliers,
-                      k->parallax_deg, k->scale, k->new_keyframe ? 1 : 0, t.tracking_ms,
-                      k->features_ms);
+                      to_string(k->status), k->flow ? "flow" : config::enum_name(k->solver),
+                      k->matches, k->inliers, k->parallax_deg, k->scale, k->new_keyframe ? 1 : 0,
+                      t.tracking_ms, k->features_ms);
       }
       // Placed by given poses with --scale-source odometry: the images' sample
       // of metres per model unit over the baseline (else empty).

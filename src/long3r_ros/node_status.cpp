@@ -79,6 +79,7 @@ void fillDiagnostics(const NodeStatus& n, diagnostic_updater::DiagnosticStatusWr
   stat.add("relocalisations", s.relocalisations);
   stat.add("relocalisations refused by the images", s.relocalisations_refused);
   stat.add("frames tracked by keyframes (total)", s.keyframe_tracked);
+  stat.add("of them followed by optical flow (total)", s.keyframe_flow);
   stat.add("frames not tracked: placed by the motion prior (total)", s.keyframe_untracked);
   stat.add("frames that lost the keyframes: relocalising (total)", s.keyframe_lost);
   stat.add("map points kept from ended streams", n.ended_map_points);

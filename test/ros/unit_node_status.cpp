@@ -90,9 +90,11 @@ TEST(NodeStatus, FiguresAreReported) {
   n.window.latency_max_s = 0.2;
   n.session.keyframe_tracked = 40;
   n.session.keyframe_untracked = 3;
+  n.session.keyframe_flow = 5;
   n.session.keyframe_lost = 2;
   const auto stat = diagnose(n);
   EXPECT_EQ(value(stat, "frames tracked by keyframes (total)"), "40");
+  EXPECT_EQ(value(stat, "of them followed by optical flow (total)"), "5");
   EXPECT_EQ(value(stat, "frames not tracked: placed by the motion prior (total)"), "3");
   EXPECT_EQ(value(stat, "frames that lost the keyframes: relocalising (total)"), "2");
   EXPECT_EQ(value(stat, "scale source"), "odometry");

@@ -373,6 +373,7 @@ TEST(KeyframeTracker, AFrameTheRatioTestCannotPlaceIsMatchedWhereItsPriorPutsIt)
   auto track_second = [&](bool guided, const Eigen::Isometry3d& prior) {
     KeyframeTrackerConfig c = strict;
     c.guided_matching = guided;
+    c.flow_bridge = false;  // which would follow the frame from the one before
     KeyframeTracker tracker(c);
     EXPECT_EQ(tracker.track(frame(f, 0)).status, TrackStatus::kKeyframe);
     return tracker.track(frame(f, 2), prior);
@@ -396,6 +397,64 @@ TEST(KeyframeTracker, AFrameTheRatioTestCannotPlaceIsMatchedWhereItsPriorPutsIt)
   const Eigen::Isometry3d far = truth * Eigen::Translation3d(1.0, 0.0, 0.0) *
                                 Eigen::AngleAxisd(30.0 * M_PI / 180.0, Eigen::Vector3d::UnitY());
   EXPECT_FALSE(track_second(true, far).posed());
+}
+
+// flow_bridge: a frame the features cannot place (here a ratio test too
+// strict to keep enough matches, as similar corners on a plain wall do) is
+// followed by optical flow from the frame just before, where that frame was
+// posed; it then becomes the keyframe. Across a gap (a frame not posed) or
+// while a lost frame must be relocalised, nothing is bridged.
+TEST(KeyframeTracker, AFrameTheFeaturesCannotPlaceIsFollowedByOpticalFlow) {
+  const Footage f = render(synth::TrajectoryType::kWalk, 4, 11);
+  KeyframeTrackerConfig strict;
+  strict.ratio_test = 0.2;
+  auto truth = [&](int k) { return f.T_W_C[0].inverse() * f.T_W_C[k]; };
+  auto off_m = [&](const TrackResult& r, int k) {
+    return (r.T_W_C.translation() - truth(k).translation()).norm();
+  };
+  auto off_deg = [&](const TrackResult& r, int k) {
+    return angle_deg(r.T_W_C.linear().transpose() * truth(k).linear());
+  };
+  {
+    KeyframeTrackerConfig c = strict;
+    c.flow_bridge = false;
+    KeyframeTracker tracker(c);
+    tracker.track(frame(f, 0));
+    const TrackResult r = tracker.track(frame(f, 2));
+    EXPECT_EQ(r.status, TrackStatus::kTooFewMatches) << r.matches << " matches";
+  }
+  KeyframeTracker tracker(strict);
+  ASSERT_EQ(tracker.track(frame(f, 0)).status, TrackStatus::kKeyframe);
+  const TrackResult r = tracker.track(frame(f, 2));
+  ASSERT_EQ(r.status, TrackStatus::kTracked) << r.message;
+  EXPECT_TRUE(r.flow);
+  EXPECT_TRUE(r.new_keyframe);
+  EXPECT_TRUE(r.scale_measured);
+  std::printf("flow: %d of %d tracks agree, %.4f m and %.3f deg off (moved %.3f m, %.2f deg)\n",
+              r.inliers, r.matches, off_m(r, 2), off_deg(r, 2), truth(2).translation().norm(),
+              angle_deg(truth(2).linear()));
+  EXPECT_GT(r.inliers, 100);
+  EXPECT_LT(off_m(r, 2), 0.01);
+  EXPECT_LT(off_deg(r, 2), 0.3);
+  EXPECT_NEAR(r.scale, 1.0, 0.02);
+  // The world rescaled: the bridge's last frame with it.
+  tracker.rescale(2.0);
+  const TrackResult scaled = tracker.track(frame(f, 3, 2.0));
+  ASSERT_TRUE(scaled.posed()) << scaled.message;
+  EXPECT_LT((scaled.T_W_C.translation() - 2.0 * truth(3).translation()).norm(), 0.02);
+  // A frame not posed (black) leaves a gap the flow does not cross.
+  TrackerFrame black = frame(f, 0);
+  black.gray = cv::Mat(kH, kW, CV_8UC1, cv::Scalar(0));
+  EXPECT_EQ(tracker.track(black).status, TrackStatus::kTooFewFeatures);
+  const TrackResult after_gap = tracker.track(frame(f, 0, 2.0));
+  EXPECT_FALSE(after_gap.posed()) << to_string(after_gap.status);
+  EXPECT_FALSE(after_gap.flow);
+  // when_lost relocalise: the kept keyframes must place a lost frame.
+  KeyframeTrackerConfig relocalise = strict;
+  relocalise.when_lost = WhenLost::kRelocalise;
+  KeyframeTracker relocalising(relocalise);
+  relocalising.track(frame(f, 0));
+  EXPECT_EQ(relocalising.track(frame(f, 2)).status, TrackStatus::kLost);
 }
 
 TEST(KeyframeTracker, APointmapBehindTheCameraIsNeverAKeyframe) {

@@ -193,6 +193,9 @@ struct LiveStatus {
   // frames that lost it (tracker_when_lost relocalise: a cut to another
   // scene or a fast move, not posed, relocalising from the next frame).
   std::uint64_t keyframe_tracked = 0, keyframe_untracked = 0, keyframe_lost = 0;
+  // Of the tracked frames, those the optical-flow bridge posed
+  // (tracker_flow_bridge: too few features or matches for the keyframes).
+  std::uint64_t keyframe_flow = 0;
   std::string calibration = "none";  // the one in use, or why the latest was refused
   bool calibration_refused = false;  // the latest calibration was not used
   ScaleEstimate scale_estimate;

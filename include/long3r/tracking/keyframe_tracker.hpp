@@ -40,6 +40,12 @@
 //      placed it.
 // A frame with too few matches (a blank wall, a dark or blurred image, a cut
 // to another scene) is not posed: the caller falls back (its motion prior).
+// With flow_bridge, such a frame is first tracked by optical flow from the
+// last frame the images posed (when_lost prior): Shi-Tomasi corners there,
+// whose threshold follows the image's own contrast where FAST's is fixed,
+// followed by pyramidal Lucas-Kanade (kept where the flow back returns to
+// them), lifted by that frame's depth, then steps 2-4 as for a keyframe.
+// Posed so, it becomes the keyframe where it has the features for one.
 // A pointmap that lies behind its camera never makes a keyframe.
 //
 // Relocalisation by images: keyframes from new viewpoints are kept (a
@@ -172,6 +178,10 @@ struct KeyframeTrackerConfig {
   // (docs/model_card.md, "A cut to another scene").
   WhenLost when_lost = WhenLost::kPrior;
   MotionPrior motion_prior = MotionPrior::kConstantVelocity;
+  // The optical-flow bridge above, for frames the features cannot place
+  // (when_lost prior only: with relocalise a lost frame must be placed by
+  // the kept keyframes).
+  bool flow_bridge = true;
 
   // Throws ConfigError naming the field.
   void validate(const config::FieldCheck& check) const;
@@ -202,6 +212,7 @@ config::FieldsOf<S, KeyframeTrackerConfig> visit_fields(S& s, V& v) {
   v("max_kept_keyframes", s.max_kept_keyframes);
   v("when_lost", s.when_lost);
   v("motion_prior", s.motion_prior);
+  v("flow_bridge", s.flow_bridge);
 }
 
 // One frame as the tracker sees it.
@@ -254,6 +265,7 @@ struct TrackResult {
   double depth_error = 0.0;
   bool new_keyframe = false;
   bool guided = false;       // the pose is from the guided matches (step 1)
+  bool flow = false;         // the pose is from the optical-flow bridge
   double features_ms = 0.0;  // of track(), ORB's detection and descriptors
 };
 
@@ -345,6 +357,13 @@ class KeyframeTracker {
   std::string relocalisation_failure(const TrackResult& r) const;
   // The current keyframe changed to `k`: kept unless a kept one is near.
   void keep(const KeptKeyframe& k);
+  // The optical-flow bridge from previous_ (posed unless too few tracks).
+  TrackResult by_flow(const TrackerFrame& frame) const;
+  // The state after a frame the bridge posed (f), which it returns.
+  TrackResult posed_by_flow(const TrackerFrame& frame, const std::vector<cv::KeyPoint>& keypoints,
+                            const cv::Mat& descriptors, TrackResult f);
+  // A posed frame: the next frame's bridge starts from it (with flow_bridge).
+  void remember(const TrackerFrame& frame, const TrackResult& r);
 
   KeyframeTrackerConfig config_;
   cv::Ptr<cv::ORB> orb_;  // made once: OpenCV's ORB defaults but the FAST threshold (theirs: 20)
@@ -352,6 +371,13 @@ class KeyframeTracker {
   // The last tracked frame as a keyframe would keep it: the next keyframe
   // when the current one goes out of sight.
   std::optional<Keyframe> last_;
+  // The last frame the images posed (its own copies), where the bridge starts.
+  struct Posed {
+    TrackerFrame frame;
+    Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
+    double scale = 1.0;
+  };
+  std::optional<Posed> previous_;
   double last_scale_ = 1.0;
   int lost_ = 0;  // untracked frames in a row
   int keyframes_ = 0;

@@ -595,6 +595,7 @@ void LiveSession::deliver(FrameResult frame) {
   if (const auto& k = f.tracking) {
     if (k->posed()) {
       ++status_.keyframe_tracked;
+      if (k->flow) ++status_.keyframe_flow;
     } else if (k->status == TrackStatus::kLost) {  // track_loss() says so
       ++status_.keyframe_lost;
     } else if (k->status != TrackStatus::kRefused) {  // refused: track_loss() says so

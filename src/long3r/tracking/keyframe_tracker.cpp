@@ -7,6 +7,8 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/eigen.hpp>
 #include <opencv2/features2d.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
 
 #include <algorithm>
 #include <array>
@@ -37,6 +39,18 @@ constexpr int kKeyframeAfterLostFrames = 2;
 constexpr int kGuidedMaxDistance = 64;
 constexpr double kGuidedRatio = 0.9;
 constexpr double kPriorRadiusFactor = 3.0;
+// The optical-flow bridge (KeyframeTrackerConfig::flow_bridge): Shi-Tomasi
+// corners at least this share of the strongest one's response (so a dim or
+// low-contrast wall still gives some) and this far apart, tracked by
+// pyramidal Lucas-Kanade with this window and pyramid (levels above the
+// image: about 170 px of motion), and kept where the flow back lands within
+// this distance of where the corner was.
+constexpr int kFlowCorners = 500;
+constexpr double kFlowQuality = 0.001;
+constexpr double kFlowMinDistancePx = 8.0;
+constexpr int kFlowWindowPx = 21;
+constexpr int kFlowLevels = 3;
+constexpr double kFlowBackPx = 1.0;
 
 // The value at half the total weight.
 double weighted_median(std::vector<std::pair<double, double>> value_weight) {
@@ -190,6 +204,7 @@ double median_depth(const std::vector<std::optional<Eigen::Vector3d>>& points) {
 void KeyframeTracker::reset() {
   keyframe_.reset();
   last_.reset();
+  previous_.reset();
   lost_ = 0;
   last_scale_ = 1.0;
   keyframes_ = 0;
@@ -230,6 +245,10 @@ void KeyframeTracker::rescale(double factor) {
     if (*k) rescale_one(**k);
   }
   for (KeptKeyframe& k : kept_) rescale_one(k);
+  if (previous_) {
+    previous_->T_W_C.translation() *= factor;
+    previous_->scale *= factor;
+  }
 }
 
 void KeyframeTracker::keep(const KeptKeyframe& k) {
@@ -293,6 +312,10 @@ TrackResult KeyframeTracker::track(const TrackerFrame& frame,
   const std::chrono::duration<double, std::milli> features_time =
       std::chrono::steady_clock::now() - t0;
   TrackResult r = track_detected(frame, keypoints, descriptors, T_W_C_prior);
+  // The bridge follows the flow from the frame just before only: across a
+  // gap the motion is the gap's, too large for it (on real frames a second
+  // apart it posed a frame 74 degrees off).
+  if (!r.posed()) previous_.reset();
   r.features = static_cast<int>(keypoints.size());  // whichever path made r
   r.features_ms = features_time.count();
   return r;
@@ -306,14 +329,26 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
   r.scale = last_scale_;  // unless this frame measures its own
   r.features = static_cast<int>(keypoints.size());
   std::ostringstream why;
+  const bool bridge = config_.flow_bridge && config_.when_lost == WhenLost::kPrior &&
+                      !relocalising_ && keyframe_ && previous_;
   if (r.features < config_.min_matches) {
     // Relocalising, nothing but the images may place a frame.
     r.status = relocalising_ ? TrackStatus::kRefused : TrackStatus::kTooFewFeatures;
     why << r.features << " features in the image (at least " << config_.min_matches << " needed)";
     r.message = why.str();
+    if (!bridge) return r;
+    TrackResult f = by_flow(frame);
+    if (!f.posed()) {
+      r.message += "; " + f.message;
+      return r;
+    }
+    return posed_by_flow(frame, keypoints, descriptors, std::move(f));
+  }
+  if (relocalising_) {
+    r = relocalise(frame, keypoints, descriptors, T_W_C_prior);
+    if (r.posed()) remember(frame, r);
     return r;
   }
-  if (relocalising_) return relocalise(frame, keypoints, descriptors, T_W_C_prior);
   const bool in_front = share_in_front(frame.points_C) >= kMinShareInFront;
 
   if (!keyframe_) {
@@ -329,6 +364,7 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
     r.status = TrackStatus::kKeyframe;
     r.T_W_C = T_W_C_prior;
     r.new_keyframe = true;
+    remember(frame, r);
     return r;
   }
   TrackResult r_kf = relative(*keyframe_, frame, keypoints, descriptors);
@@ -351,6 +387,11 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
                                         T_W_C_prior.inverse() * keyframe_->T_W_K,
                                         config_.guided_radius_px * kPriorRadiusFactor, 0);
     if (r_prior.posed()) r_kf = r_prior;
+  }
+  if (!r_kf.posed() && bridge) {
+    TrackResult f = by_flow(frame);
+    if (f.posed()) return posed_by_flow(frame, keypoints, descriptors, std::move(f));
+    r_kf.message += "; " + f.message;
   }
   r = r_kf;
   if (!r.posed()) {
@@ -398,7 +439,92 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
       last_ = std::move(next);
     }
   }
+  remember(frame, r);
   return r;
+}
+
+TrackResult KeyframeTracker::posed_by_flow(const TrackerFrame& frame,
+                                           const std::vector<cv::KeyPoint>& keypoints,
+                                           const cv::Mat& descriptors, TrackResult f) {
+  // The keyframe does not see the frame: it becomes the keyframe where it
+  // has the features (and the depth) for one, else the keyframe stays and
+  // the next frame's bridge starts from this one.
+  f.features = static_cast<int>(keypoints.size());
+  lost_ = 0;
+  last_.reset();
+  if (f.scale_measured) last_scale_ = f.scale;
+  if (f.features >= config_.min_matches && f.scale_measured &&
+      share_in_front(frame.points_C) >= kMinShareInFront) {
+    keyframe_ = make_keyframe(frame, keypoints, descriptors, f.T_W_C, f.scale);
+    keep(*keyframe_);
+    ++keyframes_;
+    f.new_keyframe = true;
+  }
+  remember(frame, f);
+  return f;
+}
+
+void KeyframeTracker::remember(const TrackerFrame& frame, const TrackResult& r) {
+  if (!config_.flow_bridge) return;
+  // Copies: the caller may reuse or rescale its buffers.
+  Posed p;
+  p.frame.gray = frame.gray.clone();
+  p.frame.K = frame.K;
+  p.frame.points_C = frame.points_C.clone();
+  p.frame.model_to_image = frame.model_to_image;
+  p.frame.depth = frame.depth.clone();
+  p.T_W_C = r.T_W_C;
+  p.scale = r.scale;
+  previous_ = std::move(p);
+}
+
+TrackResult KeyframeTracker::by_flow(const TrackerFrame& frame) const {
+  const Posed& p = *previous_;
+  TrackResult r;
+  r.status = TrackStatus::kTooFewMatches;
+  r.scale = last_scale_;
+  if (p.frame.gray.size() != frame.gray.size()) {
+    r.message = "optical flow: the image's size changed since the last posed frame";
+    return r;
+  }
+  std::vector<cv::Point2f> corners;
+  cv::goodFeaturesToTrack(p.frame.gray, corners, kFlowCorners, kFlowQuality, kFlowMinDistancePx);
+  std::vector<cv::Point2f> tracked, back;
+  std::vector<uchar> found, found_back;
+  std::vector<float> error;
+  const cv::Size window(kFlowWindowPx, kFlowWindowPx);
+  if (!corners.empty()) {
+    cv::calcOpticalFlowPyrLK(p.frame.gray, frame.gray, corners, tracked, found, error, window,
+                             kFlowLevels);
+    back = corners;  // the flow back starts where the corners were
+    cv::calcOpticalFlowPyrLK(
+        frame.gray, p.frame.gray, tracked, back, found_back, error, window, kFlowLevels,
+        cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 30, 0.01),
+        cv::OPTFLOW_USE_INITIAL_FLOW);
+  }
+  // The last posed frame's corners as a keyframe's features, the tracked
+  // pixels as the frame's, matched one to one.
+  std::vector<cv::KeyPoint> from, to;
+  std::vector<cv::DMatch> matches;
+  const cv::Rect inside(0, 0, frame.gray.cols, frame.gray.rows);
+  for (std::size_t i = 0; i < corners.size(); ++i) {
+    if (!found[i] || !found_back[i] || cv::norm(back[i] - corners[i]) > kFlowBackPx ||
+        !inside.contains(cv::Point(cvRound(tracked[i].x), cvRound(tracked[i].y)))) {
+      continue;
+    }
+    const int j = static_cast<int>(from.size());
+    matches.emplace_back(j, j, 0.0f);
+    from.emplace_back(corners[i], 1.0f);
+    to.emplace_back(tracked[i], 1.0f);
+  }
+  const Keyframe previous = make_keyframe(p.frame, from, cv::Mat(), p.T_W_C, p.scale);
+  TrackResult f = solve(previous, frame, to, matches);
+  f.flow = f.posed();
+  if (!f.posed()) {
+    f.message = "optical flow from the last posed frame: " + std::to_string(matches.size()) +
+                " of " + std::to_string(corners.size()) + " corners followed; " + f.message;
+  }
+  return f;
 }
 
 TrackResult KeyframeTracker::relative(const KeptKeyframe& kf, const TrackerFrame& frame,
