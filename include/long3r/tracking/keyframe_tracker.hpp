@@ -334,6 +334,10 @@ class KeyframeTracker {
   // and features_ms).
   TrackResult track_detected(const TrackerFrame& frame, const std::vector<cv::KeyPoint>& keypoints,
                              const cv::Mat& descriptors, const Eigen::Isometry3d& T_W_C_prior);
+  // Steps 1-4 against the keyframe, else the last tracked frame (which then
+  // becomes the keyframe), else (guided_matching) about the caller's prior.
+  TrackResult match(const TrackerFrame& frame, const std::vector<cv::KeyPoint>& keypoints,
+                    const cv::Mat& descriptors, const Eigen::Isometry3d& T_W_C_prior);
   // Steps 1-4 against one keyframe (no state changes); guide false:
   // ratio-test matches only.
   TrackResult relative(const KeptKeyframe& kf, const TrackerFrame& frame,

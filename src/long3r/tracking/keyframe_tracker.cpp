@@ -328,30 +328,24 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
   TrackResult r;
   r.scale = last_scale_;  // unless this frame measures its own
   r.features = static_cast<int>(keypoints.size());
-  std::ostringstream why;
-  const bool bridge = config_.flow_bridge && config_.when_lost == WhenLost::kPrior &&
-                      !relocalising_ && keyframe_ && previous_;
-  if (r.features < config_.min_matches) {
+  // previous_ is only kept while there is a keyframe (reset() and restore()
+  // drop both).
+  const bool bridge =
+      config_.flow_bridge && config_.when_lost == WhenLost::kPrior && !relocalising_ && previous_;
+  const bool too_few_features = r.features < config_.min_matches;
+  const bool in_front = share_in_front(frame.points_C) >= kMinShareInFront;
+  if (too_few_features) {
     // Relocalising, nothing but the images may place a frame.
     r.status = relocalising_ ? TrackStatus::kRefused : TrackStatus::kTooFewFeatures;
+    std::ostringstream why;
     why << r.features << " features in the image (at least " << config_.min_matches << " needed)";
     r.message = why.str();
     if (!bridge) return r;
-    TrackResult f = by_flow(frame);
-    if (!f.posed()) {
-      r.message += "; " + f.message;
-      return r;
-    }
-    return posed_by_flow(frame, keypoints, descriptors, std::move(f));
-  }
-  if (relocalising_) {
+  } else if (relocalising_) {
     r = relocalise(frame, keypoints, descriptors, T_W_C_prior);
     if (r.posed()) remember(frame, r);
     return r;
-  }
-  const bool in_front = share_in_front(frame.points_C) >= kMinShareInFront;
-
-  if (!keyframe_) {
+  } else if (!keyframe_) {
     if (!in_front) {
       r.status = TrackStatus::kNoDepth;
       r.message = "the pointmap lies behind the camera: not a keyframe";
@@ -366,34 +360,17 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
     r.new_keyframe = true;
     remember(frame, r);
     return r;
+  } else {
+    r = match(frame, keypoints, descriptors, T_W_C_prior);
   }
-  TrackResult r_kf = relative(*keyframe_, frame, keypoints, descriptors);
-  if (!r_kf.posed() && last_) {
-    // The keyframe is out of sight: the last tracked frame may still see
-    // this one; it becomes the keyframe then.
-    TrackResult r_last = relative(*last_, frame, keypoints, descriptors);
-    if (r_last.posed()) {
-      keyframe_ = std::move(*last_);
-      last_.reset();
-      keep(*keyframe_);
-      ++keyframes_;
-      r_kf = r_last;
-    }
-  }
-  if (!r_kf.posed() && config_.guided_matching) {
-    // Neither places it by the ratio test's matches: the keyframe's points
-    // where the caller's prior puts them may still find theirs.
-    TrackResult r_prior = by_projection(*keyframe_, frame, keypoints, descriptors,
-                                        T_W_C_prior.inverse() * keyframe_->T_W_K,
-                                        config_.guided_radius_px * kPriorRadiusFactor, 0);
-    if (r_prior.posed()) r_kf = r_prior;
-  }
-  if (!r_kf.posed() && bridge) {
+  if (!r.posed() && bridge) {
     TrackResult f = by_flow(frame);
     if (f.posed()) return posed_by_flow(frame, keypoints, descriptors, std::move(f));
-    r_kf.message += "; " + f.message;
+    r.message += "; " + f.message;
   }
-  r = r_kf;
+  // Too few features to tell a lost view from a blank or dark image: the
+  // keyframe waits for the next frame with features.
+  if (too_few_features) return r;
   if (!r.posed()) {
     if (r.status == TrackStatus::kTooFewMatches && config_.when_lost == WhenLost::kRelocalise) {
       // The view changed too much to say where it went (a cut to another
@@ -443,17 +420,44 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
   return r;
 }
 
+TrackResult KeyframeTracker::match(const TrackerFrame& frame,
+                                   const std::vector<cv::KeyPoint>& keypoints,
+                                   const cv::Mat& descriptors,
+                                   const Eigen::Isometry3d& T_W_C_prior) {
+  TrackResult r = relative(*keyframe_, frame, keypoints, descriptors);
+  if (!r.posed() && last_) {
+    // The keyframe is out of sight: the last tracked frame may still see
+    // this one; it becomes the keyframe then.
+    TrackResult r_last = relative(*last_, frame, keypoints, descriptors);
+    if (r_last.posed()) {
+      keyframe_ = std::move(*last_);
+      last_.reset();
+      keep(*keyframe_);
+      ++keyframes_;
+      r = r_last;
+    }
+  }
+  if (!r.posed() && config_.guided_matching) {
+    // Neither places it by the ratio test's matches: the keyframe's points
+    // where the caller's prior puts them may still find theirs.
+    TrackResult r_prior = by_projection(*keyframe_, frame, keypoints, descriptors,
+                                        T_W_C_prior.inverse() * keyframe_->T_W_K,
+                                        config_.guided_radius_px * kPriorRadiusFactor, 0);
+    if (r_prior.posed()) r = r_prior;
+  }
+  return r;
+}
+
 TrackResult KeyframeTracker::posed_by_flow(const TrackerFrame& frame,
                                            const std::vector<cv::KeyPoint>& keypoints,
                                            const cv::Mat& descriptors, TrackResult f) {
   // The keyframe does not see the frame: it becomes the keyframe where it
   // has the features (and the depth) for one, else the keyframe stays and
   // the next frame's bridge starts from this one.
-  f.features = static_cast<int>(keypoints.size());
   lost_ = 0;
   last_.reset();
   if (f.scale_measured) last_scale_ = f.scale;
-  if (f.features >= config_.min_matches && f.scale_measured &&
+  if (static_cast<int>(keypoints.size()) >= config_.min_matches && f.scale_measured &&
       share_in_front(frame.points_C) >= kMinShareInFront) {
     keyframe_ = make_keyframe(frame, keypoints, descriptors, f.T_W_C, f.scale);
     keep(*keyframe_);
