@@ -113,7 +113,7 @@ if(LONG3R_WITH_ROS)
   foreach(t replay_normal replay_bad replay_pause replay_slow replay_compressed replay_lost
           live_input smoke
           robot_odometry robot_depth robot_keyframes_depth robot_undistorted robot_distorted
-          robot_pnp_fails)
+          robot_pnp_fails robot_keyframes_odometry_prior)
     set_tests_properties(_ctest_${PROJECT_NAME}_rostest_test_ros_${t}.test PROPERTIES
       FIXTURES_REQUIRED ros_replay_data
       ENVIRONMENT "LONG3R_REPLAY_DATA=${LONG3R_REPLAY_DATA};LONG3R_BIN=$<TARGET_FILE_DIR:app_long3r_eval>")

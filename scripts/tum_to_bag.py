@@ -518,6 +518,18 @@ class Robot:
         msg.twist.covariance = tcov
         return msg
 
+    def write_tum(self, path):
+        """The odometry as the camera's optical frame in odom (T_odom_B T_B_C),
+        a TUM trajectory at the sequence's own stamps: long3r_reconstruct's
+        --odometry, the same odometry the bag's /tf carries."""
+        with open(path, "w") as f:
+            f.write("# wheel odometry: T_odom_C (camera optical frame), tum_to_bag.py --robot\n")
+            f.write("# timestamp tx ty tz qx qy qz qw\n")
+            for t, (x, y, yaw) in zip(self.odom_stamps, self.odom):
+                T = planar_matrix(x, y, yaw) @ self.mount
+                q = matrix_to_quat(T[:3, :3])
+                f.write("%.6f %s\n" % (t, " ".join("%.9f" % v for v in list(T[:3, 3]) + list(q))))
+
     def static_message(self, classes, args, stamp):
         base_to_link = self.mount @ np.linalg.inv(LINK_TO_OPTICAL)
         return classes.TFMessage(transforms=[
@@ -598,12 +610,14 @@ def convert(args):
         depth = read_list(os.path.join(root, "depth.txt"))
         depth_of = associate([r[0] for r in rgb], [d[0] for d in depth], args.max_diff)
 
-    frames = rgb[args.start:]
+    frames = rgb[args.start::args.stride]
     if args.max_frames > 0:
         frames = frames[:args.max_frames]
     if frames:
         args.time_offset = resolve_time_offset(args.time_offset, frames[0][0])
     robot = Robot(root, args, [f[0] for f in frames]) if args.robot and frames else None
+    if robot and args.odom_tum:
+        robot.write_tum(args.odom_tum)
     fx, fy, cx, cy = calib.K
     counts = {"image": 0, "info": 0, "tf": 0, "depth": 0, "odom": 0, "tf_static": 0}
     odom_next = 0
@@ -618,7 +632,7 @@ def convert(args):
                       connection_header=latched_header("/tf_static", classes.TFMessage))
             counts["tf_static"] += 1
         for k, (stamp, rel) in enumerate(frames):
-            index = args.start + k
+            index = args.start + k * args.stride
             t = stamp_of(stamp)
             while robot and odom_next < len(robot.odom_stamps) and robot.odom_stamps[odom_next] <= stamp + 1e-9:
                 ot = stamp_of(robot.odom_stamps[odom_next])
@@ -695,6 +709,8 @@ def main(argv=None):
                    help="added to every stamp (s); default 0, or, when the first frame is stamped 0 "
                         "or earlier, what moves it to %g s (a zero stamp is dropped in ROS)" % AUTO_START_S)
     p.add_argument("--start", type=int, default=0, help="first frame")
+    p.add_argument("--stride", type=int, default=1,
+                   help="every N-th frame from --start (a slower camera on the same path)")
     p.add_argument("--max-frames", type=int, default=0, help="at most this many frames (0: all)")
     p.add_argument("--compression", default="none", choices=["none", "bz2", "lz4"])
     p.add_argument("--compressed", nargs="?", const="jpeg", default=None, choices=["jpeg", "png"],
@@ -711,11 +727,16 @@ def main(argv=None):
                    help="relative error of the odometry's travelled distance")
     r.add_argument("--odom-yaw-drift", type=float, default=1.0, help="odometry yaw drift, degrees per metre")
     r.add_argument("--odom-yaw-drift-rate", type=float, default=0.0, help="odometry yaw drift, degrees per second")
+    r.add_argument("--odom-tum", default="",
+                   help="also write the odometry as a TUM trajectory of the camera in odom "
+                        "(the sequence's stamps; long3r_reconstruct --odometry)")
     args = p.parse_args(argv)
     if not 1 <= args.jpeg_quality <= 100:
         p.error("--jpeg-quality must be within 1-100")
     if args.odom_rate < 0:
         p.error("--odom-rate must be >= 0")
+    if args.stride < 1:
+        p.error("--stride must be >= 1")
     try:
         counts = convert(args)
     except ValueError as e:

@@ -92,7 +92,7 @@ class Long3rNodelet : public nodelet::Nodelet,
 
   // long3r::LiveSessionClient: what the session asks of ROS, and its results.
   std::optional<Eigen::Isometry3d> place(const long3r::LiveFrame& frame) override;
-  Eigen::Vector3d odometry_camera_position_m(const long3r::LiveResult& result) override;
+  Eigen::Isometry3d odometry_camera_m(const std::any& tag) override;
   cv::Mat depth(const std::any& tag) override;
   void on_result(long3r::LiveResult& result) override;
   std::optional<Eigen::Isometry3d> T_map_W() override;

@@ -7,7 +7,8 @@
 //   - with pose_source odometry, the frame's pose from the odometry; in a
 //     loaded session from the first frame the model places, which ties
 //     map -> odom (anchorOdometry());
-//   - the camera in odom for the odometry scale;
+//   - the camera in odom for the odometry scale and the tracker's odometry
+//     motion prior;
 //   - the map frame (T_map_W, map -> odom) saved with a session and restored.
 // What TF cannot answer comes back as LiveSessionClient::Unavailable (the
 // frame or the sample is skipped) or as a throttled warning (`warn`), naming
@@ -37,9 +38,9 @@ class StreamPlacement {
   // The frame of `header` about to run: its pose in W from the odometry, or
   // nullopt for the model's own. Throws LiveSessionClient::Unavailable.
   std::optional<Eigen::Isometry3d> place(const std_msgs::Header& header);
-  // The camera's position in odom at `stamp` (scale_source odometry).
-  // Throws LiveSessionClient::Unavailable.
-  Eigen::Vector3d cameraPositionInOdom(const ros::Time& stamp) const;
+  // The camera's pose in odom at `stamp` (scale_source odometry,
+  // tracker_motion_prior odometry). Throws LiveSessionClient::Unavailable.
+  Eigen::Isometry3d cameraInOdom(const ros::Time& stamp) const;
   // A pose the model estimated at `stamp`: while map -> odom is not tied
   // (a loaded session), the first one ties it. Nothing once it is.
   void anchorOdometry(const Eigen::Isometry3d& T_W_C, const ros::Time& stamp);

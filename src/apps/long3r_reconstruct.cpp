@@ -4,7 +4,7 @@
 // The frames go through the core's LiveSession, as the ROS node's do: the
 // same stream continuity, calibration checks, rectification of distorted
 // cameras and metric scale (--scale-source: a TUM folder's depth images or
-// its groundtruth.txt standing in for odometry).
+// odometry, --odometry: by default its groundtruth.txt standing in for it).
 //
 // Sessions: --save-session writes the whole stream (memory, map, path, scale)
 // at the end, --load-session continues one, e.g. on a later part of the same
@@ -85,19 +85,24 @@ struct Source {
   std::optional<CameraModel> camera;  // calibration.txt or --calib
   // --poses: each frame's T_ref_C by its index (nullopt: none near its stamp).
   std::vector<std::optional<Eigen::Isometry3d>> poses;
+  // --odometry: each frame's camera pose in the odometry frame, metres.
+  std::vector<std::optional<Eigen::Isometry3d>> odometry;
 };
 
-// The pose of each frame of `src` from --poses: "groundtruth" (the TUM
-// folder's, associated by its reader) or a TUM trajectory file, the pose
-// nearest each frame's stamp within max_diff_s.
-void read_poses(const std::string& spec, Source& src, double max_diff_s) {
+// The pose of each frame of `src` from `spec` (the value of `option`):
+// "groundtruth" (the TUM folder's, associated by its reader) or a TUM
+// trajectory file, the pose nearest each frame's stamp within max_diff_s.
+std::vector<std::optional<Eigen::Isometry3d>> read_poses(const std::string& option,
+                                                         const std::string& spec, const Source& src,
+                                                         double max_diff_s) {
+  std::vector<std::optional<Eigen::Isometry3d>> poses;
   if (spec == "groundtruth") {
-    if (!src.tum) throw std::runtime_error("--poses groundtruth needs a TUM folder");
-    for (const TumFrame& f : src.tum->frames()) src.poses.push_back(f.pose);
-    return;
+    if (!src.tum) throw std::runtime_error(option + " groundtruth needs a TUM folder");
+    for (const TumFrame& f : src.tum->frames()) poses.push_back(f.pose);
+    return poses;
   }
   const PoseTrajectory traj = read_tum_trajectory(spec);
-  if (traj.size() == 0) throw std::runtime_error("--poses " + spec + ": no poses");
+  if (traj.size() == 0) throw std::runtime_error(option + " " + spec + ": no poses");
   for (double t : src.stamps) {
     const auto it = std::lower_bound(traj.stamps.begin(), traj.stamps.end(), t);
     std::optional<Eigen::Isometry3d> best;
@@ -109,8 +114,9 @@ void read_poses(const std::string& spec, Source& src, double max_diff_s) {
         best = traj.poses[static_cast<std::size_t>(c - traj.stamps.begin())];
       }
     }
-    src.poses.push_back(best);
+    poses.push_back(best);
   }
+  return poses;
 }
 
 // The dataset's answers to the session, and the session's outputs: results
@@ -147,14 +153,16 @@ class Client : public LiveSessionClient {
     return T_ref_W_->inverse() * *src_.poses[i];
   }
 
-  Eigen::Vector3d odometry_camera_position_m(const LiveResult& r) override {
-    const std::size_t i = std::any_cast<std::size_t>(r.tag);
-    if (!src_.tum || !src_.tum->frame(i).pose) {
+  // --odometry's camera pose (by default the sequence's groundtruth.txt).
+  Eigen::Isometry3d odometry_camera_m(const std::any& tag) override {
+    const std::size_t i = std::any_cast<std::size_t>(tag);
+    if (i >= src_.odometry.size() || !src_.odometry[i]) {
       throw Unavailable("odometry missing", "frame " + std::to_string(i) +
-                                                " has no groundtruth.txt pose (scale_source "
-                                                "odometry)");
+                                                " has no --odometry pose near its stamp "
+                                                "(scale_source odometry or "
+                                                "tracker_motion_prior odometry)");
     }
-    return src_.tum->frame(i).pose->translation();
+    return *src_.odometry[i];
   }
   cv::Mat depth(const std::any& tag) override {
     const std::size_t i = std::any_cast<std::size_t>(tag);
@@ -204,6 +212,7 @@ class Client : public LiveSessionClient {
 
 int main(int argc, char** argv) {
   std::string model_path, out_dir, input, load_session, save_session, poses_spec;
+  std::string odometry_spec = "groundtruth";
   bool fusion_split = false, tracker_true_depth = false;
   int stride = 1;
   long first_frame = 0;
@@ -234,6 +243,11 @@ int main(int argc, char** argv) {
   cli.option("--poses", "SOURCE", &poses_spec,
              "place the frames by known poses: groundtruth (a TUM folder's) or a TUM "
              "trajectory file (metres; the map waits for a metric --scale-source)");
+  cli.option("--odometry", "SOURCE", &odometry_spec,
+             "the robot's odometry (the camera in its frame, metres) for --scale-source "
+             "odometry and --tracker-motion-prior odometry: groundtruth (a TUM folder's) or a "
+             "TUM trajectory file")
+      .shown_default("groundtruth");
   cli.flag("--fusion-split", &fusion_split,
            "with --poses groundtruth and depth: what fusing views could remove from the map's "
            "error (averaged.ply, averaged_rescaled.ply, fusion_split.json)");
@@ -262,7 +276,7 @@ int main(int argc, char** argv) {
       .shown_default("TUM calibration.txt, else estimated from frame 0");
   // The node's parameters of the pipeline and the session, by the same names
   // (README, Parameters). --scale-source: depth takes a TUM folder's depth
-  // images, odometry its groundtruth.txt positions.
+  // images, odometry --odometry's positions.
   cli.option("--pose-source", "NAME", &cfg.pose_method,
              "the node's parameter pose_source: model (PnP on the model's pointmap, the "
              "paper's) or keyframes (image correspondences with keyframes, lifted by the "
@@ -328,7 +342,12 @@ int main(int argc, char** argv) {
             "--poses places frames in a new stream's world; it cannot "
             "continue --load-session's");
       }
-      read_poses(poses_spec, src, 0.02);
+      src.poses = read_poses("--poses", poses_spec, src, 0.02);
+    }
+    if (src.tum || odometry_spec != "groundtruth") {
+      if (src.is_video)
+        throw std::runtime_error("--odometry needs images with stamps, not a video");
+      src.odometry = read_poses("--odometry", odometry_spec, src, 0.02);
     }
     // What --fusion-split and --tracker-true-depth read the depth images by.
     const bool own_pinhole =

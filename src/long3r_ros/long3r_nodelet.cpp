@@ -347,8 +347,8 @@ std::optional<Eigen::Isometry3d> Long3rNodelet::place(const long3r::LiveFrame& f
   return placement_->place(headerOf(frame.tag));
 }
 
-Eigen::Vector3d Long3rNodelet::odometry_camera_position_m(const long3r::LiveResult& result) {
-  return placement_->cameraPositionInOdom(headerOf(result.tag).stamp);
+Eigen::Isometry3d Long3rNodelet::odometry_camera_m(const std::any& tag) {
+  return placement_->cameraInOdom(headerOf(tag).stamp);
 }
 
 cv::Mat Long3rNodelet::depth(const std::any& tag) { return stamped_->depth(headerOf(tag).stamp); }

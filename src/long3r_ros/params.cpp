@@ -36,12 +36,17 @@ void NodeletConfig::validate(const long3r::config::FieldCheck& check) const {
 
 void NodeParams::validate(const long3r::config::FieldCheck& check) const {
   long3r::config::validate_nested(*this, check);
-  // pose_source and scale_source odometry read map -> odom -> base.
+  // pose_source, scale_source and tracker_motion_prior odometry read
+  // map -> odom -> base.
   const bool robot_odometry = !frames.odom_frame.empty() && !frames.base_frame.empty();
   check.require(node.pose_source != PoseSource::kOdometry || robot_odometry, "pose_source",
                 "odometry needs odom_frame and base_frame");
   check.require(session.scale.source != long3r::ScaleSource::kOdometry || robot_odometry,
                 "scale_source", "odometry needs odom_frame and base_frame");
+  check.require(node.pose_source != PoseSource::kKeyframes ||
+                    reconstruction.tracker.motion_prior != long3r::MotionPrior::kOdometry ||
+                    robot_odometry,
+                "tracker_motion_prior", "odometry needs odom_frame and base_frame");
 }
 
 const std::vector<RenamedParam>& renamedParams() {

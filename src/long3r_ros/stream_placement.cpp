@@ -60,11 +60,12 @@ std::optional<Eigen::Isometry3d> StreamPlacement::place(const std_msgs::Header& 
   }
 }
 
-Eigen::Vector3d StreamPlacement::cameraPositionInOdom(const ros::Time& stamp) const {
+Eigen::Isometry3d StreamPlacement::cameraInOdom(const ros::Time& stamp) const {
   try {
-    return frames_.cameraInOdom(stamp).translation();
+    return frames_.cameraInOdom(stamp);
   } catch (const TfUnavailable& e) {
-    throw Unavailable("tf scale", std::string("odometry scale: ") + e.what());
+    throw Unavailable("tf odometry",
+                      atStamp("the camera in odom at t=%.3f: ", stamp.toSec()) + e.what());
   }
 }
 

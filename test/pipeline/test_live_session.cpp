@@ -192,9 +192,9 @@ TEST(LiveSession, OdometryScaleConvergesAndEveryResultLeavesInIt) {
   const LiveStatus st = s.session->status();
   EXPECT_TRUE(st.scale_metric);
   EXPECT_NE(s.client.event("metric scale 2.5000"), nullptr);
-  const LiveEvent* missing = s.client.event("no odometry at frame 5");
+  const LiveEvent* missing = s.client.event("odometry: none at frame 5");
   ASSERT_NE(missing, nullptr);
-  EXPECT_EQ(missing->kind, "tf scale");
+  EXPECT_EQ(missing->kind, "tf odometry");
   EXPECT_FALSE(missing->frame_dropped);  // the frame is there; only its sample is not
 }
 

@@ -195,6 +195,70 @@ TEST(ReconstructionKeyframes, AnUntrackedFrameCanContinueTheTrackedMotion) {
   EXPECT_EQ(results[4].tracking->status, TrackStatus::kTracked);
 }
 
+// tracker_motion_prior odometry: the untracked frame moves from the last
+// placed one as the odometry's camera moved: all of that motion in a metric
+// stream, only its rotation (and the constant velocity's translation) in
+// model units, and the constant velocity where a frame has no odometry.
+// The odometry's camera poses for the footage: the true ones in a frame O of
+// its own, turned and offset from W, with an error on each step that the
+// constant velocity does not have, so that the two priors differ.
+std::vector<Eigen::Isometry3d> wobbly_odometry(const Footage& f) {
+  Eigen::Isometry3d T_O_W = Eigen::Isometry3d::Identity();
+  T_O_W.linear() = Eigen::AngleAxisd(0.7, Eigen::Vector3d(0.2, 1.0, 0.1).normalized()).matrix();
+  T_O_W.translation() = Eigen::Vector3d(3.0, -1.0, 0.5);
+  std::vector<Eigen::Isometry3d> T_O_C;
+  for (std::size_t k = 0; k < f.T_0_k.size(); ++k) {
+    Eigen::Isometry3d wobble = Eigen::Isometry3d::Identity();
+    wobble.linear() =
+        Eigen::AngleAxisd(0.02 * static_cast<double>(k), Eigen::Vector3d::UnitY()).matrix();
+    wobble.translation() = Eigen::Vector3d(0.01 * static_cast<double>(k), 0.0, 0.0);
+    T_O_C.push_back(T_O_W * f.T_0_k[k] * wobble);
+  }
+  return T_O_C;
+}
+
+TEST(ReconstructionKeyframes, AnUntrackedFrameCanFollowTheOdometry) {
+  const Footage f = render(5, [](int) { return 1.0; });
+  const std::vector<Eigen::Isometry3d> T_O_C = wobbly_odometry(f);
+  std::vector<cv::Mat> images = f.bgr;
+  images[3] = cv::Mat(kH, kW, CV_8UC3, cv::Scalar(0, 0, 0));
+  auto run_with = [&](bool metric, bool odometry_at_3) {
+    ReconstructionConfig config = keyframes_config();
+    config.tracker.motion_prior = MotionPrior::kOdometry;
+    Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0), config);
+    rec.set_calibration(f.seq.config.intrinsics);
+    rec.set_odometry_source(
+        [&, metric, odometry_at_3](double stamp_s) -> std::optional<Reconstruction::OdometryPose> {
+          const int k = static_cast<int>(std::lround(stamp_s / 0.1));
+          if (k == 3 && !odometry_at_3) return std::nullopt;
+          return Reconstruction::OdometryPose{T_O_C[static_cast<std::size_t>(k)], metric};
+        });
+    return run(rec, images);
+  };
+  for (const bool metric : {true, false}) {
+    const std::vector<FrameResult> results = run_with(metric, true);
+    ASSERT_EQ(results.size(), 5u);
+    ASSERT_EQ(results[3].tracking->status, TrackStatus::kTooFewFeatures);
+    const Eigen::Isometry3d& T1 = results[1].pose.T_W_C;
+    const Eigen::Isometry3d& T2 = results[2].pose.T_W_C;
+    const Eigen::Isometry3d odometry_step = T_O_C[2].inverse() * T_O_C[3];
+    Eigen::Isometry3d step = T1.inverse() * T2;  // the constant velocity's translation
+    step.linear() = odometry_step.linear();
+    if (metric) step.translation() = odometry_step.translation();
+    const Eigen::Isometry3d d = (T2 * step).inverse() * results[3].pose.T_W_C;
+    EXPECT_LT(d.translation().norm(), 1e-9) << metric;
+    EXPECT_LT(Eigen::AngleAxisd(d.rotation()).angle(), 1e-9) << metric;
+    EXPECT_EQ(results[4].tracking->status, TrackStatus::kTracked) << metric;
+  }
+  // No odometry for the frame: the constant velocity.
+  const std::vector<FrameResult> results = run_with(true, false);
+  const std::vector<FrameResult> constant =
+      run_with_frame_3_dark(f, MotionPrior::kConstantVelocity);
+  const Eigen::Isometry3d d = constant[3].pose.T_W_C.inverse() * results[3].pose.T_W_C;
+  EXPECT_LT(d.translation().norm(), 1e-9);
+  EXPECT_LT(Eigen::AngleAxisd(d.rotation()).angle(), 1e-9);
+}
+
 // A stream whose first frames have too few features (a low-resolution camera
 // starting at a blank wall): with constant_velocity nothing has measured a
 // velocity yet, so they and the first keyframe stay where frame 0 went
@@ -676,6 +740,65 @@ TEST(Relocalisation, ASavedSessionRelocalisesByImagesAndCountsWhatItRefuses) {
   EXPECT_NE(client.event("relocalisation refused: not placed against"), nullptr);
   EXPECT_EQ(st.streams, 2u);  // the first and the loaded one, which went on
   EXPECT_EQ(client.results.size(), 6u);
+}
+
+// ------------------------------------------------------- odometry for the tracker's prior
+
+// Answers the odometry's camera poses, but for `missing`.
+struct OdometryClient : test::Recorder {
+  std::vector<Eigen::Isometry3d> T_O_C;
+  int missing = -1;
+  Eigen::Isometry3d odometry_camera_m(const std::any& tag) override {
+    const int k = std::any_cast<int>(tag);
+    if (k == missing) throw Unavailable("tf odometry", "no odometry at frame " + std::to_string(k));
+    return T_O_C[static_cast<std::size_t>(k)];
+  }
+};
+
+TEST(ReconstructionKeyframes, LiveSessionGivesTheTrackerItsClientsOdometry) {
+  // tracker_motion_prior odometry through LiveSession: a dark frame moves
+  // from the last placed one as the client's odometry did, whole in a
+  // metric stream (scale_source fixed), by its rotation only in model
+  // units; a frame the client has no odometry for is named in a warning
+  // and costs only that frame's odometry.
+  const Footage f = render(6, one);
+  std::vector<cv::Mat> images = f.bgr;
+  images[3] = cv::Mat(kH, kW, CV_8UC3, cv::Scalar(0, 0, 0));
+  ReconstructionConfig config = keyframes_config();
+  config.tracker.motion_prior = MotionPrior::kOdometry;
+  for (const ScaleSource source : {ScaleSource::kFixed, ScaleSource::kNone}) {
+    OdometryClient client;
+    client.T_O_C = wobbly_odometry(f);
+    client.missing = 1;
+    LiveSessionConfig session;
+    session.scale.source = source;
+    LiveSession s(std::make_unique<test::FakeModel>(&f.pts_W0), config, session, client);
+    for (int k = 0; k < static_cast<int>(images.size()); ++k) {
+      s.push(live_frame(f, images[static_cast<std::size_t>(k)], 1.0 + 0.1 * k, k));
+    }
+    s.flush();
+    ASSERT_EQ(client.results.size(), images.size());
+    const FrameResult& dark = client.results[3].frame;
+    ASSERT_TRUE(dark.tracking.has_value());
+    ASSERT_EQ(dark.tracking->status, TrackStatus::kTooFewFeatures);
+    const Eigen::Isometry3d& T1 = client.results[1].frame.pose.T_W_C;
+    const Eigen::Isometry3d& T2 = client.results[2].frame.pose.T_W_C;
+    const Eigen::Isometry3d odometry_step = client.T_O_C[2].inverse() * client.T_O_C[3];
+    Eigen::Isometry3d step = T1.inverse() * T2;
+    step.linear() = odometry_step.linear();
+    if (source == ScaleSource::kFixed) step.translation() = odometry_step.translation();
+    const Eigen::Isometry3d d = (T2 * step).inverse() * dark.pose.T_W_C;
+    EXPECT_LT(d.translation().norm(), 1e-9);
+    EXPECT_LT(Eigen::AngleAxisd(d.rotation()).angle(), 1e-9);
+    const LiveEvent* missing = client.event("no odometry at frame 1");
+    ASSERT_NE(missing, nullptr);
+    EXPECT_EQ(missing->kind, "tf odometry");
+    EXPECT_NE(missing->message.find("tracker_motion_prior odometry"), std::string::npos);
+    EXPECT_FALSE(missing->frame_dropped);
+    for (int k : {1, 2, 4, 5}) {
+      EXPECT_TRUE(client.results[static_cast<std::size_t>(k)].frame.tracking->posed()) << k;
+    }
+  }
 }
 
 // ------------------------------------------------------- a depth camera for the tracker

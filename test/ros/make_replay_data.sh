@@ -6,7 +6,9 @@
 # bags (tum_to_bag.py --robot: TF tree, wheel odometry, registered depth) of one
 # scene through an undistorted and a distorted lens, the same path at 320 x 240
 # (robot_qvga: enough image features for the keyframe tracker, which finds
-# too few at 160 x 120), and a small random-weight model.
+# too few at 160 x 120), a held-out robot path seen by a 2 Hz camera
+# (robot_fast: every 16th frame at 640 x 480, whose turns the tracker loses
+# six times), and a small random-weight model.
 # Usage: make_replay_data.sh BIN_DIR OUT_DIR
 set -euo pipefail
 bin=$1
@@ -37,6 +39,11 @@ for s in robot robot_distorted robot_qvga; do
   /usr/bin/python3 "$root/scripts/tum_to_bag.py" "$out/$s" "$out/$s.bag" --robot \
     --depth-topic /camera/depth/image_raw --time-offset 1000 >/dev/null
 done
+rm -rf "$out/robot_fast"
+"$bin/long3r_synth" --out "$out/robot_fast" --trajectory robot --frames 400 --width 640 \
+  --height 480 --seed 2000000 --quiet
+/usr/bin/python3 "$root/scripts/tum_to_bag.py" "$out/robot_fast" "$out/robot_fast.bag" --robot \
+  --depth-topic /camera/depth/image_raw --time-offset 1000 --stride 16 >/dev/null
 "$bin/long3r_make_random_model" --variant spann3r --size tiny --img-size 224 --seed 1 \
   --out "$out/model.safetensors" >/dev/null
 echo "replay data in $out"

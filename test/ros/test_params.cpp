@@ -271,6 +271,13 @@ TEST_F(ParamsTest, OdometrySourcesNeedTheRobotFrames) {
   expectError("/scale_source odometry needs odom_frame and base_frame");
   pnh_.setParam("odom_frame", "odom");
   EXPECT_EQ(readParams(pnh_).session.scale.source, long3r::ScaleSource::kOdometry);
+  pnh_.setParam("odom_frame", "");
+  pnh_.setParam("scale_source", "none");
+  pnh_.setParam("pose_source", "keyframes");
+  pnh_.setParam("tracker_motion_prior", "odometry");
+  expectError("/tracker_motion_prior odometry needs odom_frame and base_frame");
+  pnh_.setParam("odom_frame", "odom");
+  EXPECT_EQ(readParams(pnh_).reconstruction.tracker.motion_prior, long3r::MotionPrior::kOdometry);
 }
 
 // Every field of the components' lists is a parameter, under its prefix.

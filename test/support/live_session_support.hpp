@@ -41,10 +41,13 @@ struct Recorder : LiveSessionClient {
   std::optional<Eigen::Isometry3d> place(const LiveFrame& f) override {
     return placer ? placer(std::any_cast<int>(f.tag)) : std::nullopt;
   }
-  Eigen::Vector3d odometry_camera_position_m(const LiveResult& r) override {
-    const int k = std::any_cast<int>(r.tag);
-    if (k == 5) throw Unavailable("tf scale", "odometry scale: no odometry at frame 5");
-    return odometry_scale * g->T_0_k[static_cast<std::size_t>(k)].translation();
+  // The true camera pose, its translation times odometry_scale; none at frame 5.
+  Eigen::Isometry3d odometry_camera_m(const std::any& tag) override {
+    const int k = std::any_cast<int>(tag);
+    if (k == 5) throw Unavailable("tf odometry", "odometry: none at frame 5");
+    Eigen::Isometry3d T = g->T_0_k[static_cast<std::size_t>(k)];
+    T.translation() *= odometry_scale;
+    return T;
   }
   cv::Mat depth(const std::any& tag) override {
     const cv::Mat z = gt_depth(*g, std::any_cast<int>(tag)) * depth_scale;

@@ -140,9 +140,12 @@ class LiveSessionClient {
   // places it (pose from odometry, in W) or nullopt (the model's own pose).
   // Throwing Unavailable skips the frame (dropped, with that message).
   virtual std::optional<Eigen::Isometry3d> place(const LiveFrame& frame);
-  // scale_source odometry: the camera's position in a metric odometry frame
-  // at the result's stamp. Throwing Unavailable skips this sample.
-  virtual Eigen::Vector3d odometry_camera_position_m(const LiveResult& result);
+  // The camera's pose in a metric odometry frame (translation in metres) at
+  // the stamp of the frame tagged `tag` (LiveFrame::tag), asked when the
+  // model's result for it is known: scale_source odometry takes its
+  // position, tracker_motion_prior odometry its motion. Throwing
+  // Unavailable skips this frame's sample (and its odometry for the prior).
+  virtual Eigen::Isometry3d odometry_camera_m(const std::any& tag);
   // scale_source depth: a depth image registered to the raw source image of
   // the frame tagged `tag` (LiveFrame::tag): CV_16UC1 millimetres (RGB-D
   // drivers) or CV_32FC1 metres, 0 or NaN where there is none. Asked once a

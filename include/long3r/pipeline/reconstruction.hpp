@@ -229,6 +229,18 @@ class Reconstruction {
   void set_tracker_depth_source(TrackerDepthSource source) {
     tracker_depth_source_ = std::move(source);
   }
+  // A robot's odometry for the keyframe tracker's motion prior
+  // (tracker.motion_prior odometry): the camera's pose in the odometry frame
+  // O at the frame of stamp_s (metres), and whether the stream's lengths are
+  // metres by then (its translation applies; else only its rotation);
+  // nullopt: none for this frame. LiveSession sets it from its client's
+  // odometry. Unset or nullopt: the constant velocity.
+  struct OdometryPose {
+    Eigen::Isometry3d T_O_C = Eigen::Isometry3d::Identity();
+    bool metric = false;
+  };
+  using OdometrySource = std::function<std::optional<OdometryPose>(double stamp_s)>;
+  void set_odometry_source(OdometrySource source) { odometry_source_ = std::move(source); }
 
   const StreamingModel& model() const { return *model_; }
   // As given, with the model input size resolved (PreprocessConfig::resolved
@@ -260,13 +272,16 @@ class Reconstruction {
   BaselineScale baseline_scale_;
   // Where the keyframe tracker's frame goes should it not be tracked
   // (tracker.motion_prior), from the frames it placed before.
-  Eigen::Isometry3d tracker_prior(int64_t frame_index, const Eigen::Isometry3d& model_T_W_C) const;
+  // odometry: the frame's (motion_prior odometry).
+  Eigen::Isometry3d tracker_prior(int64_t frame_index, const Eigen::Isometry3d& model_T_W_C,
+                                  const std::optional<OdometryPose>& odometry) const;
   // A frame the keyframe tracker posed or the prior placed.
   struct Placed {
     int64_t frame_index = 0;
     Eigen::Isometry3d T_W_C = Eigen::Isometry3d::Identity();
     Eigen::Isometry3d model_T_W_C = Eigen::Isometry3d::Identity();  // the model's own pose
     bool by_images = false;  // posed by the tracker or made a keyframe (not only the prior)
+    std::optional<Eigen::Isometry3d> T_O_C;  // the odometry's camera pose (motion_prior odometry)
   };
   // The last placed frame and, before it, the last two placed by the images;
   // oldest first.
@@ -287,6 +302,7 @@ class Reconstruction {
   double scale_ = 1.0;
   bool mapping_ = true;
   TrackerDepthSource tracker_depth_source_;
+  OdometrySource odometry_source_;
 };
 
 }  // namespace long3r

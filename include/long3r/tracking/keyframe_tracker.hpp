@@ -124,10 +124,17 @@ enum class MotionPrior {
   // on; on a 160 x 120 robot path whose first frames have too few features
   // the path came out eight times too long).
   kConstantVelocity,
+  // The motion a robot's odometry measured since the last placed frame (the
+  // camera's pose in the odometry frame at both stamps): its rotation, and
+  // its translation once the stream's lengths are metres (else the constant
+  // velocity's). A frame without odometry: the constant velocity.
+  kOdometry,
 };
-inline const std::array<std::pair<MotionPrior, const char*>, 2>& enum_names(MotionPrior) {
-  static const std::array<std::pair<MotionPrior, const char*>, 2> names{
-      {{MotionPrior::kModel, "model"}, {MotionPrior::kConstantVelocity, "constant_velocity"}}};
+inline const std::array<std::pair<MotionPrior, const char*>, 3>& enum_names(MotionPrior) {
+  static const std::array<std::pair<MotionPrior, const char*>, 3> names{
+      {{MotionPrior::kModel, "model"},
+       {MotionPrior::kConstantVelocity, "constant_velocity"},
+       {MotionPrior::kOdometry, "odometry"}}};
   return names;
 }
 

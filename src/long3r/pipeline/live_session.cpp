@@ -81,8 +81,8 @@ void LiveSessionConfig::validate(const config::FieldCheck& check) const {
 
 std::optional<Eigen::Isometry3d> LiveSessionClient::place(const LiveFrame&) { return std::nullopt; }
 
-Eigen::Vector3d LiveSessionClient::odometry_camera_position_m(const LiveResult&) {
-  throw Unavailable("odometry", "odometry scale: this input has no odometry");
+Eigen::Isometry3d LiveSessionClient::odometry_camera_m(const std::any&) {
+  throw Unavailable("odometry", "odometry: this input has none");
 }
 
 cv::Mat LiveSessionClient::depth(const std::any&) {
@@ -115,6 +115,25 @@ LiveSession::LiveSession(std::unique_ptr<StreamingModel> model,
          "(tracker_depth_images): the first depth image's scale is applied at once "
          "and kept for the stream (scale_min_samples and scale_freeze do not apply), "
          "and each frame's points reach the map at its depth image's scale");
+  }
+  if (recon_.config().pose_method == PoseMethod::kKeyframes &&
+      recon_.config().tracker.motion_prior == MotionPrior::kOdometry) {
+    recon_.set_odometry_source(
+        [this](double stamp_s) -> std::optional<Reconstruction::OdometryPose> {
+          for (const Pending& p : pending_) {
+            if (p.stamp_s != stamp_s) continue;
+            try {
+              return Reconstruction::OdometryPose{client_.odometry_camera_m(p.tag),
+                                                  scale_policy_.metric()};
+            } catch (const LiveSessionClient::Unavailable& e) {
+              warn(e.kind(), std::string(e.what()) +
+                                 "; a frame the images cannot place follows the constant "
+                                 "velocity (tracker_motion_prior odometry)");
+              return std::nullopt;
+            }
+          }
+          return std::nullopt;
+        });
   }
 }
 
@@ -669,7 +688,7 @@ void LiveSession::update_scale(LiveResult& result) {
     sample = r.baseline_scale->sample;
   } else if (config_.scale.source == ScaleSource::kOdometry) {
     try {
-      const Eigen::Vector3d odom = client_.odometry_camera_position_m(result);
+      const Eigen::Vector3d odom = client_.odometry_camera_m(result.tag).translation();
       const Eigen::Vector3d model = r.model_T_W_C.translation() / r.scale;
       sample = scale_sampler_.add(odom, model);
     } catch (const LiveSessionClient::Unavailable& e) {

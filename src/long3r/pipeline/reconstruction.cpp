@@ -499,20 +499,26 @@ Eigen::Matrix3d Reconstruction::source_camera_matrix(const PixelMapping& model_t
 }
 
 Eigen::Isometry3d Reconstruction::tracker_prior(int64_t frame_index,
-                                                const Eigen::Isometry3d& model_T_W_C) const {
+                                                const Eigen::Isometry3d& model_T_W_C,
+                                                const std::optional<OdometryPose>& odometry) const {
   if (placed_.empty()) return model_T_W_C;
   const Placed& last = placed_.back();
-  if (config_.tracker.motion_prior == MotionPrior::kConstantVelocity) {
-    // The velocity is what the images measured: between the last two frames
-    // they placed. Before there are two, the frames stay where the last one
-    // went: continuing the model's own motion instead would carry its
-    // registration error on (a stream whose first frames have too few
-    // features travelled eight times too far).
-    std::vector<const Placed*> by_images;
-    for (const Placed& p : placed_) {
-      if (p.by_images) by_images.push_back(&p);
-    }
-    if (by_images.size() < 2) return last.T_W_C;
+  if (config_.tracker.motion_prior == MotionPrior::kModel) {
+    // The model's motion since the last frame, from where that frame went
+    // (the model's own world would jump).
+    return last.T_W_C * last.model_T_W_C.inverse() * model_T_W_C;
+  }
+  // The velocity is what the images measured: between the last two frames
+  // they placed. Before there are two, the frames stay where the last one
+  // went: continuing the model's own motion instead would carry its
+  // registration error on (a stream whose first frames have too few
+  // features travelled eight times too far).
+  Eigen::Isometry3d motion = Eigen::Isometry3d::Identity();
+  std::vector<const Placed*> by_images;
+  for (const Placed& p : placed_) {
+    if (p.by_images) by_images.push_back(&p);
+  }
+  if (by_images.size() >= 2) {
     const Placed& a = *by_images[by_images.size() - 2];
     const Placed& b = *by_images.back();
     // The last measured step's motion per frame, continued for the frames
@@ -521,14 +527,17 @@ Eigen::Isometry3d Reconstruction::tracker_prior(int64_t frame_index,
     const double f = static_cast<double>(frame_index - last.frame_index) /
                      static_cast<double>(b.frame_index - a.frame_index);
     const Eigen::AngleAxisd rotation(step.rotation());
-    Eigen::Isometry3d motion = Eigen::Isometry3d::Identity();
     motion.linear() = Eigen::AngleAxisd(rotation.angle() * f, rotation.axis()).toRotationMatrix();
     motion.translation() = step.translation() * f;
-    return last.T_W_C * motion;
   }
-  // The model's motion since the last frame, from where that frame went (the
-  // model's own world would jump).
-  return last.T_W_C * last.model_T_W_C.inverse() * model_T_W_C;
+  if (config_.tracker.motion_prior == MotionPrior::kOdometry && odometry && last.T_O_C) {
+    // The camera's motion as the odometry measured it; its length only in a
+    // metric stream (the model's units have no known relation to metres).
+    const Eigen::Isometry3d step = last.T_O_C->inverse() * odometry->T_O_C;
+    motion.linear() = step.linear();
+    if (odometry->metric) motion.translation() = step.translation();
+  }
+  return last.T_W_C * motion;
 }
 
 void Reconstruction::remember_placed(const Placed& placed) {
@@ -634,7 +643,11 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
       frame.points_C = config_.tracker_constant_depth ? at_median_depth(r.points_C) : r.points_C;
     }
     frame.model_to_image = p.image.model_to_source.matrix();
-    const Eigen::Isometry3d prior = tracker_prior(r.frame_index, r.model_T_W_C);
+    std::optional<OdometryPose> odometry;
+    if (config_.tracker.motion_prior == MotionPrior::kOdometry && odometry_source_) {
+      odometry = odometry_source_(p.stamp);
+    }
+    const Eigen::Isometry3d prior = tracker_prior(r.frame_index, r.model_T_W_C, odometry);
     const double t_tracking = now_ms();
     r.tracking = keyframes_.track(frame, prior);
     r.timings.tracking_ms = now_ms() - t_tracking;
@@ -652,8 +665,10 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
       r.pose.T_W_C = r.tracking->posed() ? r.tracking->T_W_C : prior;
       // A keyframe made after lost frames sits at the prior, but the next
       // tracked frame's step from it is measured.
+      std::optional<Eigen::Isometry3d> T_O_C;
+      if (odometry) T_O_C = odometry->T_O_C;
       remember_placed({r.frame_index, r.pose.T_W_C, r.model_T_W_C,
-                       r.tracking->posed() || r.tracking->new_keyframe});
+                       r.tracking->posed() || r.tracking->new_keyframe, T_O_C});
       // The frame's points in the stream's scale: by its depth image where
       // it has one, else by the tracker's Sim(3).
       const double scale = depth_ratio ? *depth_ratio : r.tracking->scale;
