@@ -748,8 +748,10 @@ TEST(Relocalisation, ASavedSessionRelocalisesByImagesAndCountsWhatItRefuses) {
 struct OdometryClient : test::Recorder {
   std::vector<Eigen::Isometry3d> T_O_C;
   int missing = -1;
+  std::vector<int> asked;
   Eigen::Isometry3d odometry_camera_m(const std::any& tag) override {
     const int k = std::any_cast<int>(tag);
+    asked.push_back(k);
     if (k == missing) throw Unavailable("tf odometry", "no odometry at frame " + std::to_string(k));
     return T_O_C[static_cast<std::size_t>(k)];
   }
@@ -799,6 +801,27 @@ TEST(ReconstructionKeyframes, LiveSessionGivesTheTrackerItsClientsOdometry) {
       EXPECT_TRUE(client.results[static_cast<std::size_t>(k)].frame.tracking->posed()) << k;
     }
   }
+}
+
+// With scale_source odometry as well, the odometry the prior asked for also
+// gives the frame's scale sample: one question a frame, but where the client
+// had no answer (asked again for the scale, and warned again).
+TEST(ReconstructionKeyframes, TheOdometryPriorAndScaleAskOnceAFrame) {
+  const Footage f = render(6, one);
+  ReconstructionConfig config = keyframes_config();
+  config.tracker.motion_prior = MotionPrior::kOdometry;
+  OdometryClient client;
+  client.T_O_C = wobbly_odometry(f);
+  client.missing = 1;
+  LiveSessionConfig session;
+  session.scale.source = ScaleSource::kOdometry;
+  LiveSession s(std::make_unique<test::FakeModel>(&f.pts_W0), config, session, client);
+  for (int k = 0; k < static_cast<int>(f.bgr.size()); ++k) {
+    s.push(live_frame(f, f.bgr[static_cast<std::size_t>(k)], 1.0 + 0.1 * k, k));
+  }
+  s.flush();
+  ASSERT_EQ(client.results.size(), f.bgr.size());
+  EXPECT_EQ(client.asked, (std::vector<int>{0, 1, 1, 2, 3, 4, 5}));
 }
 
 // ------------------------------------------------------- a depth camera for the tracker

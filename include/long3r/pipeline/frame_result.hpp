@@ -61,6 +61,9 @@ struct FrameResult {
   // ReconstructionConfig::scale_from_given_poses, a frame placed by a given
   // pose: its sample of metres per model unit from the images (if any).
   std::optional<BaselineScaleResult> baseline_scale;
+  // tracker motion_prior odometry: the camera's pose in the odometry frame
+  // at this frame's stamp (metres), as the odometry source gave it.
+  std::optional<Eigen::Isometry3d> T_O_C;
   bool posed() const { return pose.ok() || pose_given; }
   double scale = 1.0;
   PinholeIntrinsics intrinsics;  // at model resolution

@@ -281,6 +281,8 @@ class LiveSession {
     cv::Size image_size;
     double stamp_s = 0.0;
   };
+  // The frame being finished (the oldest pending one with this stamp), or null.
+  const Pending* pending_at(double stamp_s) const;
   void process(LiveFrame frame);
   cv::Mat calibrate(const LiveFrame& frame);
   void deliver(FrameResult frame);

@@ -102,13 +102,10 @@ LiveSession::LiveSession(std::unique_ptr<StreamingModel> model,
   config_.validate(config::FieldCheck{"live session config", ""});
   start_stream_scale();
   if (tracks_by_depth(config_, recon_.config())) {
-    // The frame being finished is the oldest pending one with its stamp.
     recon_.set_tracker_depth_source([this](double stamp_s) {
       if (!scale_policy_.metric()) return cv::Mat();  // lengths in model units still
-      for (const Pending& p : pending_) {
-        if (p.stamp_s == stamp_s) return registered_depth(p.tag, stamp_s, p.image_size);
-      }
-      return cv::Mat();
+      const Pending* p = pending_at(stamp_s);
+      return p ? registered_depth(p->tag, stamp_s, p->image_size) : cv::Mat();
     });
     info("scale",
          "the keyframe tracker lifts its features by the depth images "
@@ -120,21 +117,26 @@ LiveSession::LiveSession(std::unique_ptr<StreamingModel> model,
       recon_.config().tracker.motion_prior == MotionPrior::kOdometry) {
     recon_.set_odometry_source(
         [this](double stamp_s) -> std::optional<Reconstruction::OdometryPose> {
-          for (const Pending& p : pending_) {
-            if (p.stamp_s != stamp_s) continue;
-            try {
-              return Reconstruction::OdometryPose{client_.odometry_camera_m(p.tag),
-                                                  scale_policy_.metric()};
-            } catch (const LiveSessionClient::Unavailable& e) {
-              warn(e.kind(), std::string(e.what()) +
-                                 "; a frame the images cannot place follows the constant "
-                                 "velocity (tracker_motion_prior odometry)");
-              return std::nullopt;
-            }
+          const Pending* p = pending_at(stamp_s);
+          if (!p) return std::nullopt;
+          try {
+            return Reconstruction::OdometryPose{client_.odometry_camera_m(p->tag),
+                                                scale_policy_.metric()};
+          } catch (const LiveSessionClient::Unavailable& e) {
+            warn(e.kind(), std::string(e.what()) +
+                               "; a frame the images cannot place follows the constant "
+                               "velocity (tracker_motion_prior odometry)");
+            return std::nullopt;
           }
-          return std::nullopt;
         });
   }
+}
+
+const LiveSession::Pending* LiveSession::pending_at(double stamp_s) const {
+  for (const Pending& p : pending_) {
+    if (p.stamp_s == stamp_s) return &p;
+  }
+  return nullptr;
 }
 
 void LiveSession::info(const std::string& kind, const std::string& message) {
@@ -688,7 +690,9 @@ void LiveSession::update_scale(LiveResult& result) {
     sample = r.baseline_scale->sample;
   } else if (config_.scale.source == ScaleSource::kOdometry) {
     try {
-      const Eigen::Vector3d odom = client_.odometry_camera_m(result.tag).translation();
+      // The pose the tracker's prior already asked for, else the client.
+      const Eigen::Vector3d odom =
+          (r.T_O_C ? *r.T_O_C : client_.odometry_camera_m(result.tag)).translation();
       const Eigen::Vector3d model = r.model_T_W_C.translation() / r.scale;
       sample = scale_sampler_.add(odom, model);
     } catch (const LiveSessionClient::Unavailable& e) {

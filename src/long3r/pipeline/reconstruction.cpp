@@ -646,6 +646,7 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
     std::optional<OdometryPose> odometry;
     if (config_.tracker.motion_prior == MotionPrior::kOdometry && odometry_source_) {
       odometry = odometry_source_(p.stamp);
+      if (odometry) r.T_O_C = odometry->T_O_C;
     }
     const Eigen::Isometry3d prior = tracker_prior(r.frame_index, r.model_T_W_C, odometry);
     const double t_tracking = now_ms();
@@ -665,10 +666,8 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
       r.pose.T_W_C = r.tracking->posed() ? r.tracking->T_W_C : prior;
       // A keyframe made after lost frames sits at the prior, but the next
       // tracked frame's step from it is measured.
-      std::optional<Eigen::Isometry3d> T_O_C;
-      if (odometry) T_O_C = odometry->T_O_C;
       remember_placed({r.frame_index, r.pose.T_W_C, r.model_T_W_C,
-                       r.tracking->posed() || r.tracking->new_keyframe, T_O_C});
+                       r.tracking->posed() || r.tracking->new_keyframe, r.T_O_C});
       // The frame's points in the stream's scale: by its depth image where
       // it has one, else by the tracker's Sim(3).
       const double scale = depth_ratio ? *depth_ratio : r.tracking->scale;

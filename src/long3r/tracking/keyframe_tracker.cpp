@@ -339,7 +339,6 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
   const bool bridge =
       config_.flow_bridge && config_.when_lost == WhenLost::kPrior && !relocalising_ && previous_;
   const bool too_few_features = r.features < config_.min_matches;
-  const bool in_front = share_in_front(frame.points_C) >= kMinShareInFront;
   if (too_few_features) {
     // Relocalising, nothing but the images may place a frame.
     r.status = relocalising_ ? TrackStatus::kRefused : TrackStatus::kTooFewFeatures;
@@ -352,7 +351,7 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
     if (r.posed()) remember(frame, r);
     return r;
   } else if (!keyframe_) {
-    if (!in_front) {
+    if (share_in_front(frame.points_C) < kMinShareInFront) {
       r.status = TrackStatus::kNoDepth;
       r.message = "the pointmap lies behind the camera: not a keyframe";
       return r;
@@ -377,6 +376,7 @@ TrackResult KeyframeTracker::track_detected(const TrackerFrame& frame,
   // Too few features to tell a lost view from a blank or dark image: the
   // keyframe waits for the next frame with features.
   if (too_few_features) return r;
+  const bool in_front = share_in_front(frame.points_C) >= kMinShareInFront;
   if (!r.posed()) {
     if (r.status == TrackStatus::kTooFewMatches && config_.when_lost == WhenLost::kRelocalise) {
       // The view changed too much to say where it went (a cut to another
