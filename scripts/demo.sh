@@ -8,7 +8,8 @@
 # map -> odom published, z-up map, frames placed by the odometry and scaled
 # to metres by the depth (the shipped model's own poses are too coarse for an
 # odometry scale; README, "Metric scale and pose source"); --pose-source and
-# --scale-source choose otherwise (scripts/units_table.sh runs each pair).
+# --scale-source choose otherwise (scripts/units_table.sh runs each pair);
+# without --robot they default to the node's own (keyframes, no metric scale).
 #   bash scripts/demo.sh [OUT_DIR] [--frames N] [--model FILE] [--robot]
 #        [--pose-source model|keyframes|odometry] [--scale-source none|odometry|depth]
 set -euo pipefail
@@ -18,10 +19,15 @@ out="$LONG3R_ROOT/build/demo"
 frames=60
 model=""
 robot=0
-pose_source=odometry
-scale_source=depth
+pose_source=""
+scale_source=""
 long3r_parse_args --frames=frames --model=model --robot?robot --pose-source=pose_source \
   --scale-source=scale_source @out -- "$@"
+# roslaunch starts the nodelet in ~/.ros: a model named relative to here by path.
+if [ -n "$model" ]; then
+  [ -f "$model" ] || { echo "demo: no model file $model" >&2; exit 2; }
+  model=$(realpath "$model")
+fi
 
 "$LONG3R_ROOT/scripts/install_deps.sh"
 # Only what the demo runs: the nodelet, the generator, the scorer (no tests,
@@ -36,19 +42,21 @@ out=$(cd "$out" && pwd)
 echo "== generating a $frames-frame synthetic sequence"
 rm -rf "$out/sequence"
 gt_traj="$out/sequence/groundtruth.txt"
-robot_args=()
+launch_args=()
 if [ "$robot" = 1 ]; then
   "$bin/long3r_synth" --out "$out/sequence" --frames "$frames" --seed 7 --trajectory robot --quiet
   /usr/bin/python3 "$LONG3R_ROOT/scripts/tum_to_bag.py" "$out/sequence" "$out/sequence.bag" \
     --robot --depth-topic /camera/depth_registered/image_raw --time-offset 1000 >/dev/null
   # The node's trajectory is then base_link's, in metres.
   gt_traj="$out/sequence/base_groundtruth.txt"
-  robot_args=(odom_frame:=odom base_frame:=base_link pose_source:="$pose_source"
-              scale_source:="$scale_source" depth:=/camera/depth_registered/image_raw)
+  launch_args=(odom_frame:=odom base_frame:=base_link pose_source:="${pose_source:-odometry}"
+              scale_source:="${scale_source:-depth}" depth:=/camera/depth_registered/image_raw)
 else
   "$bin/long3r_synth" --out "$out/sequence" --frames "$frames" --seed 7 --quiet
   /usr/bin/python3 "$LONG3R_ROOT/scripts/tum_to_bag.py" "$out/sequence" "$out/sequence.bag" \
     --time-offset 1000 >/dev/null
+  # Empty: the node's defaults (pose_source keyframes, no metric scale).
+  launch_args=(pose_source:="$pose_source" scale_source:="$scale_source")
 fi
 
 if [ -z "$model" ]; then
@@ -71,7 +79,7 @@ fi
 
 echo "== replaying through the nodelet (model: $model)"
 roslaunch long3r_ros demo.launch bag:="$out/sequence.bag" model_path:="$model" \
-  out_dir:="$out" frames:="$frames" "${robot_args[@]}" 2>&1 | tee "$out/roslaunch.log" | grep -E "WARN|ERROR|FATAL|demo:|save_map" || true
+  out_dir:="$out" frames:="$frames" "${launch_args[@]}" 2>&1 | tee "$out/roslaunch.log" | grep -E "WARN|ERROR|FATAL|demo:|save_map" || true
 [ -s "$out/map.ply" ] && [ -f "$out/trajectory.txt" ] || { echo "demo failed: see $out/roslaunch.log" >&2; exit 1; }
 
 echo "== scoring against the ground truth"

@@ -15,18 +15,22 @@
 #   bash scripts/surface_eval.sh [--frames N] [--model FILE] [--img-size N] [--out DIR]
 #        [--model-poses] [-- extra long3r_reconstruct options, e.g. --surface-min-weight 5]
 # Defaults: 60 frames of the demo's two sequences (seed 7: hand-held and the
-# robot's), the shipped model at 224, build/surface_eval.
+# robot's, rendered at 224 x 224 as the demo's), the shipped model at its own
+# input size (--img-size N: at N x N), build/surface_eval.
 set -euo pipefail
 source "$(dirname "$0")/env.sh"
 root=$LONG3R_ROOT
 frames=60
 model="$root/models/default.safetensors"
-img_size=224
+img_size=""
+render_size=224
 out="$root/build/surface_eval"
 model_poses=0
 extra=()
 long3r_parse_args --frames=frames --model=model --img-size=img_size --out=out \
   --model-poses?model_poses --=extra -- "$@"
+size=()
+[ -n "$img_size" ] && size=(--img-size "$img_size")
 bin=$LONG3R_CORE
 long3r_build_core app_long3r_synth app_long3r_reconstruct app_long3r_eval
 mkdir -p "$out"
@@ -37,15 +41,15 @@ for kind in handheld robot; do
   if [ ! -f "$seq/groundtruth.txt" ]; then
     args=()
     [ "$kind" = robot ] && args=(--trajectory robot)
-    "$bin/long3r_synth" --out "$seq" --frames "$frames" --seed 7 --width "$img_size" \
-      --height "$img_size" "${args[@]}" --quiet >/dev/null
+    "$bin/long3r_synth" --out "$seq" --frames "$frames" --seed 7 --width "$render_size" \
+      --height "$render_size" "${args[@]}" --quiet >/dev/null
   fi
   run="$out/run_${kind}_$frames"
   placement=(--poses groundtruth)
   [ "$model_poses" = 1 ] && placement=()
   split=(--fusion-split)
   [ "$model_poses" = 1 ] && split=()
-  "$bin/long3r_reconstruct" "$seq" --model "$model" --out "$run" --img-size "$img_size" \
+  "$bin/long3r_reconstruct" "$seq" --model "$model" --out "$run" "${size[@]}" \
     --scale-source depth --surface-enabled true "${placement[@]}" "${split[@]}" "${extra[@]}" >"$run.log" 2>&1 ||
     { echo "long3r_reconstruct failed: see $run.log" >&2; exit 1; }
   clouds=(map surface mesh)
@@ -61,7 +65,7 @@ for kind in handheld robot; do
   grep -h "fusion split:\|surface:" "$run.log" | sed "s/^/  $kind: /"
   # The map stage's time a frame (frames.csv map_ms: voxel map, and surface
   # when on), median over the mapped frames, with the surface and without.
-  "$bin/long3r_reconstruct" "$seq" --model "$model" --out "$run.nosurface" --img-size "$img_size" \
+  "$bin/long3r_reconstruct" "$seq" --model "$model" --out "$run.nosurface" "${size[@]}" \
     --scale-source depth "${placement[@]}" "${extra[@]}" >"$run.nosurface.log" 2>&1
   median_map_ms() {
     /usr/bin/python3 -c "

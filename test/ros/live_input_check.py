@@ -39,7 +39,6 @@ import tum_to_bag  # noqa: E402 (the project's PNG and calibration readers)
 from demo_record import FrameAccounting, wait_for  # noqa: E402
 
 DATA = os.environ.get('LONG3R_REPLAY_DATA', '/tmp/long3r_replay_data')
-MODEL_SIZE = 224
 MAX_IMAGE_PIXELS = 1000000  # live_input.test sets it
 
 
@@ -49,13 +48,14 @@ def load_sequence(folder):
     return frames, tum_to_bag.read_calibration(os.path.join(folder, 'calibration.txt')).K
 
 
-def model_intrinsics(fx, fy, cx, cy, w, h):
+def model_intrinsics(fx, fy, cx, cy, w, h, size):
     """The calibration seen through the pipeline's resize (short side to the
-    model size, lround) and centre crop: scale_intrinsics() of the core."""
-    s = max(MODEL_SIZE / w, MODEL_SIZE / h)
-    rw, rh = max(MODEL_SIZE, int(math.floor(w * s + 0.5))), max(MODEL_SIZE, int(math.floor(h * s + 0.5)))
+    model's square input of side size, lround) and centre crop:
+    scale_intrinsics() of the core."""
+    s = max(size / w, size / h)
+    rw, rh = max(size, int(math.floor(w * s + 0.5))), max(size, int(math.floor(h * s + 0.5)))
     ax, ay = w / rw, h / rh
-    bx, by = ((rw - MODEL_SIZE) // 2 + 0.5) * ax - 0.5, ((rh - MODEL_SIZE) // 2 + 0.5) * ay - 0.5
+    bx, by = ((rw - size) // 2 + 0.5) * ax - 0.5, ((rh - size) // 2 + 0.5) * ay - 0.5
     return fx / ax, fy / ay, (cx - bx) / ax, (cy - by) / ay
 
 
@@ -207,8 +207,11 @@ class LiveInput(unittest.TestCase):
         self.good(4)
         self.settle()
         self.assertTrue(self.mon.logged('camera calibration from camera_info'))
-        fx, fy, cx, cy = model_intrinsics(self.fx, self.fy, self.cx, self.cy, self.w, self.h)
         last = self.mon.get('pointmaps')[-1]
+        # The model runs at the size its checkpoint records (a square input).
+        self.assertEqual(last.width, last.height)
+        fx, fy, cx, cy = model_intrinsics(self.fx, self.fy, self.cx, self.cy, self.w, self.h,
+                                          last.width)
         for got, want in ((last.fx, fx), (last.fy, fy), (last.cx, cx), (last.cy, cy)):
             self.assertAlmostEqual(got, want, delta=1e-6 * abs(want))
 
