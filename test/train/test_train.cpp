@@ -1014,7 +1014,8 @@ TEST(TrainLog, CsvColumnsAreReadBackByName) {
             "val_loss,val_regression,val_pointmap_err_m,val_acc_mean_m,val_acc_median_m,"
             "val_comp_mean_m,val_comp_median_m,val_nc_mean,val_nc_median,val_ate_rmse_m,"
             "val_registered,val_blind_ratio,val_reg_true,val_reg_blind,val_rot_err_deg,"
-            "val_rot_true_deg,val_completion_true,val_completion_shuffled,val_shape_err");
+            "val_rot_true_deg,val_completion_true,val_completion_shuffled,val_shape_err,"
+            "val_depth_slope");
   auto expect_rows = [&](const std::vector<long3r::LogRow>& got) {
     ASSERT_EQ(got.size(), 2u);
     EXPECT_EQ(got[0].step, 1);

@@ -5,6 +5,7 @@ outputs checked, and the trained model run through long3r_reconstruct."""
 import argparse
 import csv
 import json
+import math
 import os
 import re
 import sys
@@ -83,6 +84,7 @@ def main():
               1e-6 * float(r["val_blind_ratio"]), "log = first stride: %s / %s" % (first, r))
         shape = float(r["val_shape_err"])
         check(0 < shape < float(r["val_reg_true"]) * 1.05, "shape error readout: %s" % r)
+        check(math.isfinite(float(r["val_depth_slope"])), "depth response readout: %s" % r)
     check(all(r["val_completion_true"] == "nan" for r in rows),
           "no completion control without a completion stage")
     vj = json.load(open(os.path.join(out, "validation.json")))

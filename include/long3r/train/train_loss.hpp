@@ -102,8 +102,9 @@ struct ValidationMetrics {
   // by its own Sim(3)), averaged: regression - registered is what
   // registration costs.
   double registered = 0;
-  // evaluate_prediction's figures averaged over the sequences; ate_rmse and
-  // the RPE over those where they are finite (NaN when there is none);
+  // evaluate_prediction's figures averaged over the sequences; ate_rmse, the
+  // RPE and the depth response over those where they are finite (NaN when
+  // there is none);
   // frames and posed are totals.
   PredictionMetrics prediction;
   int64_t sequences = 0;

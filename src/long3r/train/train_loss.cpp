@@ -162,7 +162,8 @@ PredictionMetrics average(const std::vector<PredictionMetrics>& all) {
     for (const PredictionMetrics& m : all) sum += m.*f;
     mean.*f = all.empty() ? 0.0 : sum / n;
   }
-  for (double M::*f : {&M::ate_rmse, &M::rpe_trans_rmse, &M::rpe_rot_rmse_deg}) {
+  for (double M::*f : {&M::ate_rmse, &M::rpe_trans_rmse, &M::rpe_rot_rmse_deg, &M::depth_slope,
+                       &M::depth_correlation}) {
     double sum = 0.0;
     int64_t count = 0;
     for (const PredictionMetrics& m : all) {

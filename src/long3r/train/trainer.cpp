@@ -122,6 +122,8 @@ const ValColumn kValColumns[] = {
     {"val_completion_shuffled",
      [](ValidationMetrics& v) -> double& { return v.completion.loss_shuffled; }, true},
     {"val_shape_err", [](ValidationMetrics& v) -> double& { return v.blind.shape_err; }, true},
+    {"val_depth_slope", [](ValidationMetrics& v) -> double& { return v.prediction.depth_slope; },
+     true},
 };
 
 // Appends `text` to the file at `path` (creating it), or throws naming it.
