@@ -20,6 +20,7 @@ int main(int argc, char** argv) {
   int width = 224, height = 224;
   double hfov = 70.0, fx = 0, fy = 0, cx = -1, cy = -1;
   bool quiet = false;
+  int image_every = 1;
   long3r::CliOptions cli("long3r_synth");
   cli.option("--out", "DIR", &out, "the TUM RGB-D style folder to write").required();
   cli.option("--seed", "N", &cfg.seed, "scene and path seed");
@@ -43,6 +44,10 @@ int main(int argc, char** argv) {
   cli.option("--cx", "C", &cx, "explicit principal point x (pixels)").shown_default("from --hfov");
   cli.option("--cy", "C", &cy, "explicit principal point y (pixels)").shown_default("from --hfov");
   cli.option("--fps", "F", &cfg.fps, "frame rate for timestamps");
+  cli.option("--image-every", "N", &image_every,
+             "images of every N-th frame only (a camera slower than the path); the ground "
+             "truth keeps every frame")
+      .min(1);
   cli.option("--clearance", "M", &cfg.trajectory.clearance, "min camera distance to any surface");
   CameraMount& mount = cfg.trajectory.mount;
   cli.custom(
@@ -121,12 +126,15 @@ int main(int argc, char** argv) {
                   seq.scene.room_size.x(), seq.scene.room_size.y(), seq.scene.room_size.z(),
                   seq.scene.shapes.size(), to_string(cfg.trajectory.type), cfg.trajectory.frames);
     }
-    const WriteStats st = write_tum_sequence(seq, out, ropt, [&](int i, int n) {
-      if (!quiet && (i % 50 == 0 || i == n)) {
-        std::printf("\rframe %d / %d", i, n);
-        std::fflush(stdout);
-      }
-    });
+    const WriteStats st = write_tum_sequence(
+        seq, out, ropt,
+        [&](int i, int n) {
+          if (!quiet && (i % 50 == 0 || i == n)) {
+            std::printf("\rframe %d / %d", i, n);
+            std::fflush(stdout);
+          }
+        },
+        image_every);
     const auto t2 = std::chrono::steady_clock::now();
     const double gen = std::chrono::duration<double>(t1 - t0).count();
     const double total = std::chrono::duration<double>(t2 - t0).count();

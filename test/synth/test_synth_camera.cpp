@@ -415,6 +415,42 @@ TEST(SynthRobot, CameraIsTheBaseTimesTheMount) {
   }
 }
 
+TEST(SynthRobot, ASlowerCameraGetsEveryNthImageAndTheWholeGroundTruth) {
+  // A robot path whose ground truth keeps every frame while the camera
+  // images every third one, with the sensor's noise (seeded by frame index).
+  SequenceConfig cfg = test::sequence_config(9, TrajectoryType::kRobot, 8, 48, 36);
+  cfg.sensor.read_noise = 1.5;
+  const Sequence seq = generate_sequence(cfg);
+  const std::string all = scratch_dir("synth_every_1"), third = scratch_dir("synth_every_3");
+  write_tum_sequence(seq, all);
+  std::vector<std::pair<int, int>> progress;
+  const WriteStats st = write_tum_sequence(
+      seq, third, {}, [&](int i, int n) { progress.emplace_back(i, n); }, 3);
+  EXPECT_EQ(st.frames, 3);  // frames 0, 3, 6 of 8
+  EXPECT_EQ(progress, (std::vector<std::pair<int, int>>{{1, 3}, {2, 3}, {3, 3}}));
+  for (const char* f : {"groundtruth.txt", "base_groundtruth.txt", "camera_mount.txt",
+                        "calibration.txt", "scene.json"}) {
+    EXPECT_EQ(read_file(all + "/" + f), read_file(third + "/" + f)) << f;
+  }
+  const TumDataset a = TumDataset::open(all), b = TumDataset::open(third);
+  ASSERT_EQ(a.size(), 8u);
+  ASSERT_EQ(b.size(), 3u);
+  for (size_t k = 0; k < b.size(); ++k) {
+    const auto& fa = a.frame(3 * k);
+    const auto& fb = b.frame(k);
+    EXPECT_EQ(fa.stamp, fb.stamp);
+    ASSERT_TRUE(fb.pose.has_value());
+    for (auto path : {&TumFrame::rgb_path, &TumFrame::depth_path}) {
+      const cv::Mat ia = cv::imread(fa.*path, cv::IMREAD_UNCHANGED);
+      const cv::Mat ib = cv::imread(fb.*path, cv::IMREAD_UNCHANGED);
+      ASSERT_EQ(ia.size(), ib.size());
+      EXPECT_EQ(cv::norm(ia, ib, cv::NORM_INF), 0.0) << "frame " << 3 * k;
+    }
+  }
+  EXPECT_THROW(write_tum_sequence(seq, scratch_dir("synth_every_0"), {}, {}, 0),
+               std::invalid_argument);
+}
+
 TEST(SynthRobot, WritesBaseGroundTruthAndMount) {
   SequenceConfig cfg = test::sequence_config(8, TrajectoryType::kRobot, 5, 64, 48);
   const Sequence seq = generate_sequence(cfg);

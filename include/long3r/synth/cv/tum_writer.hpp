@@ -25,10 +25,15 @@ struct WriteStats {
 // description). <t> is the timestamp with 6 decimals. Robot paths add
 // base_groundtruth.txt (T_W_B, TUM format) and camera_mount.txt (T_B_C, the
 // optical frame in base_link); exposure effects add exposure.txt ("timestamp
-// gain"). `progress(i, n)` is called after each frame when given.
+// gain"). `progress(i, n)` is called after each image when given.
+// image_every > 1 renders and lists only every image_every-th frame from the
+// first (a camera slower than the path's sampling, the same images as the
+// full write at those frames) while the ground truth and the exposure keep
+// every frame, as a motion-capture system records more often than the camera.
 WriteStats write_tum_sequence(const Sequence& sequence, const std::string& dir,
                               const RenderOptions& options = {},
-                              const std::function<void(int, int)>& progress = {});
+                              const std::function<void(int, int)>& progress = {},
+                              int image_every = 1);
 
 // Depth PNG scale shared with the TUM reader's default.
 constexpr double kTumDepthFactor = 5000.0;

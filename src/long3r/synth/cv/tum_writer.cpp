@@ -102,11 +102,15 @@ nlohmann::json scene_json(const Sequence& seq) {
 
 WriteStats write_tum_sequence(const Sequence& seq, const std::string& dir,
                               const RenderOptions& options,
-                              const std::function<void(int, int)>& progress) {
+                              const std::function<void(int, int)>& progress, int image_every) {
   namespace fs = std::filesystem;
   using clock = std::chrono::steady_clock;
   if (seq.stamps.size() != seq.poses.size()) {
     throw std::invalid_argument("write_tum_sequence: stamps and poses differ in size");
+  }
+  if (image_every < 1) {
+    throw std::invalid_argument("write_tum_sequence: image_every must be >= 1, got " +
+                                std::to_string(image_every));
   }
   const fs::path root(dir);
   fs::create_directories(root / "rgb");
@@ -162,8 +166,9 @@ WriteStats write_tum_sequence(const Sequence& seq, const std::string& dir,
   const std::vector<int> png_params = {cv::IMWRITE_PNG_COMPRESSION, 1};
   WriteStats stats;
   const int n = static_cast<int>(seq.poses.size());
+  const int images = (n + image_every - 1) / image_every;
   cv::Mat depth16(k.height, k.width, CV_16UC1);
-  for (int i = 0; i < n; ++i) {
+  for (int i = 0; i < n; i += image_every) {
     const auto t0 = clock::now();
     RenderOptions frame_options = options;
     if (!seq.exposure.empty()) frame_options.gain = static_cast<float>(seq.exposure[i]);
@@ -188,7 +193,7 @@ WriteStats write_tum_sequence(const Sequence& seq, const std::string& dir,
     stats.render_seconds += std::chrono::duration<double>(t1 - t0).count();
     stats.write_seconds += std::chrono::duration<double>(t2 - t1).count();
     ++stats.frames;
-    if (progress) progress(i + 1, n);
+    if (progress) progress(stats.frames, images);
   }
   write_file_atomically((root / "rgb.txt").string(), rgb_list.str());
   write_file_atomically((root / "depth.txt").string(), depth_list.str());
