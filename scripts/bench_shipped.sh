@@ -17,18 +17,18 @@
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 rounds=2 threads=2 frames=100
-model=""
+model_path=""
 # shellcheck source=/dev/null
 source "$root/scripts/env.sh" >/dev/null
-long3r_parse_args --rounds=rounds --threads=threads --frames=frames --model=model -- "$@"
-model=$(realpath "${model:-$root/models/default.safetensors}")
+long3r_parse_args --rounds=rounds --threads=threads --frames=frames --model=model_path -- "$@"
+model_path=$(realpath "${model_path:-$root/models/default.safetensors}")
 bin="$root/build/.ws/devel/lib/long3r_ros"
 [ -x "$bin/long3r_reconstruct" ] || { echo "build first: scripts/build.sh" >&2; exit 1; }
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 "$bin/long3r_synth" --out "$work/seq" --frames "$frames" --width 224 --height 224 \
   --seed 2000005 --quiet >/dev/null
-"$bin/long3r_load_bench" "$model" --threads "$threads" | sed -n 1p
+"$bin/long3r_load_bench" "$model_path" --threads "$threads" | sed -n 1p
 
 settings=("float32 auto reuse classic" "float32 auto return classic" "float32 auto reuse usac")
 if grep -qE 'avx512_bf16|amx_bf16' /proc/cpuinfo; then
@@ -40,7 +40,7 @@ printf '%-10s %-6s %-7s %-8s %-5s %9s %11s %10s %9s %8s %9s\n' precision convs f
 for round in $(seq 1 "$rounds"); do
   for s in "${settings[@]}"; do
     read -r precision convs freed pnp <<<"$s"
-    args=(--model "$model" --out "$work/out" --threads "$threads"
+    args=(--model "$model_path" --out "$work/out" --threads "$threads"
           --precision "$precision" --conv-precision "$convs" --pnp-ransac "$pnp")
     [ "$freed" = return ] && args+=(--return-freed-memory)
     summary="$("$bin/long3r_reconstruct" "${args[@]}" "$work/seq" 2>&1 | grep -m1 'mean .* FPS')"

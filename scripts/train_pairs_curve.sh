@@ -18,7 +18,9 @@
 # SIGINT to the script ends the run after the step in progress, with its
 # checkpoint, and keeps it as at the budget's end.
 #   bash scripts/train_pairs_curve.sh [RUN_DIR] [--budget-s S] [--ranks N] [--keep]
-#        [--config FILE] [--snapshot DIR] [--init MODEL.safetensors]
+#        [--config FILE] [--snapshot DIR] [--init MODEL.safetensors] [--max-steps N]
+# --max-steps ends the run at that global step, its schedule unchanged (how
+# scripts/train_sequence_model.sh repeats a stage that was stopped by hand).
 # Run it in the background (nice -n 19) and build nothing beside it: the
 # figures are pairs per second of the whole machine.
 set -euo pipefail
@@ -39,6 +41,7 @@ ranks=$(nproc)
 keep=0
 snapshot="$LONG3R_ROOT/models/experiments/pairs_fast"
 init=""
+max_steps=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --budget-s) budget=$2; shift 2 ;;
@@ -46,8 +49,9 @@ while [ $# -gt 0 ]; do
     --config) config=$2; shift 2 ;;
     --snapshot) snapshot=$2; shift 2 ;;
     --init) init=$(realpath "$2"); shift 2 ;;
+    --max-steps) max_steps=(--max-steps "$2"); shift 2 ;;
     --keep) keep=1; shift ;;
-    -h|--help) sed -n '2,23p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,25p' "$0"; exit 0 ;;
     -*) echo "unknown option $1" >&2; exit 2 ;;
     *) run=$1; shift ;;
   esac
@@ -84,7 +88,7 @@ elif [ -n "$init" ]; then
   resume=(--init-dust3r "$init")
 fi
 args=(--config "$config" --out "$run" --seed 0 --threads 1 --prefetch 0 --render-threads 1
-      --frame-cache "$cache" --time-budget-s "$budget" "${resume[@]}")
+      --frame-cache "$cache" --time-budget-s "$budget" "${resume[@]}" "${max_steps[@]}")
 # The ranks run in the background so that a SIGTERM or SIGINT to this
 # script reaches them: each ends after the step in progress, all at the same
 # step, with its checkpoint, and --keep below still keeps it.
