@@ -10,7 +10,8 @@
 # The kept runs' steps took 32 hours on two CPU cores. A run that stops is
 # continued by the same command (each part resumes from its checkpoint in
 # RUN_DIR, default build/train_sequence_model), never from the snapshots
-# kept in models/experiments/.
+# kept in models/experiments/. Written from the kept runs' own commands; not
+# yet run end to end.
 #   bash scripts/train_sequence_model.sh [RUN_DIR] [--ranks N] [--install]
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
