@@ -24,9 +24,15 @@ mkdir -p "$run"
 run=$(cd "$run" && pwd)
 
 init=""
-part() {  # name config [train_pairs_curve.sh args]
+part() {  # name config [--max-steps N]
   local name=$1 config=$2; shift 2
-  local out="$run/$name"
+  local out="$run/$name" target last
+  if [ "${1:-}" = --max-steps ]; then
+    target=$2
+  else
+    target=$(/usr/bin/python3 -c 'import json, sys
+print(sum(s["steps"] for s in json.load(open(sys.argv[1]))["stages"]))' "$LONG3R_ROOT/config/$config")
+  fi
   if [ ! -f "$out/done" ]; then
     echo "== $name ($config)"
     local from=()
@@ -35,6 +41,13 @@ part() {  # name config [train_pairs_curve.sh args]
     mkdir -p "$out/no_snapshot"
     bash "$LONG3R_ROOT/scripts/train_pairs_curve.sh" "$out" --config "$LONG3R_ROOT/config/$config" \
       --budget-s 0 --ranks "$ranks" --snapshot "$out/no_snapshot" "${from[@]}" "$@"
+    # A run stopped by a signal ends as well as a finished one (its
+    # checkpoint kept): the part is done only at its last step.
+    last=$(tail -n 1 "$out/train_log.csv" | cut -d, -f1)
+    if [ "$last" != "$target" ]; then
+      echo "== $name stopped at step $last of $target: the same command continues it" >&2
+      exit 1
+    fi
     touch "$out/done"
   else
     echo "== $name: done before"
