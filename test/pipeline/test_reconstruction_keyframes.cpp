@@ -412,6 +412,64 @@ TEST(ReconstructionKeyframes, TheTrueDepthControlPlacesFramesByTheGivenDepth) {
   EXPECT_NEAR(path_scale(b), 1.0, 0.1);
 }
 
+TEST(ReconstructionKeyframes, DepthImagesPlaceThePointsWhereTheyHaveDepth) {
+  // A depth camera whose depth has another shape than the model's (a ramp
+  // across the image) and a hole (the top quarter): with kPoints each pixel
+  // with depth takes it, and the hole keeps the model's depth at the frame's
+  // depth-image scale, exactly as kScale maps every pixel.
+  const Footage f = render(5, [](int) { return 0.5; });
+  std::vector<cv::Mat> camera;
+  for (const cv::Mat& d : f.depth) {
+    cv::Mat c = d.clone();
+    for (int y = 0; y < c.rows; ++y) {
+      for (int x = 0; x < c.cols; ++x) {
+        c.at<float>(y, x) = y < kH / 4 ? 0.0f : c.at<float>(y, x) * (1.0f + 0.3f * x / kW);
+      }
+    }
+    camera.push_back(c);
+  }
+  auto source = [&](double stamp_s) {
+    return camera[static_cast<std::size_t>(std::lround(stamp_s / 0.1))];
+  };
+  Reconstruction points(std::make_unique<test::FakeModel>(&f.pts_W0), keyframes_config());
+  Reconstruction scaled(std::make_unique<test::FakeModel>(&f.pts_W0), keyframes_config());
+  points.set_calibration(f.seq.config.intrinsics);
+  scaled.set_calibration(f.seq.config.intrinsics);
+  points.set_tracker_depth_source(source, Reconstruction::DepthImageUse::kPoints);
+  scaled.set_tracker_depth_source(source);  // kScale, the default
+  const std::vector<FrameResult> a = run(points, f.bgr), b = run(scaled, f.bgr);
+  ASSERT_EQ(a.size(), b.size());
+  PreprocessConfig pre;
+  pre.width = pre.height = kSize;
+  const PixelMapping to_source = plan_resize_crop(kW, kH, pre).model_to_source;
+  for (std::size_t k = 1; k < a.size(); ++k) {
+    ASSERT_TRUE(a[k].pose.ok() && b[k].pose.ok()) << k;
+    EXPECT_TRUE(a[k].pose.T_W_C.isApprox(b[k].pose.T_W_C, 1e-9)) << k;  // one tracker
+    const cv::Mat measured = depth_at_model_pixels(camera[k], to_source, kSize, kSize);
+    int from_camera = 0, from_model = 0, reshaped = 0;
+    for (int v = 0; v < kSize; ++v) {
+      for (int u = 0; u < kSize; ++u) {
+        const cv::Vec3f p = a[k].points_C.at<cv::Vec3f>(v, u),
+                        q = b[k].points_C.at<cv::Vec3f>(v, u);
+        const float m = measured.at<float>(v, u);
+        if (!std::isfinite(q[2])) continue;  // no model depth here
+        if (m > 0.0f) {
+          EXPECT_NEAR(p[2], m, 1e-5f * m) << k << " " << u << "," << v;
+          EXPECT_NEAR(p[0] / p[2], q[0] / q[2], 1e-5f) << k;  // the model's ray
+          if (std::abs(p[2] - q[2]) > 0.02f * m) ++reshaped;
+          ++from_camera;
+        } else {
+          EXPECT_NEAR(cv::norm(p - q), 0.0, 1e-6 * cv::norm(q)) << k << " " << u << "," << v;
+          ++from_model;
+        }
+      }
+    }
+    EXPECT_GT(from_camera, kSize * kSize / 2) << k;
+    EXPECT_GT(from_model, kSize * kSize / 8) << k;
+    EXPECT_GT(reshaped, from_camera / 4) << k;  // not one scale for the frame
+  }
+}
+
 TEST(ReconstructionKeyframes, TheTrueDepthControlRefusesADepthImageOfAnotherSize) {
   const Footage f = render(3, [](int) { return 1.0; });
   Reconstruction rec(std::make_unique<test::FakeModel>(&f.pts_W0), keyframes_config());
@@ -914,6 +972,52 @@ TEST(DepthCameraTracking, TheDepthImagesPlaceAndScaleEveryFrameFromTheFirst) {
   }
   EXPECT_GE(measured, 8);
   EXPECT_GE(in_model_units, 3);  // until scale_min_samples depth samples agree
+}
+
+TEST(DepthCameraTracking, TheMapTakesTheDepthImagesDepthUnlessTurnedOff) {
+  // A depth camera whose depth grows across the image against the model's:
+  // with map_depth_images (the default) each pixel is at the camera's depth;
+  // without it, at the model's depth times the frame's one depth ratio.
+  const Footage f = render(6, wandering);
+  Footage ramped = f;
+  for (cv::Mat& d : ramped.depth) {
+    d = d.clone();
+    for (int y = 0; y < d.rows; ++y) {
+      for (int x = 0; x < d.cols; ++x) d.at<float>(y, x) *= 1.0f + 0.3f * x / kW;
+    }
+  }
+  PreprocessConfig pre;
+  pre.width = pre.height = kSize;
+  const PixelMapping to_source = plan_resize_crop(kW, kH, pre).model_to_source;
+  for (const bool map_depth : {true, false}) {
+    DepthClient client;
+    client.footage = &ramped;
+    LiveSessionConfig config;
+    config.scale.source = ScaleSource::kDepth;
+    config.map_depth_images = map_depth;
+    LiveSession s(std::make_unique<test::FakeModel>(&f.pts_W0), keyframes_config(), config, client);
+    push_footage(s, f);
+    ASSERT_EQ(client.results.size(), f.bgr.size()) << map_depth;
+    for (const LiveResult& r : client.results) {
+      const int k = std::any_cast<int>(r.tag);
+      ASSERT_TRUE(r.frame.added_to_map) << k;
+      // Frame 0 makes the stream metric: it is mapped before its depth
+      // image's scale is known, so at that scale, as without the option.
+      if (k == 0) continue;
+      const cv::Mat measured =
+          depth_at_model_pixels(ramped.depth[static_cast<std::size_t>(k)], to_source, kSize, kSize);
+      for (const int u : {4, kSize - 4}) {  // the ramp's two ends
+        const float m = measured.at<float>(kSize / 2, u);
+        const float z = r.frame.points_C.at<cv::Vec3f>(kSize / 2, u)[2];
+        ASSERT_GT(m, 0.0f) << k;
+        if (map_depth) {
+          EXPECT_NEAR(z, m, 1e-4f * m) << k << " " << u;
+        } else {
+          EXPECT_GT(std::abs(z - m), 0.03f * m) << k << " " << u;
+        }
+      }
+    }
+  }
 }
 
 TEST(DepthCameraTracking, AFrameWithoutItsDepthImageIsTrackedByTheModelsDepth) {

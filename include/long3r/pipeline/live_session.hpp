@@ -70,6 +70,15 @@ struct LiveSessionConfig {
   // the map at its own depth image's scale (docs/model_card.md, "A depth
   // camera for the tracker"). Off: the model's depth, as for a monocular camera.
   bool tracker_depth_images = true;
+  // With tracker_depth_images, each frame's points take its depth image's
+  // depth where it has one (the model's rays at the measured depth), as
+  // RGB-D mappers map their sensor's depth; the model's depth, at the depth
+  // image's scale, fills only where the depth image has none (and frame 0,
+  // mapped before its depth image makes the stream metric, is at that
+  // scale). Off: the
+  // model's depth everywhere, at the depth image's scale (its shape is the
+  // model's: docs/model_card.md, "An RGB-D robot's map").
+  bool map_depth_images = true;
   // What the calibrations are called in messages ("camera_info", "calibration.txt").
   std::string calibration_source = "calibration";
 
@@ -82,6 +91,7 @@ template <class S, class V>
 config::FieldsOf<S, LiveSessionConfig> visit_fields(S& s, V& v) {
   v("image_is_rectified", s.image_is_rectified);
   v("tracker_depth_images", s.tracker_depth_images);
+  v("map_depth_images", s.map_depth_images);
   v("lost_reset_frames", s.lost_reset_frames, "(no bound)");
   v("relocalise_for_s", s.relocalise_for_s, "(no bound)");
   v.nested("stream", s.stream, "");

@@ -225,9 +225,16 @@ class Reconstruction {
   // depth image of another size than the image is a std::invalid_argument.
   // It takes the place of tracker_constant_depth where both are set
   // (long3r_reconstruct refuses the two together). Empty: off.
+  // With DepthImageUse::kPoints the frame's points take the depth image's
+  // depth too, where it has one (the model's rays at the measured depth, as
+  // an RGB-D mapper maps its sensor's depth), and the model's depth at the
+  // depth image's scale only where it has none.
   using TrackerDepthSource = std::function<cv::Mat(double stamp_s)>;
-  void set_tracker_depth_source(TrackerDepthSource source) {
+  enum class DepthImageUse { kScale, kPoints };
+  void set_tracker_depth_source(TrackerDepthSource source,
+                                DepthImageUse use = DepthImageUse::kScale) {
     tracker_depth_source_ = std::move(source);
+    depth_image_use_ = use;
   }
   // A robot's odometry for the keyframe tracker's motion prior
   // (tracker.motion_prior odometry): the camera's pose in the odometry frame
@@ -302,6 +309,7 @@ class Reconstruction {
   double scale_ = 1.0;
   bool mapping_ = true;
   TrackerDepthSource tracker_depth_source_;
+  DepthImageUse depth_image_use_ = DepthImageUse::kScale;
   OdometrySource odometry_source_;
 };
 

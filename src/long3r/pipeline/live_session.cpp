@@ -102,16 +102,22 @@ LiveSession::LiveSession(std::unique_ptr<StreamingModel> model,
   config_.validate(config::FieldCheck{"live session config", ""});
   start_stream_scale();
   if (tracks_by_depth(config_, recon_.config())) {
-    recon_.set_tracker_depth_source([this](double stamp_s) {
-      if (!scale_policy_.metric()) return cv::Mat();  // lengths in model units still
-      const Pending* p = pending_at(stamp_s);
-      return p ? registered_depth(p->tag, stamp_s, p->image_size) : cv::Mat();
-    });
-    info("scale",
-         "the keyframe tracker lifts its features by the depth images "
-         "(tracker_depth_images): the first depth image's scale is applied at once "
-         "and kept for the stream (scale_min_samples and scale_freeze do not apply), "
-         "and each frame's points reach the map at its depth image's scale");
+    recon_.set_tracker_depth_source(
+        [this](double stamp_s) {
+          if (!scale_policy_.metric()) return cv::Mat();  // lengths in model units still
+          const Pending* p = pending_at(stamp_s);
+          return p ? registered_depth(p->tag, stamp_s, p->image_size) : cv::Mat();
+        },
+        config_.map_depth_images ? Reconstruction::DepthImageUse::kPoints
+                                 : Reconstruction::DepthImageUse::kScale);
+    info("scale", std::string("the keyframe tracker lifts its features by the depth images "
+                              "(tracker_depth_images): the first depth image's scale is applied "
+                              "at once and kept for the stream (scale_min_samples and "
+                              "scale_freeze do not apply), and each frame's points reach the "
+                              "map ") +
+                      (config_.map_depth_images
+                           ? "at its depth image's depth where it has one (map_depth_images)"
+                           : "at its depth image's scale"));
   }
   if (recon_.config().pose_method == PoseMethod::kKeyframes &&
       recon_.config().tracker.motion_prior == MotionPrior::kOdometry) {

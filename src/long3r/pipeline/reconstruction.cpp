@@ -108,6 +108,18 @@ cv::Mat at_depth(const cv::Mat& points_C, const cv::Mat& depth) {
   return out;
 }
 
+// The pointmap at the given depths where they are valid, and scaled by
+// `scale` where they are not.
+cv::Mat at_depth_or_scaled(const cv::Mat& points_C, const cv::Mat& depth, double scale) {
+  cv::Mat out = at_depth(points_C, depth);
+  const float s = static_cast<float>(scale);
+  for (int i = 0; i < out.rows * out.cols; ++i) {
+    cv::Vec3f& o = out.at<cv::Vec3f>(i);
+    if (!std::isfinite(o[2])) o = points_C.at<cv::Vec3f>(i) * s;
+  }
+  return out;
+}
+
 }  // namespace
 
 void ReconstructionConfig::validate(const config::FieldCheck& check) const {
@@ -619,6 +631,7 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
     // A depth camera's depth, where one is given for the frame and covers
     // enough of it, replaces the model's (and the constant-depth control).
     std::optional<double> depth_ratio;  // the depth image's over the model's, at this frame
+    cv::Mat measured;                   // the depth image at the model's pixels
     if (tracker_depth_source_) {
       const cv::Mat metres = tracker_depth_source_(p.stamp);
       if (!metres.empty() && (metres.cols != source_width_ || metres.rows != source_height_)) {
@@ -628,8 +641,8 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
             std::to_string(source_width_) + "x" + std::to_string(source_height_) + " image");
       }
       if (!metres.empty()) {
-        const cv::Mat measured = depth_at_model_pixels(metres, p.image.model_to_source,
-                                                       r.points_C.cols, r.points_C.rows);
+        measured = depth_at_model_pixels(metres, p.image.model_to_source, r.points_C.cols,
+                                         r.points_C.rows);
         std::vector<cv::Mat> xyz;
         cv::split(r.points_C, xyz);
         depth_ratio = depth_scale_sample(xyz[2], measured, r.conf, config_.map.conf_threshold);
@@ -669,9 +682,13 @@ FrameResult Reconstruction::finish(const StreamOutput& out, double call_start_ms
       remember_placed({r.frame_index, r.pose.T_W_C, r.model_T_W_C,
                        r.tracking->posed() || r.tracking->new_keyframe, r.T_O_C});
       // The frame's points in the stream's scale: by its depth image where
-      // it has one, else by the tracker's Sim(3).
-      const double scale = depth_ratio ? *depth_ratio : r.tracking->scale;
-      if (scale != 1.0) r.points_C *= scale;
+      // it has one (its depth itself, with kPoints), else by the tracker's Sim(3).
+      if (depth_ratio && depth_image_use_ == DepthImageUse::kPoints) {
+        r.points_C = at_depth_or_scaled(r.points_C, measured, *depth_ratio);
+      } else {
+        const double scale = depth_ratio ? *depth_ratio : r.tracking->scale;
+        if (scale != 1.0) r.points_C *= scale;
+      }
       r.points_W = transform_points(r.points_C, r.pose.T_W_C);
     }
   }
