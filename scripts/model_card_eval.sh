@@ -7,8 +7,8 @@
 #   bash scripts/model_card_eval.sh [OUT_DIR] [--model FILE] [--threads N]
 #        [--untrained CONFIG] [--retrained DIR] [--only-retrained]
 # --untrained: the architecture of the untrained row, a named config or a JSON
-# file (default long3r_ship, the shipped model's; config/model_pairs_wide_k5.json
-# for models/experiments/seq_k5).
+# file (default config/model_pairs_wide_k5.json, the shipped model's; long3r_ship
+# for the previous one, models/experiments/long3r_ship).
 # --retrained: also score the retrained ablations of scripts/train_ablations.sh
 # found in DIR (default build/train_ablations); --only-retrained: only those.
 set -euo pipefail
@@ -18,7 +18,7 @@ out="$LONG3R_ROOT/build/model_card"
 model="$LONG3R_ROOT/models/default.safetensors"
 threads=$(nproc)
 retrained="$LONG3R_ROOT/build/train_ablations"
-untrained=long3r_ship
+untrained="$LONG3R_ROOT/config/model_pairs_wide_k5.json"
 only_retrained=0
 long3r_parse_args --model=model --threads=threads --retrained=retrained \
   --untrained=untrained --only-retrained?only_retrained @out -- "$@"

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The recipe of the sequence model, models/experiments/seq_k5
-# (docs/model_card.md, "The sequence model against the shipped one"): four
+# (docs/model_card.md, "The sequence model against long3r_ship"): four
 # runs of scripts/train_pairs_curve.sh, each from the last one's weights, at
 # 64 x 64 on the generated scenes' frame cache: pairs (10^6), 5-frame
 # sequences (stopped at step 8501 of its schedule, as the kept run was), 10-

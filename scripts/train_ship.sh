@@ -1,5 +1,7 @@
 #!/usr/bin/env bash
-# The recipe of the shipped model (docs/model_card.md): builds the core
+# The recipe of the previous default model, long3r_ship (kept in
+# models/experiments/long3r_ship; docs/model_card.md, "The previous model:
+# long3r_ship"; the shipped one's is scripts/train_sequence_model.sh): builds the core
 # without ROS, trains stage 1 at 160 x 160 and stage 2 at 224 x 224 from it,
 # scores the result on held-out generated sequences and, with --install,
 # copies it to models/default.safetensors.

@@ -1,10 +1,11 @@
 #!/usr/bin/python3
 """The shipped model (models/default.safetensors) reconstructs held-out
-generated sequences better than the constant-depth baseline: completion far
-below the baseline's, ATE and Acc below it, every frame posed. The bounds are
-the ratios measured on these sequences (docs/model_card.md) plus a margin for
-thread-count and platform float differences; the model's advantage in ATE and
-Acc is small, and the test holds it to what it measured, no more and no less."""
+generated sequences better than the constant-depth baseline at the model's
+own input size: completion far below the baseline's, ATE and Acc clearly
+below it, every frame posed. The bounds are the ratios measured on these
+sequences (docs/model_card.md) plus a margin for thread-count and platform
+float differences (PnP's poses move ATE by about 5 % between 1 and 2
+threads)."""
 import argparse
 import json
 import os
@@ -14,13 +15,13 @@ import tempfile
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'support'))
 from cli_test import Tally, fail, run  # noqa: E402
 
-# Measured (30 frames x 2 held-out sequences, stride 2, every fourth pixel):
-# model / baseline = ATE 0.266 / 0.289 m (0.92; 0.260 with OpenBLAS at 2
-# threads: PnP reacts to tiny numerical differences), Acc 0.246 / 0.260 m
-# (0.95), Comp 0.215 / 0.538 m (0.40).
-MAX_ATE_RATIO = 0.97
-MAX_ACC_RATIO = 0.99
-MAX_COMP_RATIO = 0.55
+# Measured (30 frames x 2 held-out sequences, stride 2, every fourth pixel,
+# both at 64 x 64; Intel Xeon with AMX): model / baseline = ATE 0.192 / 0.289 m
+# (0.67; 0.201 m, 0.70, at 1 thread), Acc 0.125 / 0.266 m (0.47), Comp
+# 0.066 / 0.554 m (0.12).
+MAX_ATE_RATIO = 0.78
+MAX_ACC_RATIO = 0.53
+MAX_COMP_RATIO = 0.16
 
 
 def run_eval(exe, source, workdir, name, frames, sequences):
@@ -33,7 +34,7 @@ def run_eval(exe, source, workdir, name, frames, sequences):
     if rc != 0:
         fail('%s exited %d' % (' '.join(cmd), rc))
     with open(out) as f:
-        return json.load(f)['mean']
+        return json.load(f)
 
 
 def main():
@@ -46,9 +47,12 @@ def main():
     if not os.path.exists(a.model):
         fail('the shipped model %s is missing' % a.model)
     with tempfile.TemporaryDirectory() as tmp:
-        model = run_eval(a.eval, ['--model', a.model], tmp, 'model', a.frames, a.sequences)
-        base = run_eval(a.eval, ['--baseline', 'constant-depth'], tmp, 'baseline', a.frames,
-                        a.sequences)
+        root = run_eval(a.eval, ['--model', a.model], tmp, 'model', a.frames, a.sequences)
+        # The plane at the model's own input size (its pixels, its rays).
+        base = run_eval(a.eval, ['--baseline', 'constant-depth', '--img-size',
+                                 str(root['img_size'])], tmp, 'baseline', a.frames,
+                        a.sequences)['mean']
+        model = root['mean']
     tally = Tally()  # 'ok   ' / 'FAIL ' and what
     check = tally.check
     check(model['posed'] == a.frames, 'every frame posed (%s of %d)' % (model['posed'], a.frames))
