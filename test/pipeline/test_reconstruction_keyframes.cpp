@@ -414,16 +414,21 @@ TEST(ReconstructionKeyframes, TheTrueDepthControlPlacesFramesByTheGivenDepth) {
 
 TEST(ReconstructionKeyframes, DepthImagesPlaceThePointsWhereTheyHaveDepth) {
   // A depth camera whose depth has another shape than the model's (a ramp
-  // across the image) and a hole (the top quarter): with kPoints each pixel
-  // with depth takes it, and the hole keeps the model's depth at the frame's
-  // depth-image scale, exactly as kScale maps every pixel.
+  // across the image), a hole (the top quarter) and garbage (a band of huge,
+  // negative, NaN and implausibly near readings): with kPoints each pixel
+  // with a plausible depth takes it, and the rest keep the model's depth at
+  // the frame's depth-image scale, exactly as kScale maps every pixel.
   const Footage f = render(5, [](int) { return 0.5; });
   std::vector<cv::Mat> camera;
   for (const cv::Mat& d : f.depth) {
     cv::Mat c = d.clone();
     for (int y = 0; y < c.rows; ++y) {
       for (int x = 0; x < c.cols; ++x) {
-        c.at<float>(y, x) = y < kH / 4 ? 0.0f : c.at<float>(y, x) * (1.0f + 0.3f * x / kW);
+        const float ramped = c.at<float>(y, x) * (1.0f + 0.3f * x / kW);
+        const float garbage[] = {1e30f, -2.0f, NAN, 0.1f * ramped};
+        c.at<float>(y, x) = y < kH / 4                       ? 0.0f
+                            : y >= kH / 2 && y < kH / 2 + 40 ? garbage[x % 4]
+                                                             : ramped;
       }
     }
     camera.push_back(c);
@@ -446,14 +451,16 @@ TEST(ReconstructionKeyframes, DepthImagesPlaceThePointsWhereTheyHaveDepth) {
     ASSERT_TRUE(a[k].pose.ok() && b[k].pose.ok()) << k;
     EXPECT_TRUE(a[k].pose.T_W_C.isApprox(b[k].pose.T_W_C, 1e-9)) << k;  // one tracker
     const cv::Mat measured = depth_at_model_pixels(camera[k], to_source, kSize, kSize);
-    int from_camera = 0, from_model = 0, reshaped = 0;
+    const cv::Mat truth = depth_at_model_pixels(f.depth[k], to_source, kSize, kSize);
+    int from_camera = 0, from_model = 0, reshaped = 0, garbage = 0;
     for (int v = 0; v < kSize; ++v) {
       for (int u = 0; u < kSize; ++u) {
         const cv::Vec3f p = a[k].points_C.at<cv::Vec3f>(v, u),
                         q = b[k].points_C.at<cv::Vec3f>(v, u);
         const float m = measured.at<float>(v, u);
         if (!std::isfinite(q[2])) continue;  // no model depth here
-        if (m > 0.0f) {
+        const float t = truth.at<float>(v, u);
+        if (m > 0.0f && m <= 1.5f * t && m >= 0.5f * t) {  // the ramp: at most 1.3x
           EXPECT_NEAR(p[2], m, 1e-5f * m) << k << " " << u << "," << v;
           EXPECT_NEAR(p[0] / p[2], q[0] / q[2], 1e-5f) << k;  // the model's ray
           if (std::abs(p[2] - q[2]) > 0.02f * m) ++reshaped;
@@ -461,11 +468,13 @@ TEST(ReconstructionKeyframes, DepthImagesPlaceThePointsWhereTheyHaveDepth) {
         } else {
           EXPECT_NEAR(cv::norm(p - q), 0.0, 1e-6 * cv::norm(q)) << k << " " << u << "," << v;
           ++from_model;
+          if (m != 0.0f) ++garbage;
         }
       }
     }
     EXPECT_GT(from_camera, kSize * kSize / 2) << k;
     EXPECT_GT(from_model, kSize * kSize / 8) << k;
+    EXPECT_GT(garbage, kSize * 3) << k;         // the band's rows, each reading but the zeros
     EXPECT_GT(reshaped, from_camera / 4) << k;  // not one scale for the frame
   }
 }

@@ -228,7 +228,8 @@ class Reconstruction {
   // With DepthImageUse::kPoints the frame's points take the depth image's
   // depth too, where it has one (the model's rays at the measured depth, as
   // an RGB-D mapper maps its sensor's depth), and the model's depth at the
-  // depth image's scale only where it has none.
+  // depth image's scale where it has none or reads more than twice or less
+  // than half that (an invalid reading, not the model's error).
   using TrackerDepthSource = std::function<cv::Mat(double stamp_s)>;
   enum class DepthImageUse { kScale, kPoints };
   void set_tracker_depth_source(TrackerDepthSource source,

@@ -108,14 +108,23 @@ cv::Mat at_depth(const cv::Mat& points_C, const cv::Mat& depth) {
   return out;
 }
 
-// The pointmap at the given depths where they are valid, and scaled by
-// `scale` where they are not.
+// A depth image's depth is taken for a pixel only within this factor of the
+// model's depth there (at the frame's depth ratio): the model's depth errs
+// by some 10 % about the frame's middle, while a sensor's invalid readings
+// (multipath, garbage, a hostile message's huge values) can be anything.
+constexpr float kMaxDepthImageFactor = 2.0f;
+
+// The pointmap at the given depths where they are valid and plausible, and
+// scaled by `scale` elsewhere.
 cv::Mat at_depth_or_scaled(const cv::Mat& points_C, const cv::Mat& depth, double scale) {
-  cv::Mat out = at_depth(points_C, depth);
+  cv::Mat out(points_C.size(), CV_32FC3);
   const float s = static_cast<float>(scale);
   for (int i = 0; i < out.rows * out.cols; ++i) {
-    cv::Vec3f& o = out.at<cv::Vec3f>(i);
-    if (!std::isfinite(o[2])) o = points_C.at<cv::Vec3f>(i) * s;
+    const cv::Vec3f p = points_C.at<cv::Vec3f>(i);
+    const float d = depth.at<float>(i), expected = p[2] * s;
+    const bool take = std::isfinite(p[2]) && p[2] > 0.0f && std::isfinite(d) && d > 0.0f &&
+                      d <= kMaxDepthImageFactor * expected && d * kMaxDepthImageFactor >= expected;
+    out.at<cv::Vec3f>(i) = take ? p * (d / p[2]) : p * s;
   }
   return out;
 }
