@@ -74,9 +74,8 @@ struct LiveSessionConfig {
   // depth where it has one (the model's rays at the measured depth), as
   // RGB-D mappers map their sensor's depth; the model's depth, at the depth
   // image's scale, fills where the depth image has none or an implausible
-  // one (beyond a factor of 2 of the model's there; and frame 0,
-  // mapped before its depth image makes the stream metric, is at that
-  // scale). Off: the
+  // one (beyond a factor of 2 of the model's there). Frame 0, mapped before
+  // its depth image makes the stream metric, is at that scale. Off: the
   // model's depth everywhere, at the depth image's scale (its shape is the
   // model's: docs/model_card.md, "An RGB-D robot's map").
   bool map_depth_images = true;
